@@ -1,0 +1,17 @@
+#pragma once
+// Sub-commands of the flowclip executable.
+#include <CLI/CLI.hpp>
+#include <string>
+
+namespace fc::app {
+
+void addRunCommand(CLI::App& app);
+void addBenchCommand(CLI::App& app);
+
+// Exit codes shared by every command.
+enum ExitCode { Ok = 0, Failure = 1, BadInput = 2, SimulationFailed = 3 };
+
+double peakRssMb();
+std::string selfExecutable();
+
+}  // namespace fc::app

@@ -1,0 +1,43 @@
+#include "app/commands.h"
+#include <unistd.h>
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+#include <string>
+
+namespace fc::app {
+
+double peakRssMb() {
+  std::ifstream f("/proc/self/status");
+  std::string line;
+  while (std::getline(f, line))
+    if (line.rfind("VmHWM:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;
+  return 0;
+}
+
+std::string selfExecutable() {
+  char buf[4096];
+  const ssize_t n = readlink("/proc/self/exe", buf, sizeof(buf) - 1);
+  if (n <= 0) return "flowclip";
+  buf[n] = 0;
+  return buf;
+}
+
+}  // namespace fc::app
+
+int main(int argc, char** argv) {
+  CLI::App app{"FlowClip: art-directable SPH liquid with animation templates"};
+  app.require_subcommand(1);
+  app.set_version_flag("--version", FLOWCLIP_VERSION);
+  fc::app::addRunCommand(app);
+  fc::app::addBenchCommand(app);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    const int code = app.exit(e);
+    return code == 0 ? 0 : fc::app::BadInput;
+  } catch (const fc::app::ExitCode& code) {
+    return code;
+  }
+  return 0;
+}

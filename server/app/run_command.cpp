@@ -1,0 +1,214 @@
+// `flowclip run SCENE.json`: simulate a scene headless, with a progress line,
+// optional HDF5 export of every frame and a JSON stats file.
+#include "app/commands.h"
+#include "io/frame_export.h"
+#include "io/scene.h"
+#include "sph/simulation.h"
+#include <nlohmann/json.hpp>
+#include <omp.h>
+#include <unistd.h>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <optional>
+
+namespace fc::app {
+
+namespace {
+
+struct RunOptions {
+  std::string scene;
+  std::optional<int> frames;
+  std::optional<double> seconds;
+  std::string exportPath;
+  std::string statsPath;
+  int threads = 0;
+  double particleRadius = 0;
+  std::string solver;
+  bool quiet = false;
+};
+
+nlohmann::json frameJson(const FrameStats& s) {
+  return {{"frame", s.frame},
+          {"time", s.time},
+          {"wall_ms", s.wallMs},
+          {"substeps", s.substeps},
+          {"divergence_iterations", s.divergenceIterations},
+          {"density_iterations", s.densityIterations},
+          {"avg_density_error_pct", s.avgDensityErrorPct},
+          {"max_density_error_pct", s.maxDensityErrorPct},
+          {"converged", s.converged},
+          {"particles", s.particles},
+          {"boundary_particles", s.boundaryParticles},
+          {"escaped_particles", s.escapedParticles},
+          {"max_speed", s.maxSpeed},
+          {"kinetic_energy", s.kineticEnergy},
+          {"min_dt", s.minDt},
+          {"max_dt", s.maxDt},
+          {"neighbor_ms", s.neighborMs},
+          {"avg_neighbors", s.avgNeighbors}};
+}
+
+// Writes to a temporary name, then renames: a reader never sees half a file.
+void writeJsonAtomically(const std::string& path, const nlohmann::json& j) {
+  const std::string tmp = path + ".tmp-" + std::to_string(getpid());
+  {
+    std::ofstream f(tmp);
+    if (!f) throw std::runtime_error("cannot write '" + path + "'");
+    f << j.dump(1) << '\n';
+    if (!f) throw std::runtime_error("cannot write '" + path + "'");
+  }
+  std::filesystem::rename(tmp, path);
+}
+
+template <int D>
+int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
+  SimulationSetup<D> setup = parseScene<D>(sceneJson, opt.particleRadius);
+  if (!opt.solver.empty()) {
+    if (!PressureSolverRegistry<D>::instance().find(opt.solver))
+      throw SceneError("solver.method", "unknown solver '" + opt.solver + "' given by --solver");
+    setup.solver.name = opt.solver;
+    setup.solver.values = ParamValues();  // that solver's defaults
+  }
+  Simulation<D> sim(setup);
+  const double frameDt = sim.frameDuration();
+  int frames = 0;
+  if (opt.frames) frames = *opt.frames;
+  else frames = int(std::lround((opt.seconds ? *opt.seconds : setup.duration) / frameDt));
+  frames = std::max(frames, 0);
+
+  std::unique_ptr<FrameExporter<D>> exporter;
+  if (!opt.exportPath.empty()) {
+    ExportHeader h;
+    h.sceneName = setup.name;
+    h.dimension = D;
+    h.particleRadius = setup.particleRadius;
+    h.frameRate = 1.0 / frameDt;
+    h.phases = setup.phases;
+    for (int d = 0; d < D; ++d) {
+      h.domainMin.push_back(setup.domain.min[d]);
+      h.domainMax.push_back(setup.domain.max[d]);
+    }
+    h.createdBy = std::string("flowclip ") + FLOWCLIP_VERSION;
+    exporter = std::make_unique<FrameExporter<D>>(opt.exportPath, h);
+    exporter->writeFrame(0, 0.0, sim.fluid);
+  }
+
+  if (!opt.quiet)
+    std::fprintf(stderr, "%s: %dD, %zu liquid + %zu boundary particles, solver %s, %d threads, Real=%s\n",
+                 setup.name.c_str(), D, sim.fluid.size(), sim.boundary.size(),
+                 setup.solver.name.empty() ? "dfsph" : setup.solver.name.c_str(), omp_get_max_threads(), realName());
+
+  nlohmann::json framesJson = nlohmann::json::array();
+  const auto t0 = std::chrono::steady_clock::now();
+  double particleSteps = 0;
+  size_t substeps = 0, unconverged = 0, escaped = 0;
+  int status = Ok;
+  std::string failure;
+  const bool tty = isatty(fileno(stderr));
+  for (int f = 0; f < frames; ++f) {
+    const FrameStats s = sim.advanceFrame();
+    particleSteps += double(s.particles) * s.substeps;
+    substeps += size_t(s.substeps);
+    unconverged += s.converged ? 0 : 1;
+    escaped += s.escapedParticles;
+    if (!s.finite) {
+      // A non-finite frame is never published: stop before exporting it.
+      status = SimulationFailed;
+      failure = "non-finite position or velocity at frame " + std::to_string(s.frame) + " (t = " +
+                std::to_string(s.time) + " s); simulation stopped";
+      break;
+    }
+    framesJson.push_back(frameJson(s));
+    if (exporter) exporter->writeFrame(s.frame, s.time, sim.fluid);
+    if (!opt.quiet && (tty || f + 1 == frames || (f + 1) % std::max(1, frames / 20) == 0)) {
+      const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      const double eta = wall / (f + 1) * (frames - f - 1);
+      std::fprintf(stderr, "%sframe %d/%d  t=%.3f s  %d substeps  iter %d/%d  err %.3f%%  %.1f ms/frame  ETA %.0f s%s",
+                   tty ? "\r" : "", f + 1, frames, s.time, s.substeps, s.divergenceIterations, s.densityIterations,
+                   s.avgDensityErrorPct, s.wallMs, eta, tty ? "   " : "\n");
+      std::fflush(stderr);
+    }
+  }
+  if (!opt.quiet && tty) std::fprintf(stderr, "\n");
+  if (exporter) exporter->close();
+
+  const double wallS = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const double simS = double(framesJson.size()) * frameDt;
+  nlohmann::json summary = {
+      {"scene", setup.name},
+      {"dimension", D},
+      {"solver", setup.solver.name.empty() ? "dfsph" : setup.solver.name},
+      {"real", realName()},
+      {"threads", omp_get_max_threads()},
+      {"frames", framesJson.size()},
+      {"simulated_s", simS},
+      {"wall_s", wallS},
+      {"wall_s_per_simulated_s", simS > 0 ? wallS / simS : 0},
+      {"substeps", substeps},
+      {"substeps_per_frame", framesJson.empty() ? 0.0 : double(substeps) / double(framesJson.size())},
+      {"ms_per_frame", framesJson.empty() ? 0.0 : wallS * 1000.0 / double(framesJson.size())},
+      {"us_per_particle_step", particleSteps > 0 ? wallS * 1e6 / particleSteps : 0},
+      {"liquid_particles", sim.fluid.size()},
+      {"boundary_particles", sim.boundary.size()},
+      {"unconverged_frames", unconverged},
+      {"escaped_particles", escaped},
+      {"peak_rss_mb", peakRssMb()},
+      {"pipeline", sim.pipelineStages()},
+      {"status", status == Ok ? "ok" : "failed"}};
+  if (!failure.empty()) summary["error"] = failure;
+  if (!opt.statsPath.empty()) writeJsonAtomically(opt.statsPath, {{"frames", framesJson}, {"summary", summary}});
+  if (!opt.quiet) {
+    std::fprintf(stderr,
+                 "summary: %zu frames (%.2f simulated s) in %.2f s wall = %.2f wall s per simulated s; %.3f us per "
+                 "particle-step; %.1f substeps/frame; peak RSS %.0f MB%s\n",
+                 framesJson.size(), simS, wallS, simS > 0 ? wallS / simS : 0.0,
+                 particleSteps > 0 ? wallS * 1e6 / particleSteps : 0.0,
+                 framesJson.empty() ? 0.0 : double(substeps) / double(framesJson.size()), peakRssMb(),
+                 unconverged ? (", " + std::to_string(unconverged) + " frames did not converge").c_str() : "");
+  }
+  if (!failure.empty()) std::fprintf(stderr, "error: %s\n", failure.c_str());
+  return status;
+}
+
+}  // namespace
+
+void addRunCommand(CLI::App& app) {
+  auto opt = std::make_shared<RunOptions>();
+  CLI::App* run = app.add_subcommand("run", "simulate a scene headless");
+  run->add_option("scene", opt->scene, "scene file (JSON)")->required();
+  auto* fr = run->add_option("--frames", opt->frames, "number of frames to simulate")->check(CLI::NonNegativeNumber);
+  run->add_option("--seconds", opt->seconds, "simulated seconds (default: the scene's duration)")
+      ->check(CLI::NonNegativeNumber)
+      ->excludes(fr);
+  run->add_option("--export", opt->exportPath, "write every frame's particles to this HDF5 file");
+  run->add_option("--stats", opt->statsPath, "write per-frame statistics and a summary to this JSON file");
+  run->add_option("--threads", opt->threads, "OpenMP threads (default: all cores)")->check(CLI::PositiveNumber);
+  run->add_option("--particle-radius", opt->particleRadius, "override the scene's particle radius (resolution), m")
+      ->check(CLI::PositiveNumber);
+  run->add_option("--solver", opt->solver, "override the scene's pressure solver (its default parameters)");
+  run->add_flag("--quiet", opt->quiet, "no progress line or summary");
+  run->callback([opt] {
+    if (opt->threads > 0) omp_set_num_threads(opt->threads);
+    int code = Ok;
+    try {
+      const nlohmann::json j = loadSceneJson(opt->scene);
+      code = sceneDimension(j) == 2 ? runScene<2>(*opt, j) : runScene<3>(*opt, j);
+    } catch (const SceneError& e) {
+      std::fprintf(stderr, "error: %s: %s\n", opt->scene.c_str(), e.what());
+      code = BadInput;
+    } catch (const std::invalid_argument& e) {
+      std::fprintf(stderr, "error: %s: %s\n", opt->scene.c_str(), e.what());
+      code = BadInput;
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "error: %s\n", e.what());
+      code = Failure;
+    }
+    if (code != Ok) throw ExitCode(code);
+  });
+}
+
+}  // namespace fc::app

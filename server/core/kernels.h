@@ -1,0 +1,119 @@
+#pragma once
+// SPH smoothing kernels in 2D and 3D, normalised so that ∫W dV = 1 over the
+// support ball of radius h (the support radius, not the smoothing length).
+#include "core/types.h"
+#include <cmath>
+#include <numbers>
+
+namespace fc {
+
+// Cubic spline (Monaghan 1992) written with support radius h, as in
+// SPlisHSPlasH: q = r/h in [0,1], W = k (6q^3 - 6q^2 + 1) for q <= 1/2,
+// W = k 2 (1-q)^3 for q <= 1, where k = 40/(7 pi h^2) in 2D and 8/(pi h^3) in 3D.
+template <int D>
+class CubicSpline {
+ public:
+  CubicSpline() : CubicSpline(Real(1)) {}
+  explicit CubicSpline(Real h) { setRadius(h); }
+
+  void setRadius(Real h) {
+    h_ = h;
+    invH_ = Real(1) / h;
+    const double pi = std::numbers::pi;
+    if constexpr (D == 2) {
+      k_ = Real(40.0 / (7.0 * pi * double(h) * double(h)));
+      l_ = Real(240.0 / (7.0 * pi * double(h) * double(h)));
+    } else {
+      k_ = Real(8.0 / (pi * double(h) * double(h) * double(h)));
+      l_ = Real(48.0 / (pi * double(h) * double(h) * double(h)));
+    }
+    w0_ = k_;
+  }
+  Real radius() const { return h_; }
+  Real W0() const { return w0_; }
+
+  Real W(Real r) const {
+    const Real q = r * invH_;
+    if (q > Real(1)) return 0;
+    if (q <= Real(0.5)) {
+      const Real q2 = q * q;
+      return k_ * (Real(6) * q2 * q - Real(6) * q2 + Real(1));
+    }
+    const Real f = Real(1) - q;
+    return k_ * Real(2) * f * f * f;
+  }
+  Real W(const Vec<D>& r) const { return W(r.norm()); }
+
+  // W and ∇W together (one square root), r = x_i - x_j.
+  void evaluate(const Vec<D>& r, Real& w, Vec<D>& grad) const {
+    const Real rl = r.norm();
+    const Real q = rl * invH_;
+    if (q > Real(1)) {
+      w = 0;
+      grad.setZero();
+      return;
+    }
+    const Real scale = rl > Real(1e-9) * h_ ? invH_ / rl : Real(0);
+    if (q <= Real(0.5)) {
+      const Real q2 = q * q;
+      w = k_ * (Real(6) * q2 * q - Real(6) * q2 + Real(1));
+      grad = (l_ * q * (Real(3) * q - Real(2)) * scale) * r;
+    } else {
+      const Real f = Real(1) - q;
+      w = k_ * Real(2) * f * f * f;
+      grad = (l_ * (-f * f) * scale) * r;
+    }
+  }
+
+  // ∇W(r) with r = x_i - x_j.
+  Vec<D> gradW(const Vec<D>& r) const {
+    const Real rl = r.norm();
+    const Real q = rl * invH_;
+    if (q > Real(1) || rl <= Real(1e-9) * h_) return Vec<D>::Zero();
+    const Vec<D> gradq = r * (invH_ / rl);
+    if (q <= Real(0.5)) return l_ * q * (Real(3) * q - Real(2)) * gradq;
+    const Real f = Real(1) - q;
+    return l_ * (-f * f) * gradq;
+  }
+
+ private:
+  Real h_ = 1, invH_ = 1, k_ = 0, l_ = 0, w0_ = 0;
+};
+
+// Poly6 (Müller et al. 2003), used by template control (paper eq. 3):
+// W = k (h^2 - r^2)^3 with k = 4/(pi h^8) in 2D and 315/(64 pi h^9) in 3D.
+template <int D>
+class Poly6 {
+ public:
+  Poly6() : Poly6(Real(1)) {}
+  explicit Poly6(Real h) { setRadius(h); }
+  void setRadius(Real h) {
+    h_ = h;
+    h2_ = h * h;
+    const double pi = std::numbers::pi;
+    const double hd = h;
+    if constexpr (D == 2) k_ = Real(4.0 / (pi * std::pow(hd, 8)));
+    else k_ = Real(315.0 / (64.0 * pi * std::pow(hd, 9)));
+  }
+  Real radius() const { return h_; }
+  Real W0() const { return k_ * h2_ * h2_ * h2_; }
+  Real W2(Real r2) const {
+    if (r2 >= h2_) return 0;
+    const Real d = h2_ - r2;
+    return k_ * d * d * d;
+  }
+  Real W(Real r) const { return W2(r * r); }
+  Real W(const Vec<D>& r) const { return W2(r.squaredNorm()); }
+  // ∇W = -6 k (h^2 - r^2)^2 r
+  Vec<D> gradW(const Vec<D>& r) const {
+    const Real r2 = r.squaredNorm();
+    if (r2 >= h2_) return Vec<D>::Zero();
+    const Real d = h2_ - r2;
+    return Real(-6) * k_ * d * d * r;
+  }
+
+ private:
+  Real h_ = 1, h2_ = 1, k_ = 0;
+};
+
+}  // namespace fc

@@ -1,0 +1,163 @@
+#include "core/neighborhood_search.h"
+#include "core/morton.h"
+#include <omp.h>
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <numeric>
+#include <stdexcept>
+
+namespace fc {
+
+template <int D>
+void NeighborhoodSearch<D>::setGrid(const AABB<D>& domain, Real radius) {
+  if (!(radius > 0)) throw std::invalid_argument("neighbour search radius must be positive");
+  radius_ = radius;
+  invCell_ = Real(1) / radius;
+  // One spare cell on each side so that particles slightly outside the domain
+  // still fall in distinct cells.
+  domain_ = domain.grown(radius);
+  double cells = 1;
+  for (int d = 0; d < D; ++d) {
+    dims_[d] = std::max(1, int(std::ceil(domain_.size()[d] * invCell_)));
+    cells *= dims_[d];
+  }
+  if (cells > 2.0e8)
+    throw std::invalid_argument("domain too large for the particle size: the neighbour grid would need " +
+                                std::to_string(size_t(cells)) + " cells");
+  cellCount_ = size_t(cells);
+  dynStart_.clear();
+  statStart_.clear();
+  staticPos_.clear();
+}
+
+template <int D>
+VecI<D> NeighborhoodSearch<D>::cellCoord(const Vec<D>& p) const {
+  VecI<D> c;
+  for (int d = 0; d < D; ++d) {
+    Real f = (p[d] - domain_.min[d]) * invCell_;
+    // NaN and far-away points land in border cells instead of overflowing.
+    if (!(f >= 0)) f = 0;
+    c[d] = std::min(int(std::min(f, Real(1e9))), dims_[d] - 1);
+  }
+  return c;
+}
+
+template <int D>
+void NeighborhoodSearch<D>::countingSort(const std::vector<Vec<D>>& x, std::vector<uint32_t>& start,
+                                         std::vector<Vec<D>>& sorted, std::vector<uint32_t>& sortedIdx,
+                                         std::vector<uint32_t>& cellOf) const {
+  const size_t n = x.size();
+  cellOf.resize(n);
+  sorted.resize(n);
+  sortedIdx.resize(n);
+  start.assign(cellCount_ + 1, 0);
+#pragma omp parallel for schedule(static)
+  for (size_t i = 0; i < n; ++i) cellOf[i] = uint32_t(linearCell(cellCoord(x[i])));
+  for (size_t i = 0; i < n; ++i) ++start[cellOf[i] + 1];
+  std::partial_sum(start.begin(), start.end(), start.begin());
+  // Scatter in particle order, so the result is deterministic.
+  for (size_t i = 0; i < n; ++i) sortedIdx[start[cellOf[i]]++] = uint32_t(i);
+  // start[c] now holds the end of cell c: shift back by one cell.
+  for (size_t c = cellCount_; c > 0; --c) start[c] = start[c - 1];
+  start[0] = 0;
+#pragma omp parallel for schedule(static)
+  for (size_t k = 0; k < n; ++k) sorted[k] = x[sortedIdx[k]];
+}
+
+template <int D>
+void NeighborhoodSearch<D>::buildLists(const std::vector<Vec<D>>& x, const std::vector<uint32_t>& start,
+                                       const std::vector<Vec<D>>& sorted,
+                                       const std::vector<uint32_t>& sortedIdx, bool excludeSelf,
+                                       NeighborList& out) {
+  const size_t n = x.size();
+  out.offsets.resize(n + 1);
+  const int maxThreads = omp_get_max_threads();
+  if (int(threadBuf_.size()) < maxThreads) threadBuf_.resize(maxThreads);
+  threadCounts_.assign(maxThreads + 1, 0);
+  const Real r2 = radius_ * radius_;
+  const bool haveTargets = !sorted.empty();
+#pragma omp parallel
+  {
+    const int t = omp_get_thread_num(), T = omp_get_num_threads();
+    const size_t begin = n * size_t(t) / size_t(T), end = n * size_t(t + 1) / size_t(T);
+    std::vector<uint32_t>& buf = threadBuf_[t];
+    buf.clear();
+    for (size_t i = begin; i < end; ++i) {
+      out.offsets[i] = uint32_t(buf.size());
+      if (!haveTargets) continue;
+      const Vec<D> p = x[i];
+      const VecI<D> c = cellCoord(p);
+      const int x0 = std::max(c[0] - 1, 0), x1 = std::min(c[0] + 1, dims_[0] - 1);
+      auto row = [&](VecI<D> cc) {
+        cc[0] = x0;
+        const size_t a = linearCell(cc);
+        const size_t b = a + size_t(x1 - x0) + 1;
+        for (uint32_t k = start[a], e = start[b]; k < e; ++k) {
+          if ((sorted[k] - p).squaredNorm() <= r2) {
+            const uint32_t j = sortedIdx[k];
+            if (!excludeSelf || j != i) buf.push_back(j);
+          }
+        }
+      };
+      if constexpr (D == 2) {
+        for (int y = std::max(c[1] - 1, 0); y <= std::min(c[1] + 1, dims_[1] - 1); ++y) row(VecI<D>(0, y));
+      } else {
+        for (int z = std::max(c[2] - 1, 0); z <= std::min(c[2] + 1, dims_[2] - 1); ++z)
+          for (int y = std::max(c[1] - 1, 0); y <= std::min(c[1] + 1, dims_[1] - 1); ++y)
+            row(VecI<D>(0, y, z));
+      }
+    }
+    threadCounts_[t + 1] = uint32_t(buf.size());
+#pragma omp barrier
+#pragma omp single
+    {
+      for (int k = 0; k < T; ++k) threadCounts_[k + 1] += threadCounts_[k];
+      out.indices.resize(threadCounts_[T]);
+      out.offsets[n] = threadCounts_[T];
+    }
+    const uint32_t base = threadCounts_[t];
+    for (size_t i = begin; i < end; ++i) out.offsets[i] += base;
+    if (!buf.empty()) std::memcpy(out.indices.data() + base, buf.data(), buf.size() * sizeof(uint32_t));
+  }
+}
+
+template <int D>
+void NeighborhoodSearch<D>::setStaticPoints(const std::vector<Vec<D>>& points) {
+  std::vector<Vec<D>> sorted;
+  countingSort(points, statStart_, sorted, staticIdx_, statCellOf_);
+  staticPos_ = std::move(sorted);
+}
+
+template <int D>
+void NeighborhoodSearch<D>::update(const std::vector<Vec<D>>& x) {
+  countingSort(x, dynStart_, dynSorted_, dynSortedIdx_, dynCellOf_);
+  buildLists(x, dynStart_, dynSorted_, dynSortedIdx_, true, dyn_);
+  if (!staticPos_.empty()) {
+    buildLists(x, statStart_, staticPos_, staticIdx_, false, stat_);
+  } else {
+    stat_.offsets.assign(x.size() + 1, 0);
+    stat_.indices.clear();
+  }
+}
+
+template <int D>
+void NeighborhoodSearch<D>::zOrder(const std::vector<Vec<D>>& x, std::vector<uint32_t>& perm) const {
+  const size_t n = x.size();
+  std::vector<std::pair<uint64_t, uint32_t>> keys(n);
+#pragma omp parallel for schedule(static)
+  for (size_t i = 0; i < n; ++i) {
+    const VecI<D> c = cellCoord(x[i]);
+    uint64_t code;
+    if constexpr (D == 2) code = morton2(uint32_t(c[0]), uint32_t(c[1]));
+    else code = morton3(uint32_t(c[0]), uint32_t(c[1]), uint32_t(c[2]));
+    keys[i] = {code, uint32_t(i)};
+  }
+  std::sort(keys.begin(), keys.end());
+  perm.resize(n);
+  for (size_t k = 0; k < n; ++k) perm[k] = keys[k].second;
+}
+
+FC_INSTANTIATE_DIMS(NeighborhoodSearch)
+
+}  // namespace fc

@@ -1,0 +1,115 @@
+#pragma once
+// Uniform-grid neighbour search over a bounded domain.
+//
+// Cells have the size of the search radius, so a particle's neighbours lie in
+// the 3^D cells around its own. Cells are numbered x-fastest, and particles
+// are counting-sorted by cell every update, so the three cells of a row along
+// x are one contiguous range: a 3D query scans 9 ranges instead of 27.
+// Neighbour lists are stored compactly (CSR: one offset per particle, one
+// uint32 per pair). Points outside the grid are clamped to its border cells,
+// which keeps the result exact (clamping never separates two cells that were
+// adjacent) and only costs speed.
+#include "core/aabb.h"
+#include "core/types.h"
+#include <vector>
+
+namespace fc {
+
+struct NeighborList {
+  std::vector<uint32_t> offsets;  // size n+1
+  std::vector<uint32_t> indices;  // neighbours of i: indices[offsets[i] .. offsets[i+1])
+  uint32_t count(uint32_t i) const { return offsets[i + 1] - offsets[i]; }
+  const uint32_t* begin(uint32_t i) const { return indices.data() + offsets[i]; }
+  const uint32_t* end(uint32_t i) const { return indices.data() + offsets[i + 1]; }
+  size_t pairs() const { return indices.size(); }
+};
+
+template <int D>
+class NeighborhoodSearch {
+ public:
+  // The grid covers `domain`; radius is the search radius (cell size).
+  void setGrid(const AABB<D>& domain, Real radius);
+  Real radius() const { return radius_; }
+  size_t cellCount() const { return cellCount_; }
+
+  // A second point set (boundary particles) whose grid is built here and
+  // kept until the next call.
+  void setStaticPoints(const std::vector<Vec<D>>& points);
+  size_t staticPointCount() const { return staticPos_.size(); }
+
+  // Rebuilds the dynamic grid from x and both neighbour lists of every x[i]:
+  // dynamic neighbours (self excluded) and static neighbours.
+  void update(const std::vector<Vec<D>>& x);
+
+  const NeighborList& dynamicNeighbors() const { return dyn_; }
+  const NeighborList& staticNeighbors() const { return stat_; }
+
+  // Permutation that orders x along the Morton curve of their cells:
+  // new index k holds old particle perm[k].
+  void zOrder(const std::vector<Vec<D>>& x, std::vector<uint32_t>& perm) const;
+
+  // Dynamic points (as of the last update) within `r` <= radius of p.
+  template <class F>
+  void forEachDynamicNear(const Vec<D>& p, Real r, F&& f) const {
+    forEachNear(p, r, dynStart_, dynSorted_, dynSortedIdx_, f);
+  }
+  template <class F>
+  void forEachStaticNear(const Vec<D>& p, Real r, F&& f) const {
+    forEachNear(p, r, statStart_, staticPos_, staticIdx_, f);
+  }
+
+  VecI<D> cellCoord(const Vec<D>& p) const;
+  size_t linearCell(const VecI<D>& c) const {
+    size_t l = size_t(c[D - 1]);
+    for (int d = D - 2; d >= 0; --d) l = l * size_t(dims_[d]) + size_t(c[d]);
+    return l;
+  }
+
+ private:
+  void countingSort(const std::vector<Vec<D>>& x, std::vector<uint32_t>& start,
+                    std::vector<Vec<D>>& sorted, std::vector<uint32_t>& sortedIdx,
+                    std::vector<uint32_t>& cellOf) const;
+  void buildLists(const std::vector<Vec<D>>& x, const std::vector<uint32_t>& start,
+                  const std::vector<Vec<D>>& sorted, const std::vector<uint32_t>& sortedIdx,
+                  bool excludeSelf, NeighborList& out);
+
+  template <class F>
+  void forEachNear(const Vec<D>& p, Real r, const std::vector<uint32_t>& start,
+                   const std::vector<Vec<D>>& sorted, const std::vector<uint32_t>& idx,
+                   F& f) const {
+    if (start.empty()) return;
+    const Real r2 = r * r;
+    const VecI<D> c = cellCoord(p);
+    const int x0 = std::max(c[0] - 1, 0), x1 = std::min(c[0] + 1, dims_[0] - 1);
+    auto row = [&](VecI<D> cc) {
+      cc[0] = x0;
+      const size_t a = linearCell(cc);
+      const size_t b = a + size_t(x1 - x0) + 1;
+      for (uint32_t k = start[a]; k < start[b]; ++k)
+        if ((sorted[k] - p).squaredNorm() <= r2) f(idx[k], sorted[k]);
+    };
+    if constexpr (D == 2) {
+      for (int y = std::max(c[1] - 1, 0); y <= std::min(c[1] + 1, dims_[1] - 1); ++y) row(VecI<D>(0, y));
+    } else {
+      for (int z = std::max(c[2] - 1, 0); z <= std::min(c[2] + 1, dims_[2] - 1); ++z)
+        for (int y = std::max(c[1] - 1, 0); y <= std::min(c[1] + 1, dims_[1] - 1); ++y)
+          row(VecI<D>(0, y, z));
+    }
+  }
+
+  AABB<D> domain_;
+  Real radius_ = 1, invCell_ = 1;
+  VecI<D> dims_ = VecI<D>::Ones();
+  size_t cellCount_ = 1;
+
+  std::vector<uint32_t> dynStart_, dynSortedIdx_, dynCellOf_;
+  std::vector<Vec<D>> dynSorted_;
+  std::vector<uint32_t> statStart_, staticIdx_, statCellOf_;
+  std::vector<Vec<D>> staticPos_;
+
+  NeighborList dyn_, stat_;
+  std::vector<std::vector<uint32_t>> threadBuf_;
+  std::vector<uint32_t> threadCounts_;
+};
+
+}  // namespace fc

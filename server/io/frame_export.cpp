@@ -1,0 +1,522 @@
+#include "io/frame_export.h"
+
+#include <hdf5.h>
+#include <omp.h>
+#include <zlib.h>
+
+#include <fcntl.h>
+#include <sys/mman.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <exception>
+#include <filesystem>
+#include <iostream>
+#include <stdexcept>
+#include <system_error>
+#include <type_traits>
+
+namespace fc {
+
+static_assert(std::is_same_v<hid_t, int64_t>, "frame_export.h stores hid_t as int64_t");
+
+namespace {
+
+// Rows per chunk of the particle datasets (the contract says ~64k rows) and
+// of the small per-frame tables.
+constexpr hsize_t kParticleChunkRows = 65536;
+constexpr hsize_t kFrameChunkRows = 4096;
+// Deflate level: level 2 saves under 1% of the file size over level 1 on
+// particle data and costs ~10% more time (see docs/export-format.md).
+constexpr int kDeflateLevel = 1;
+// Completed particle chunks are compressed in parallel in batches of at most
+// this many uncompressed bytes, which bounds the exporter's memory.
+constexpr size_t kMaxBatchBytes = size_t(64) << 20;
+
+// Closes an HDF5 identifier at scope exit.
+class Handle {
+ public:
+  Handle(hid_t id, herr_t (*closer)(hid_t)) : id_(id), closer_(closer) {}
+  ~Handle() {
+    if (id_ >= 0) closer_(id_);
+  }
+  Handle(const Handle&) = delete;
+  Handle& operator=(const Handle&) = delete;
+  hid_t get() const { return id_; }
+  bool ok() const { return id_ >= 0; }
+
+ private:
+  hid_t id_;
+  herr_t (*closer_)(hid_t);
+};
+
+// The error stack of the first failed call since the last QuietHdf5 guard was
+// set up: later calls (closing handles on the way out) clear the stack.
+thread_local std::string tFirstError;
+
+// Silences HDF5's automatic error printing while we call it: failures are
+// reported once, through the exception, with the library's own messages.
+class QuietHdf5 {
+ public:
+  QuietHdf5() {
+    H5Eget_auto2(H5E_DEFAULT, &func_, &data_);
+    H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
+    tFirstError.clear();
+  }
+  ~QuietHdf5() { H5Eset_auto2(H5E_DEFAULT, func_, data_); }
+  QuietHdf5(const QuietHdf5&) = delete;
+  QuietHdf5& operator=(const QuietHdf5&) = delete;
+
+ private:
+  H5E_auto2_t func_ = nullptr;
+  void* data_ = nullptr;
+};
+
+std::string hdf5ErrorText();
+
+// Passes an HDF5 result through, remembering the error stack of a failure.
+template <class R>
+R checked(R result) {
+  if (result < 0 && tFirstError.empty()) tFirstError = hdf5ErrorText();
+  return result;
+}
+
+// The descriptions on HDF5's error stack, innermost (most specific) last.
+std::string hdf5ErrorText() {
+  std::vector<std::string> lines;
+  H5Ewalk2(
+      H5E_DEFAULT, H5E_WALK_DOWNWARD,
+      [](unsigned, const H5E_error2_t* e, void* out) -> herr_t {
+        if (e && e->desc && *e->desc) static_cast<std::vector<std::string>*>(out)->push_back(e->desc);
+        return 0;
+      },
+      &lines);
+  // The API-level line and the innermost two carry the useful information
+  // (the innermost one has errno and its message for I/O failures).
+  std::string s;
+  const size_t n = lines.size();
+  for (size_t i = 0; i < n; ++i) {
+    if (i != 0 && i + 2 < n) continue;
+    if (!s.empty()) s += "; ";
+    s += lines[i];
+  }
+  for (char& c : s)
+    if (c == '\n' || c == '\r') c = ' ';
+  return s;
+}
+
+hid_t utf8StringType() {
+  hid_t t = checked(H5Tcopy(H5T_C_S1));
+  if (t < 0) return t;
+  if (checked(H5Tset_size(t, H5T_VARIABLE)) < 0 || checked(H5Tset_cset(t, H5T_CSET_UTF8)) < 0) {
+    H5Tclose(t);
+    return -1;
+  }
+  return t;
+}
+
+bool writeAttribute(hid_t loc, const char* name, hid_t fileType, hid_t memType, hid_t space, const void* data) {
+  Handle attr(checked(H5Acreate2(loc, name, fileType, space, H5P_DEFAULT, H5P_DEFAULT)), H5Aclose);
+  return attr.ok() && checked(H5Awrite(attr.get(), memType, data)) >= 0;
+}
+
+bool writeScalar(hid_t loc, const char* name, hid_t fileType, hid_t memType, const void* data) {
+  Handle space(checked(H5Screate(H5S_SCALAR)), H5Sclose);
+  return space.ok() && writeAttribute(loc, name, fileType, memType, space.get(), data);
+}
+
+bool writeArray(hid_t loc, const char* name, hid_t fileType, hid_t memType, hsize_t n, const void* data) {
+  Handle space(checked(H5Screate_simple(1, &n, nullptr)), H5Sclose);
+  return space.ok() && writeAttribute(loc, name, fileType, memType, space.get(), data);
+}
+
+bool writeString(hid_t loc, const char* name, const std::string& value) {
+  Handle type(utf8StringType(), H5Tclose);
+  const char* p = value.c_str();
+  return type.ok() && writeScalar(loc, name, type.get(), type.get(), &p);
+}
+
+bool writeStrings(hid_t loc, const char* name, const std::vector<std::string>& values) {
+  Handle type(utf8StringType(), H5Tclose);
+  std::vector<const char*> p;
+  for (auto& v : values) p.push_back(v.c_str());
+  return type.ok() && writeArray(loc, name, type.get(), type.get(), p.size(), p.data());
+}
+
+// An empty, extendible, chunked and compressed dataset of `cols` columns
+// (cols == 0: one-dimensional).
+hid_t createDataset(hid_t loc, const char* name, hid_t fileType, int cols, hsize_t chunkRows) {
+  const int rank = cols > 0 ? 2 : 1;
+  const hsize_t dims[2] = {0, hsize_t(cols)};
+  const hsize_t maxDims[2] = {H5S_UNLIMITED, hsize_t(cols)};
+  const hsize_t chunk[2] = {chunkRows, hsize_t(cols)};
+  Handle space(checked(H5Screate_simple(rank, dims, maxDims)), H5Sclose);
+  Handle dcpl(checked(H5Pcreate(H5P_DATASET_CREATE)), H5Pclose);
+  if (!space.ok() || !dcpl.ok()) return -1;
+  // The pipeline packChunk() reproduces: shuffle (for multi-byte types), then
+  // deflate. Chunks written with H5Dwrite_chunk declare it applied.
+  if (checked(H5Pset_chunk(dcpl.get(), rank, chunk)) < 0) return -1;
+  if (H5Tget_size(fileType) > 1 && checked(H5Pset_shuffle(dcpl.get())) < 0) return -1;
+  if (checked(H5Pset_deflate(dcpl.get(), unsigned(kDeflateLevel))) < 0) return -1;
+  return checked(H5Dcreate2(loc, name, fileType, space.get(), H5P_DEFAULT, dcpl.get(), H5P_DEFAULT));
+}
+
+// HDF5's shuffle filter (byte planes: byte b of element i goes to
+// b * count + i) followed by its deflate filter (zlib compress2), on one
+// whole chunk. `shuffled` is scratch space of the chunk's size.
+int packChunk(const std::vector<unsigned char>& raw, size_t elemSize, std::vector<unsigned char>& shuffled,
+              std::vector<unsigned char>& out) {
+  const unsigned char* src = raw.data();
+  if (elemSize > 1) {
+    const size_t count = raw.size() / elemSize;
+    for (size_t b = 0; b < elemSize; ++b) {
+      unsigned char* dst = shuffled.data() + b * count;
+      for (size_t i = 0; i < count; ++i) dst[i] = raw[i * elemSize + b];
+    }
+    src = shuffled.data();
+  }
+  uLongf len = uLongf(out.size());
+  const int rc = compress2(out.data(), &len, src, uLong(raw.size()), kDeflateLevel);
+  out.resize(len);
+  return rc;
+}
+
+// Bytes per element of a particle dataset (the shuffle filter's unit).
+size_t elementSize(int ds) { return ds == 4 || ds == 5 ? 1 : 4; }  // phase, kind: uint8
+
+const char* datasetName(int ds) {
+  static const char* names[] = {"/particles/position", "/particles/velocity", "/particles/density",
+                                "/particles/pressure", "/particles/phase",    "/particles/kind",
+                                "/particles/id",       "/frames/index",       "/frames/time",
+                                "/frames/offset",      "/frames/count"};
+  return names[ds];
+}
+
+void syncPath(const std::string& p, bool directory) {
+  const int fd = ::open(p.c_str(), (directory ? O_DIRECTORY : 0) | O_RDONLY | O_CLOEXEC);
+  if (fd < 0) throw std::system_error(errno, std::generic_category());
+  const int rc = ::fsync(fd);
+  const int err = errno;
+  ::close(fd);
+  if (rc != 0) throw std::system_error(err, std::generic_category());
+}
+
+}  // namespace
+
+template <int D>
+FrameExporter<D>::FrameExporter(const std::string& path, const ExportHeader& header)
+    : path_(path), tempPath_(path + ".tmp-" + std::to_string(::getpid())),
+      uncaughtAtCreation_(std::uncaught_exceptions()) {
+  for (auto& d : datasets_) d = -1;
+  auto invalid = [&](const std::string& what) {
+    throw std::runtime_error("cannot export frames to '" + path_ + "': " + what);
+  };
+  if (header.dimension != D)
+    invalid("header dimension " + std::to_string(header.dimension) + " does not match the simulation's " +
+            std::to_string(D));
+  if (header.domainMin.size() != size_t(D) || header.domainMax.size() != size_t(D))
+    invalid("domain min/max must have " + std::to_string(D) + " values");
+  if (header.phases.size() > 256) invalid("more than 256 phases do not fit the uint8 phase column");
+
+  QuietHdf5 quiet;
+  {
+    // sec2 explicitly: discardFile() relies on its handle being a POSIX fd.
+    Handle fapl(checked(H5Pcreate(H5P_FILE_ACCESS)), H5Pclose);
+    if (!fapl.ok() || checked(H5Pset_fapl_sec2(fapl.get())) < 0 ||
+        checked(H5Pset_fclose_degree(fapl.get(), H5F_CLOSE_STRONG)) < 0)
+      fail("cannot set up the file access properties");
+    file_ = checked(H5Fcreate(tempPath_.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, fapl.get()));
+  }
+  if (file_ < 0) fail("cannot create the temporary file '" + tempPath_ + "'");
+  open_ = true;
+
+  // Root attributes.
+  const int formatVersion = 1;
+  const int dimension = D;
+  std::vector<std::string> phaseNames;
+  std::vector<double> restDensity;
+  for (auto& ph : header.phases) {
+    phaseNames.push_back(ph.name);
+    restDensity.push_back(double(ph.restDensity));
+  }
+  const bool attrsOk =
+      writeString(file_, "format", "flowclip-frames") &&
+      writeScalar(file_, "format_version", H5T_STD_I32LE, H5T_NATIVE_INT, &formatVersion) &&
+      writeScalar(file_, "dimension", H5T_STD_I32LE, H5T_NATIVE_INT, &dimension) &&
+      writeString(file_, "scene", header.sceneName) &&
+      writeScalar(file_, "particle_radius", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, &header.particleRadius) &&
+      writeScalar(file_, "frame_rate", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, &header.frameRate) &&
+      writeArray(file_, "domain_min", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, D, header.domainMin.data()) &&
+      writeArray(file_, "domain_max", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, D, header.domainMax.data()) &&
+      writeString(file_, "created_by", header.createdBy) && writeStrings(file_, "phase_names", phaseNames) &&
+      writeArray(file_, "phase_rest_density", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, restDensity.size(),
+                 restDensity.data());
+  if (!attrsOk) fail("cannot write the header attributes");
+
+  {
+    Handle frames(checked(H5Gcreate2(file_, "frames", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT)), H5Gclose);
+    Handle particles(checked(H5Gcreate2(file_, "particles", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT)), H5Gclose);
+    if (!frames.ok() || !particles.ok()) fail("cannot create the /frames and /particles groups");
+  }
+  struct Spec {
+    Ds ds;
+    hid_t type;
+    int cols;
+    hsize_t chunkRows;
+  };
+  const Spec specs[] = {
+      {Position, H5T_IEEE_F32LE, D, kParticleChunkRows},  {Velocity, H5T_IEEE_F32LE, D, kParticleChunkRows},
+      {Density, H5T_IEEE_F32LE, 0, kParticleChunkRows},   {Pressure, H5T_IEEE_F32LE, 0, kParticleChunkRows},
+      {PhaseDs, H5T_STD_U8LE, 0, kParticleChunkRows},     {Kind, H5T_STD_U8LE, 0, kParticleChunkRows},
+      {Id, H5T_STD_U32LE, 0, kParticleChunkRows},         {FrameIndex, H5T_STD_U32LE, 0, kFrameChunkRows},
+      {FrameTime, H5T_IEEE_F64LE, 0, kFrameChunkRows},    {FrameOffset, H5T_STD_U64LE, 0, kFrameChunkRows},
+      {FrameCount, H5T_STD_U32LE, 0, kFrameChunkRows},
+  };
+  for (const Spec& s : specs) {
+    datasets_[s.ds] = createDataset(file_, datasetName(s.ds), s.type, s.cols, s.chunkRows);
+    if (datasets_[s.ds] < 0) fail(std::string("cannot create ") + datasetName(s.ds));
+  }
+  const uint64_t zero = 0;
+  append(FrameOffset, &zero, H5T_NATIVE_UINT64, 1);
+}
+
+template <int D>
+FrameExporter<D>::~FrameExporter() {
+  if (!open_) return;
+  if (std::uncaught_exceptions() > uncaughtAtCreation_) {
+    abort();  // the run failed: never publish its partial output
+    return;
+  }
+  try {
+    close();
+  } catch (const std::exception& e) {
+    std::cerr << "flowclip: " << e.what() << std::endl;
+  } catch (...) {
+  }
+}
+
+// HDF5 1.10 has no "close without flushing". After a write error (disk full)
+// the flush in H5Fclose fails again, and a file whose close failed is left
+// half-destroyed in the library, which then crashes when it retries at exit.
+// So before closing a file we are going to delete anyway, point its file
+// descriptor at an anonymous in-memory file: the flush succeeds, the disk
+// space of the unlinked temporary file is freed, nothing reaches the disk.
+template <int D>
+void FrameExporter<D>::discardFile() noexcept {
+  if (file_ < 0) return;
+  void* handle = nullptr;
+  if (H5Fget_vfd_handle(file_, H5P_DEFAULT, &handle) < 0 || handle == nullptr) return;
+  const int fd = *static_cast<int*>(handle);
+  const int mem = ::memfd_create("flowclip-discarded-export", MFD_CLOEXEC);
+  if (mem < 0) return;
+  if (::dup3(mem, fd, O_CLOEXEC) < 0) {
+    ::close(mem);
+    return;
+  }
+  ::close(mem);
+}
+
+template <int D>
+void FrameExporter<D>::releaseHandles() noexcept {
+  for (auto& d : datasets_) {
+    if (d >= 0) H5Dclose(d);
+    d = -1;
+  }
+  if (file_ >= 0) H5Fclose(file_);
+  file_ = -1;
+  ready_.clear();
+  for (auto& p : pending_) p = PendingChunk{};
+}
+
+template <int D>
+void FrameExporter<D>::fail(const std::string& what) {
+  std::string detail = tFirstError.empty() ? hdf5ErrorText() : tFirstError;
+  tFirstError.clear();
+  discardFile();
+  releaseHandles();
+  // Only ever called after our H5Fcreate(TRUNC) of this exact name, so a
+  // regular file there is ours (possibly partly written by a failed create).
+  std::error_code ec;
+  if (std::filesystem::is_regular_file(std::filesystem::symlink_status(tempPath_, ec))) std::remove(tempPath_.c_str());
+  open_ = false;
+  throw std::runtime_error("cannot export frames to '" + path_ + "': " + what +
+                           (detail.empty() ? std::string() : " (HDF5: " + detail + ")"));
+}
+
+template <int D>
+void FrameExporter<D>::append(Ds ds, const void* data, int64_t memType, uint64_t rows) {
+  // The per-frame tables, through HDF5's own chunk cache and filters.
+  const hsize_t start = sizes_[ds];
+  const hsize_t count = rows;
+  const hsize_t extent = sizes_[ds] + rows;
+  const hid_t dset = datasets_[ds];
+  bool ok = checked(H5Dset_extent(dset, &extent)) >= 0;
+  if (ok) {
+    Handle fileSpace(checked(H5Dget_space(dset)), H5Sclose);
+    Handle memSpace(checked(H5Screate_simple(1, &count, nullptr)), H5Sclose);
+    ok = fileSpace.ok() && memSpace.ok() &&
+         checked(H5Sselect_hyperslab(fileSpace.get(), H5S_SELECT_SET, &start, nullptr, &count, nullptr)) >= 0 &&
+         checked(H5Dwrite(dset, memType, memSpace.get(), fileSpace.get(), H5P_DEFAULT, data)) >= 0;
+  }
+  if (!ok) fail(std::string("cannot write ") + datasetName(ds));
+  sizes_[ds] += rows;
+}
+
+template <int D>
+void FrameExporter<D>::stage(Ds ds, const void* rowsData, uint64_t rows) {
+  const size_t rowBytes = elementSize(ds) * (ds == Position || ds == Velocity ? D : 1);
+  const auto* src = static_cast<const unsigned char*>(rowsData);
+  PendingChunk& p = pending_[ds];
+  while (rows > 0) {
+    if (p.bytes.empty()) p.bytes.resize(kParticleChunkRows * rowBytes);  // zeroed: the padding of a last chunk
+    const uint64_t take = std::min<uint64_t>(rows, kParticleChunkRows - p.rows);
+    std::memcpy(p.bytes.data() + p.rows * rowBytes, src, take * rowBytes);
+    p.rows += take;
+    src += take * rowBytes;
+    rows -= take;
+    if (p.rows == kParticleChunkRows) {
+      ready_.push_back(ReadyChunk{ds, p.index++, std::move(p.bytes)});
+      p.bytes = {};
+      p.rows = 0;
+    }
+  }
+  size_t batch = 0;
+  for (auto& r : ready_) batch += r.bytes.size();
+  if (batch >= kMaxBatchBytes) writeReadyChunks();
+}
+
+template <int D>
+void FrameExporter<D>::writeReadyChunks() {
+  const long count = long(ready_.size());
+  if (count == 0) return;
+  // All allocation before the parallel region: nothing in it can throw.
+  size_t largest = 0;
+  std::vector<std::vector<unsigned char>> packed(count);
+  for (long k = 0; k < count; ++k) {
+    largest = std::max(largest, ready_[k].bytes.size());
+    packed[k].resize(compressBound(uLong(ready_[k].bytes.size())));
+  }
+  const int threads = std::max(1, std::min(omp_get_max_threads(), int(count)));
+  std::vector<std::vector<unsigned char>> shuffled(threads, std::vector<unsigned char>(largest));
+  std::vector<int> status(count, Z_OK);
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1)
+  for (long k = 0; k < count; ++k)
+    status[k] = packChunk(ready_[k].bytes, elementSize(ready_[k].ds), shuffled[omp_get_thread_num()], packed[k]);
+
+  for (long k = 0; k < count; ++k) {
+    const int ds = ready_[k].ds;
+    if (status[k] != Z_OK)
+      fail(std::string("cannot compress a chunk of ") + datasetName(ds) + " (zlib error " + std::to_string(status[k]) +
+           ")");
+    const hsize_t offset[2] = {ready_[k].index * kParticleChunkRows, 0};
+    if (checked(H5Dwrite_chunk(datasets_[ds], H5P_DEFAULT, 0, offset, packed[k].size(), packed[k].data())) < 0)
+      fail(std::string("cannot write ") + datasetName(ds));
+  }
+  ready_.clear();
+}
+
+template <int D>
+void FrameExporter<D>::writeFrame(int frameIndex, double time, const FluidParticles<D>& fluid) {
+  static_assert(sizeof(Vec<D>) == D * sizeof(Real), "Vec<D> must be D packed Reals");
+  static_assert(PhaseDs == 4 && Kind == 5, "elementSize() knows the uint8 columns by number");
+  if (!open_) throw std::runtime_error("cannot export frames to '" + path_ + "': the exporter is closed");
+  const size_t n = fluid.x.size();
+  if (fluid.v.size() != n || fluid.density.size() != n || fluid.pressure.size() != n || fluid.phase.size() != n ||
+      fluid.kind.size() != n || fluid.id.size() != n)
+    throw std::runtime_error("cannot export frames to '" + path_ + "': frame " + std::to_string(frameIndex) +
+                             " has particle arrays of different lengths");
+  if (frameIndex < 0)
+    throw std::runtime_error("cannot export frames to '" + path_ + "': negative frame index " +
+                             std::to_string(frameIndex));
+  if (n > UINT32_MAX)
+    throw std::runtime_error("cannot export frames to '" + path_ + "': more than 2^32 particles in one frame");
+
+  QuietHdf5 quiet;
+  const uint64_t end = rows_ + n;
+  if (n > 0) {
+    // Extents first: every chunk written below lies inside the dataset.
+    for (int ds = 0; ds < NumParticleDs; ++ds) {
+      const hsize_t extent[2] = {end, hsize_t(D)};
+      if (checked(H5Dset_extent(datasets_[ds], extent)) < 0) fail(std::string("cannot extend ") + datasetName(ds));
+    }
+    auto asFloat = [&](const auto* p, size_t count) -> const float* {  // generic: discards a branch
+      if constexpr (std::is_same_v<std::remove_cv_t<std::remove_pointer_t<decltype(p)>>, float>) {
+        return p;
+      } else {
+        scratch_.assign(p, p + count);
+        return scratch_.data();
+      }
+    };
+    stage(Position, asFloat(fluid.x.data()->data(), n * D), n);
+    stage(Velocity, asFloat(fluid.v.data()->data(), n * D), n);
+    stage(Density, asFloat(fluid.density.data(), n), n);
+    stage(Pressure, asFloat(fluid.pressure.data(), n), n);
+    stage(PhaseDs, fluid.phase.data(), n);
+    stage(Kind, fluid.kind.data(), n);
+    stage(Id, fluid.id.data(), n);
+    writeReadyChunks();
+  }
+  const uint32_t index = uint32_t(frameIndex);
+  const uint32_t count = uint32_t(n);
+  append(FrameIndex, &index, H5T_NATIVE_UINT32, 1);
+  append(FrameTime, &time, H5T_NATIVE_DOUBLE, 1);
+  append(FrameOffset, &end, H5T_NATIVE_UINT64, 1);
+  append(FrameCount, &count, H5T_NATIVE_UINT32, 1);
+  rows_ = end;
+  ++frames_;
+}
+
+template <int D>
+void FrameExporter<D>::close() {
+  if (!open_) return;
+  QuietHdf5 quiet;
+  for (int ds = 0; ds < NumParticleDs; ++ds) {
+    PendingChunk& p = pending_[ds];
+    if (p.rows > 0) ready_.push_back(ReadyChunk{ds, p.index++, std::move(p.bytes)});
+    p = PendingChunk{};
+  }
+  writeReadyChunks();
+  // Flush first: a failed flush leaves the file in a state fail() can still
+  // discard cleanly, and the closes that follow have little left to write.
+  if (checked(H5Fflush(file_, H5F_SCOPE_LOCAL)) < 0) fail("cannot write the temporary file '" + tempPath_ + "'");
+  for (int ds = 0; ds < NumDatasets; ++ds) {
+    if (checked(H5Dclose(datasets_[ds])) < 0) fail(std::string("cannot finish ") + datasetName(ds));
+    datasets_[ds] = -1;
+  }
+  if (checked(H5Fclose(file_)) < 0) fail("cannot finish the temporary file '" + tempPath_ + "'");
+  file_ = -1;
+  // Data on disk before the name points at it, so a crash right after the
+  // rename cannot leave a truncated file under the final name.
+  try {
+    syncPath(tempPath_, false);
+  } catch (const std::system_error& e) {
+    fail("cannot flush '" + tempPath_ + "' to disk: " + e.code().message());
+  }
+  if (std::rename(tempPath_.c_str(), path_.c_str()) != 0)
+    fail("cannot rename '" + tempPath_ + "' to the final name: " + std::strerror(errno));
+  open_ = false;
+  // Make the rename itself durable; the file is already published, so a
+  // failure here is not an export failure.
+  try {
+    std::filesystem::path dir = std::filesystem::path(path_).parent_path();
+    syncPath(dir.empty() ? "." : dir.string(), true);
+  } catch (const std::exception&) {
+  }
+}
+
+template <int D>
+void FrameExporter<D>::abort() noexcept {
+  if (!open_) return;
+  QuietHdf5 quiet;
+  discardFile();
+  releaseHandles();
+  std::remove(tempPath_.c_str());
+  open_ = false;
+}
+
+FC_INSTANTIATE_DIMS(FrameExporter)
+
+}  // namespace fc

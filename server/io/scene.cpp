@@ -1,0 +1,711 @@
+#include "io/scene.h"
+
+#include "sph/pipeline.h"
+#include "sph/sampling.h"
+#include "sph/settings.h"
+
+#include <algorithm>
+#include <charconv>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <set>
+#include <sstream>
+#include <type_traits>
+
+namespace fc {
+
+using nlohmann::json;
+
+SceneError::SceneError(std::string p, const std::string& msg)
+    : std::runtime_error(p.empty() ? msg : p + ": " + msg), path(std::move(p)), message(msg) {}
+
+namespace {
+
+// ---------------------------------------------------------------- limits ---
+// Documented in scenes/README.md; keep the two in sync.
+constexpr double kMaxParticlesLimit = 50'000'000;
+constexpr double kDefaultMaxParticles = 2'000'000;
+// The neighbour grid is dense over the domain, so a radius tiny relative to
+// the domain costs memory even where there is no liquid.
+constexpr double kMaxDomainCells = 1e9;       // domain volume in particle-sized cells
+constexpr double kMinDomainDiameters = 2;     // narrowest domain side, in particle diameters
+constexpr double kMaxDuration = 1e6;          // s
+constexpr double kContainTolerance = 1e-6;    // m, fluid block inside domain
+constexpr size_t kMaxPhases = 256;            // phase index is stored as uint8_t
+const char* const kDefaultSolver = "dfsph";
+
+// ----------------------------------------------------------- formatting ---
+// The shortest decimal that reads back as the same float, so that messages
+// and saved scenes say 0.01 rather than 0.009999999776482582.
+double shortest(float v) {
+  char buf[64];
+  const auto r = std::to_chars(buf, buf + sizeof buf, v);
+  return std::strtod(std::string(buf, r.ptr).c_str(), nullptr);
+}
+
+double toJsonNumber(Real v) {
+  if constexpr (std::is_same_v<Real, float>)
+    return shortest(v);
+  else
+    return v;
+}
+
+std::string fmt(double v) {
+  std::ostringstream s;
+  s.precision(12);
+  s << v;
+  return s.str();
+}
+std::string fmt(float v) { return fmt(shortest(v)); }
+
+std::string interval(Real lo, Real hi) {
+  std::string s = "[";
+  s += fmt(lo);
+  s += ", ";
+  s += fmt(hi);
+  s += "]";
+  return s;
+}
+
+std::string joinNames(const std::vector<std::string>& names) {
+  if (names.empty()) return "(none registered)";
+  std::string out;
+  for (size_t i = 0; i < names.size(); ++i) out += (i ? ", " : "") + names[i];
+  return out;
+}
+
+template <int D>
+std::string fmtVec(const Vec<D>& v) {
+  std::string s = "(";
+  for (int d = 0; d < D; ++d) s += (d ? ", " : "") + fmt(v[d]);
+  return s + ")";
+}
+
+std::string key(const std::string& path, const std::string& k) { return path.empty() ? k : path + "." + k; }
+std::string at(const std::string& path, size_t i) { return path + "[" + std::to_string(i) + "]"; }
+
+const char* axisName(int d) { return d == 0 ? "x" : d == 1 ? "y" : "z"; }
+
+[[noreturn]] void fail(const std::string& path, const std::string& msg) { throw SceneError(path, msg); }
+
+// ------------------------------------------------------- typed accessors ---
+// The offending value as written, shortened: a misplaced object can be large.
+std::string brief(const json& j) {
+  std::string s = j.dump();
+  return s.size() <= 60 ? s : s.substr(0, 57) + "...";
+}
+
+void expectType(bool ok, const json& j, const std::string& path, const char* expected) {
+  if (!ok) fail(path, std::string("expected ") + expected + ", got " + j.type_name() + " " + brief(j));
+}
+
+const json& expectObject(const json& j, const std::string& path) {
+  expectType(j.is_object(), j, path, "an object");
+  return j;
+}
+
+const json& expectArray(const json& j, const std::string& path) {
+  expectType(j.is_array(), j, path, "an array");
+  return j;
+}
+
+// Unknown keys are errors so that a typo never falls back to a default.
+void checkKeys(const json& obj, const std::string& path, const std::vector<std::string>& allowed) {
+  for (auto it = obj.begin(); it != obj.end(); ++it) {
+    if (std::find(allowed.begin(), allowed.end(), it.key()) == allowed.end())
+      fail(key(path, it.key()), "unknown key; expected one of: " + joinNames(allowed));
+  }
+}
+
+const json* member(const json& obj, const std::string& k) {
+  auto it = obj.find(k);
+  return it == obj.end() ? nullptr : &*it;
+}
+
+const json& required(const json& obj, const std::string& path, const std::string& k, const std::string& what) {
+  const json* m = member(obj, k);
+  if (!m) fail(key(path, k), "missing required key (" + what + ")");
+  return *m;
+}
+
+double getNumber(const json& j, const std::string& path) {
+  expectType(j.is_number(), j, path, "a number");
+  const double v = j.get<double>();
+  if (!std::isfinite(v)) fail(path, "value is not finite");
+  return v;
+}
+
+// A number stored as Real must also be finite once narrowed to it.
+Real getReal(const json& j, const std::string& path) {
+  const double v = getNumber(j, path);
+  if (std::abs(v) > double(std::numeric_limits<Real>::max()))
+    fail(path, fmt(v) + " does not fit in a " + realName());
+  return Real(v);
+}
+
+// JSON has one number type, so 3.0 is accepted as the integer 3.
+double getInteger(const json& j, const std::string& path) {
+  const double v = getNumber(j, path);
+  if (v != std::floor(v)) fail(path, "expected an integer, got " + brief(j));
+  return v;
+}
+
+std::string getString(const json& j, const std::string& path) {
+  expectType(j.is_string(), j, path, "a string");
+  return j.get<std::string>();
+}
+
+template <int D>
+Vec<D> getVec(const json& j, const std::string& path) {
+  expectType(j.is_array(), j, path, D == 2 ? "an array of 2 numbers" : "an array of 3 numbers");
+  if (j.size() != size_t(D))
+    fail(path, "expected " + std::to_string(D) + " components (the scene is " + std::to_string(D) + "D), got " +
+                   std::to_string(j.size()));
+  Vec<D> v;
+  for (int d = 0; d < D; ++d) v[d] = getReal(j[size_t(d)], at(path, size_t(d)));
+  return v;
+}
+
+std::string rangeText(const ParamSpec& s) {
+  return "[" + fmt(s.min) + ", " + fmt(s.max) + "]" + (s.unit.empty() ? "" : " " + s.unit);
+}
+
+// Reads one declared parameter into values, checking its JSON type and range.
+void readParam(const json& j, const std::string& path, const ParamSpec& spec, ParamValues& values) {
+  double v = 0;
+  switch (spec.type) {
+    case ParamType::Boolean:
+      expectType(j.is_boolean(), j, path, "true or false");
+      values.set(spec.name, j.get<bool>() ? 1 : 0);
+      return;
+    case ParamType::Integer: v = getInteger(j, path); break;
+    case ParamType::Number: v = getNumber(j, path); break;
+  }
+  if (v < spec.min || v > spec.max)
+    fail(path, fmt(v) + " is outside the allowed range " + rangeText(spec) + (spec.help.empty() ? "" : " (" + spec.help + ")"));
+  values.set(spec.name, v);
+}
+
+// Params of a solver, effect or the settings block: every key other than the
+// `reserved` ones must be a declared ParamSpec; absent ones keep defaults.
+ParamValues parseParams(const json& obj, const std::string& path, const ParamSpecs& specs,
+                        const std::vector<std::string>& reserved, const std::string& owner) {
+  ParamValues values(specs);
+  for (auto it = obj.begin(); it != obj.end(); ++it) {
+    if (std::find(reserved.begin(), reserved.end(), it.key()) != reserved.end()) continue;
+    const ParamSpec* spec = findSpec(specs, it.key());
+    if (!spec) {
+      std::vector<std::string> names = reserved;
+      for (const auto& s : specs) names.push_back(s.name);
+      fail(key(path, it.key()), "unknown parameter of " + owner + "; expected one of: " + joinNames(names));
+    }
+    readParam(it.value(), key(path, it.key()), *spec, values);
+  }
+  return values;
+}
+
+json paramsToJson(const ParamValues& values, const ParamSpecs* specs) {
+  json out = json::object();
+  for (const auto& [name, v] : values.all()) {
+    const ParamSpec* s = specs ? findSpec(*specs, name) : nullptr;
+    if (s && s->type == ParamType::Boolean)
+      out[name] = v != 0;
+    else if (s && s->type == ParamType::Integer)
+      out[name] = static_cast<long long>(std::llround(v));
+    else
+      out[name] = v;
+  }
+  return out;
+}
+
+template <int D>
+json vecToJson(const Vec<D>& v) {
+  json a = json::array();
+  for (int d = 0; d < D; ++d) a.push_back(toJsonNumber(v[d]));
+  return a;
+}
+
+// ------------------------------------------------------------ sections ---
+template <int D>
+AABB<D> parseBox(const json& obj, const std::string& path) {
+  AABB<D> box(getVec<D>(required(obj, path, "min", "lower corner, m"), key(path, "min")),
+              getVec<D>(required(obj, path, "max", "upper corner, m"), key(path, "max")));
+  for (int d = 0; d < D; ++d)
+    if (!(box.min[d] < box.max[d]))
+      fail(path, std::string("min must be less than max on every axis, but along ") + axisName(d) + " min[" +
+                     std::to_string(d) + "] = " + fmt(box.min[d]) + " >= max[" + std::to_string(d) +
+                     "] = " + fmt(box.max[d]));
+  return box;
+}
+
+std::vector<Phase> parsePhases(const json* j) {
+  if (!j) return {Phase{}};
+  const std::string path = "phases";
+  expectArray(*j, path);
+  if (j->empty()) fail(path, "must list at least one phase (omit the key for the default water phase)");
+  if (j->size() > kMaxPhases) fail(path, "at most " + std::to_string(kMaxPhases) + " phases are supported");
+  std::vector<Phase> phases;
+  for (size_t i = 0; i < j->size(); ++i) {
+    const std::string p = at(path, i);
+    const json& o = expectObject((*j)[i], p);
+    checkKeys(o, p, {"name", "rest_density", "viscosity", "color"});
+    Phase ph;
+    ph.name = getString(required(o, p, "name", "string referenced by fluid_blocks[].phase"), key(p, "name"));
+    if (ph.name.empty()) fail(key(p, "name"), "must not be empty");
+    for (size_t k = 0; k < i; ++k)
+      if (phases[k].name == ph.name) fail(key(p, "name"), "duplicate phase name '" + ph.name + "' (also " + at(path, k) + ")");
+    if (const json* m = member(o, "rest_density")) {
+      ph.restDensity = getReal(*m, key(p, "rest_density"));
+      if (ph.restDensity <= 0) fail(key(p, "rest_density"), fmt(ph.restDensity) + " kg/m^3 must be > 0");
+    }
+    if (const json* m = member(o, "viscosity")) {
+      ph.viscosity = getReal(*m, key(p, "viscosity"));
+      if (ph.viscosity < 0) fail(key(p, "viscosity"), fmt(ph.viscosity) + " m^2/s must be >= 0");
+    }
+    if (const json* m = member(o, "color")) {
+      const std::string cp = key(p, "color");
+      expectType(m->is_array(), *m, cp, "an array of 3 numbers (RGB in [0, 1])");
+      if (m->size() != 3) fail(cp, "expected 3 components (RGB), got " + std::to_string(m->size()));
+      for (size_t c = 0; c < 3; ++c) {
+        const double v = getNumber((*m)[c], at(cp, c));
+        if (v < 0 || v > 1) fail(at(cp, c), fmt(v) + " is outside the allowed range [0, 1]");
+        ph.color[c] = float(v);
+      }
+    }
+    phases.push_back(ph);
+  }
+  return phases;
+}
+
+template <int D>
+std::vector<FluidBlock<D>> parseFluidBlocks(const json& root, const std::vector<Phase>& phases) {
+  const std::string path = "fluid_blocks";
+  const json& j = expectArray(required(root, "", path, "array of liquid boxes"), path);
+  if (j.empty()) fail(path, "the scene has no liquid: list at least one fluid block");
+  std::vector<FluidBlock<D>> blocks;
+  for (size_t i = 0; i < j.size(); ++i) {
+    const std::string p = at(path, i);
+    const json& o = expectObject(j[i], p);
+    checkKeys(o, p, {"min", "max", "phase", "velocity"});
+    FluidBlock<D> b;
+    b.box = parseBox<D>(o, p);
+    if (const json* m = member(o, "phase")) {
+      const std::string name = getString(*m, key(p, "phase"));
+      auto it = std::find_if(phases.begin(), phases.end(), [&](const Phase& ph) { return ph.name == name; });
+      if (it == phases.end()) {
+        std::vector<std::string> names;
+        for (const auto& ph : phases) names.push_back(ph.name);
+        fail(key(p, "phase"), "unknown phase '" + name + "'; the scene's phases are: " + joinNames(names));
+      }
+      b.phase = int(it - phases.begin());
+    }
+    if (const json* m = member(o, "velocity")) b.velocity = getVec<D>(*m, key(p, "velocity"));
+    blocks.push_back(b);
+  }
+  return blocks;
+}
+
+template <int D>
+std::vector<Obstacle<D>> parseObstacles(const json* j) {
+  std::vector<Obstacle<D>> obstacles;
+  if (!j) return obstacles;
+  const std::string path = "obstacles";
+  expectArray(*j, path);
+  for (size_t i = 0; i < j->size(); ++i) {
+    const std::string p = at(path, i);
+    const json& o = expectObject((*j)[i], p);
+    const std::string type = getString(required(o, p, "type", D == 2 ? "\"box\", \"sphere\" or \"disk\"" : "\"box\" or \"sphere\""),
+                                       key(p, "type"));
+    Obstacle<D> ob;
+    if (type == "box") {
+      checkKeys(o, p, {"type", "min", "max"});
+      ob.shape = ObstacleShape::Box;
+      ob.box = parseBox<D>(o, p);
+    } else if (type == "sphere" || (D == 2 && type == "disk")) {
+      checkKeys(o, p, {"type", "center", "radius"});
+      ob.shape = ObstacleShape::Sphere;
+      ob.center = getVec<D>(required(o, p, "center", "m"), key(p, "center"));
+      ob.radius = getReal(required(o, p, "radius", "m"), key(p, "radius"));
+      if (ob.radius <= 0) fail(key(p, "radius"), fmt(ob.radius) + " m must be > 0");
+      ob.box = AABB<D>(ob.center.array() - ob.radius, ob.center.array() + ob.radius);
+    } else {
+      fail(key(p, "type"), "unknown obstacle type '" + type + "'; expected " +
+                               (D == 2 ? "box, sphere or disk" : "box or sphere (disk is 2D only)"));
+    }
+    obstacles.push_back(ob);
+  }
+  return obstacles;
+}
+
+template <int D>
+NamedParams parseSolver(const json* j) {
+  const std::string path = "solver";
+  const auto& reg = PressureSolverRegistry<D>::instance();
+  NamedParams solver{kDefaultSolver, {}};
+  const json empty = json::object();
+  const json& o = j ? expectObject(*j, path) : empty;
+  if (const json* m = member(o, "method")) solver.name = getString(*m, key(path, "method"));
+  const auto* entry = reg.find(solver.name);
+  if (!entry)
+    fail(j && member(o, "method") ? key(path, "method") : path,
+         "unknown solver method '" + solver.name + "'; known methods: " + joinNames(reg.names()));
+  solver.values = parseParams(o, path, entry->params, {"method"}, "solver '" + solver.name + "'");
+  return solver;
+}
+
+ParamValues parseSettings(const json* j) {
+  const std::string path = "settings";
+  if (!j) return ParamValues(simulationSettingsSpecs());
+  ParamValues v = parseParams(expectObject(*j, path), path, simulationSettingsSpecs(), {}, "settings");
+  if (v.get("dt_min") > v.get("dt_max"))
+    fail(key(path, member(*j, "dt_min") ? "dt_min" : "dt_max"),
+         "dt_min = " + fmt(v.get("dt_min")) + " s is larger than dt_max = " + fmt(v.get("dt_max")) + " s");
+  return v;
+}
+
+template <int D>
+std::vector<NamedParams> parseEffects(const json* j) {
+  std::vector<NamedParams> effects;
+  if (!j) return effects;
+  const std::string path = "effects";
+  expectArray(*j, path);
+  const auto& reg = EffectRegistry<D>::instance();
+  std::vector<std::string> namePaths;  // where each effect's name was written, for duplicate messages
+  for (size_t i = 0; i < j->size(); ++i) {
+    const std::string p = at(path, i);
+    const json& item = (*j)[i];
+    const json empty = json::object();
+    const json* params = &empty;
+    std::string namePath = p;
+    NamedParams e;
+    if (item.is_string()) {
+      e.name = item.get<std::string>();
+    } else if (item.is_object()) {
+      namePath = key(p, "name");
+      e.name = getString(required(item, p, "name", "effect name"), namePath);
+      params = &item;
+    } else {
+      expectType(false, item, p, "an effect name or an object with \"name\" and parameters");
+    }
+    const auto* entry = reg.find(e.name);
+    if (!entry) fail(namePath, "unknown effect '" + e.name + "'; known effects: " + joinNames(reg.names()));
+    for (size_t k = 0; k < effects.size(); ++k)
+      if (effects[k].name == e.name) fail(namePath, "duplicate effect '" + e.name + "' (also " + namePaths[k] + ")");
+    e.values = parseParams(*params, p, entry->params, {"name"}, "effect '" + e.name + "'");
+    effects.push_back(std::move(e));
+    namePaths.push_back(namePath);
+  }
+  return effects;
+}
+
+// ---------------------------------------------------- cross-section checks ---
+template <int D>
+void checkRadiusAgainstDomain(const SimulationSetup<D>& s, bool overridden) {
+  const std::string path = "particle_radius";
+  const std::string what = fmt(s.particleRadius) + " m" + (overridden ? " (override)" : "");
+  const Real diameter = 2 * s.particleRadius;
+  double cells = 1;
+  for (int d = 0; d < D; ++d) {
+    const Real side = s.domain.size()[d];
+    if (side < kMinDomainDiameters * diameter)
+      fail(path, what + " is too large for the domain: its side along " + axisName(d) + " is " + fmt(side) +
+                     " m, less than " + fmt(kMinDomainDiameters) + " particle diameters");
+    cells *= side / diameter;
+  }
+  if (cells > kMaxDomainCells)
+    fail(path, what + " is too small for the domain: it would hold " + fmt(cells) + " particle-sized cells, more than " +
+                   fmt(kMaxDomainCells));
+}
+
+template <int D>
+void checkFluidBlocks(const SimulationSetup<D>& s, bool overridden) {
+  const Real r = s.particleRadius;
+  const Real spacing = 2 * r;
+  size_t total = 0;
+  for (size_t i = 0; i < s.fluidBlocks.size(); ++i) {
+    const std::string p = at("fluid_blocks", i);
+    const AABB<D>& b = s.fluidBlocks[i].box;
+    for (int d = 0; d < D; ++d) {
+      const bool below = b.min[d] < s.domain.min[d] - kContainTolerance;
+      const bool above = b.max[d] > s.domain.max[d] + kContainTolerance;
+      if (below || above)
+        fail(at(key(p, below ? "min" : "max"), d), fmt(below ? b.min[d] : b.max[d]) +
+                                                       " lies outside the domain, whose " + axisName(d) + " range is " +
+                                                       interval(s.domain.min[d], s.domain.max[d]));
+    }
+    // Overlapping blocks would stack particles on top of each other.
+    for (size_t k = 0; k < i; ++k) {
+      const AABB<D>& o = s.fluidBlocks[k].box;
+      bool overlap = true;
+      for (int d = 0; d < D; ++d)
+        overlap = overlap && std::min(b.max[d], o.max[d]) - std::max(b.min[d], o.min[d]) > kContainTolerance;
+      if (overlap) fail(p, "overlaps " + at("fluid_blocks", k) + "; fluid blocks may touch but not overlap");
+    }
+    const size_t n = latticeCount(b, spacing);
+    if (n == 0)
+      fail(p, "holds no particle: it is thinner than one particle diameter (" + fmt(spacing) + " m) along some axis");
+    total += n;
+  }
+  if (total > s.maxParticles)
+    fail("fluid_blocks", "the fluid blocks hold " + std::to_string(total) + " particles at particle_radius " + fmt(r) +
+                             (overridden ? " m (override)" : " m") + ", more than max_particles = " + std::to_string(s.maxParticles));
+
+  // Particles inside an obstacle, or closer to it than a particle radius,
+  // start with huge pressure and explode the first step. The relative slack
+  // lets a block touch an obstacle face exactly as it may touch a wall.
+  const Real limit = r - (Real(1e-3) * r + Real(kContainTolerance));
+  for (size_t i = 0; i < s.fluidBlocks.size(); ++i) {
+    const AABB<D>& b = s.fluidBlocks[i].box;
+    for (size_t k = 0; k < s.obstacles.size(); ++k) {
+      const Obstacle<D>& ob = s.obstacles[k];
+      if (!ob.box.grown(r).intersects(b)) continue;
+      forEachLatticePoint(b, spacing, [&](const Vec<D>& x) {
+        const Real dist = ob.signedDistance(x);
+        if (dist < limit)
+          fail(at("fluid_blocks", i),
+               "its particle at " + fmtVec<D>(x) + " is " +
+                   (dist < 0 ? "inside " + at("obstacles", k)
+                             : fmt(dist) + " m from " + at("obstacles", k) + ", closer than particle_radius " + fmt(r) + " m") +
+                   "; move or shrink the block");
+      });
+    }
+  }
+}
+
+// ----------------------------------------------- duplicate-key detection ---
+// A parser callback that tracks the key path, so a key written twice in one
+// object (which JSON parsers silently resolve to the last value) is reported
+// where it occurs.
+class DuplicateKeyCheck {
+ public:
+  bool operator()(int /*depth*/, json::parse_event_t ev, json& parsed) {
+    switch (ev) {
+      case json::parse_event_t::object_start: push(false); break;
+      case json::parse_event_t::array_start: push(true); break;
+      case json::parse_event_t::key: {
+        Frame& f = stack_.back();
+        f.key = parsed.get<std::string>();
+        if (!f.keys.insert(f.key).second) fail(path(), "duplicate key; each key may appear once per object");
+        break;
+      }
+      case json::parse_event_t::object_end:
+      case json::parse_event_t::array_end:
+        stack_.pop_back();
+        childDone();
+        break;
+      case json::parse_event_t::value: childDone(); break;
+    }
+    return true;
+  }
+
+ private:
+  struct Frame {
+    bool array = false;
+    size_t index = 0;
+    std::string key;
+    std::set<std::string> keys;
+  };
+  void push(bool array) {
+    stack_.emplace_back();
+    stack_.back().array = array;
+  }
+  void childDone() {
+    if (!stack_.empty() && stack_.back().array) ++stack_.back().index;
+  }
+  std::string path() const {
+    std::string p;
+    for (const Frame& f : stack_) p = f.array ? at(p, f.index) : key(p, f.key);
+    return p;
+  }
+  std::vector<Frame> stack_;
+};
+
+std::string lineColumn(const std::string& text, size_t offset) {
+  offset = std::min(offset, text.size());
+  size_t line = 1, lineStart = 0;
+  for (size_t i = 0; i < offset; ++i)
+    if (text[i] == '\n') ++line, lineStart = i + 1;
+  return std::to_string(line) + ":" + std::to_string(offset - lineStart + 1);
+}
+
+}  // namespace
+
+// ================================================================ public ===
+
+json parseSceneText(const std::string& text, const std::string& origin) {
+  try {
+    return json::parse(text, DuplicateKeyCheck());
+  } catch (const json::parse_error& e) {
+    // nlohmann's text is "[json.exception...] parse error at line L, column C: detail";
+    // keep the detail and put the position in the compiler-like prefix.
+    std::string detail = e.what();
+    const size_t col = detail.find("column ");
+    const size_t sep = detail.find(": ", col == std::string::npos ? 0 : col);
+    if (sep != std::string::npos) detail = detail.substr(sep + 2);
+    const size_t offset = e.byte > 0 ? e.byte - 1 : 0;
+    throw SceneError("", origin + ":" + lineColumn(text, offset) + ": malformed JSON: " + detail);
+  } catch (const json::exception& e) {
+    // Number overflow (e.g. 1e999) comes without a position; locate the token.
+    std::string detail = e.what();
+    const size_t close = detail.find("] ");
+    if (close != std::string::npos) detail = detail.substr(close + 2);
+    std::string where = origin;
+    const size_t q1 = detail.find('\''), q2 = detail.rfind('\'');
+    if (q1 != std::string::npos && q2 > q1) {
+      const size_t pos = text.find(detail.substr(q1 + 1, q2 - q1 - 1));
+      if (pos != std::string::npos) where += ":" + lineColumn(text, pos);
+    }
+    throw SceneError("", where + ": malformed JSON: " + detail);
+  }
+}
+
+json loadSceneJson(const std::string& file) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  if (!fs::exists(file, ec)) throw SceneError("", "scene file '" + file + "' does not exist");
+  if (fs::is_directory(file, ec)) throw SceneError("", "scene file '" + file + "' is a directory");
+  std::ifstream in(file, std::ios::binary);
+  if (!in) throw SceneError("", "cannot open scene file '" + file + "'");
+  std::ostringstream text;
+  text << in.rdbuf();
+  if (in.bad()) throw SceneError("", "cannot read scene file '" + file + "'");
+  return parseSceneText(text.str(), file);
+}
+
+int sceneDimension(const json& scene) {
+  if (!scene.is_object()) fail("", std::string("a scene must be a JSON object, got ") + scene.type_name());
+  const json& j = required(scene, "", "dimension", "2 or 3");
+  const double d = getInteger(j, "dimension");
+  if (d != 2 && d != 3) fail("dimension", "must be 2 or 3, got " + j.dump());
+  return int(d);
+}
+
+template <int D>
+SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
+  registerBuiltinSolversAndEffects();
+  if (sceneDimension(root) != D)
+    fail("dimension", "the scene is " + std::to_string(sceneDimension(root)) + "D but was loaded as " +
+                          std::to_string(D) + "D");
+  checkKeys(root, "", {"name", "dimension", "particle_radius", "domain", "gravity", "duration", "max_particles",
+                       "phases", "fluid_blocks", "obstacles", "solver", "settings", "effects"});
+
+  SimulationSetup<D> s;
+  if (const json* m = member(root, "name")) {
+    s.name = getString(*m, "name");
+    if (s.name.empty()) fail("name", "must not be empty");
+  }
+
+  if (const json* m = member(root, "particle_radius")) {
+    s.particleRadius = getReal(*m, "particle_radius");
+    if (s.particleRadius <= 0) fail("particle_radius", fmt(s.particleRadius) + " m must be > 0");
+  }
+  const bool overridden = particleRadiusOverride != 0;
+  if (overridden) {
+    if (!(particleRadiusOverride > 0) || !std::isfinite(particleRadiusOverride))
+      fail("particle_radius", "override " + fmt(particleRadiusOverride) + " m must be a finite value > 0");
+    s.particleRadius = Real(particleRadiusOverride);
+  }
+
+  {
+    const json& d = expectObject(required(root, "", "domain", "tank interior {\"min\", \"max\"}"), "domain");
+    checkKeys(d, "domain", {"min", "max"});
+    s.domain = parseBox<D>(d, "domain");
+  }
+  checkRadiusAgainstDomain(s, overridden);
+
+  s.gravity = Vec<D>::Zero();
+  s.gravity[1] = Real(-9.81);
+  if (const json* m = member(root, "gravity")) s.gravity = getVec<D>(*m, "gravity");
+
+  if (const json* m = member(root, "duration")) {
+    s.duration = getNumber(*m, "duration");
+    if (s.duration <= 0 || s.duration > kMaxDuration)
+      fail("duration", fmt(s.duration) + " is outside the allowed range (0, " + fmt(kMaxDuration) + "] s");
+  }
+
+  s.maxParticles = size_t(kDefaultMaxParticles);
+  if (const json* m = member(root, "max_particles")) {
+    const double v = getInteger(*m, "max_particles");
+    if (v < 1 || v > kMaxParticlesLimit)
+      fail("max_particles", fmt(v) + " is outside the allowed range [1, " + fmt(kMaxParticlesLimit) + "]");
+    s.maxParticles = size_t(v);
+  }
+
+  s.phases = parsePhases(member(root, "phases"));
+  s.fluidBlocks = parseFluidBlocks<D>(root, s.phases);
+  s.obstacles = parseObstacles<D>(member(root, "obstacles"));
+  s.solver = parseSolver<D>(member(root, "solver"));
+  s.settings = parseSettings(member(root, "settings"));
+  s.effects = parseEffects<D>(member(root, "effects"));
+
+  checkFluidBlocks(s, overridden);
+  return s;
+}
+
+template <int D>
+json sceneToJson(const SimulationSetup<D>& s) {
+  registerBuiltinSolversAndEffects();
+  json j;
+  j["name"] = s.name;
+  j["dimension"] = D;
+  j["particle_radius"] = toJsonNumber(s.particleRadius);
+  j["domain"] = {{"min", vecToJson<D>(s.domain.min)}, {"max", vecToJson<D>(s.domain.max)}};
+  j["gravity"] = vecToJson<D>(s.gravity);
+  j["duration"] = s.duration;
+  j["max_particles"] = s.maxParticles;
+
+  json phases = json::array();
+  for (const Phase& ph : s.phases) {
+    json c = json::array();
+    for (float v : ph.color) c.push_back(toJsonNumber(Real(v)));
+    phases.push_back({{"name", ph.name},
+                      {"rest_density", toJsonNumber(ph.restDensity)},
+                      {"viscosity", toJsonNumber(ph.viscosity)},
+                      {"color", c}});
+  }
+  j["phases"] = phases;
+
+  json blocks = json::array();
+  for (const FluidBlock<D>& b : s.fluidBlocks) {
+    blocks.push_back({{"min", vecToJson<D>(b.box.min)},
+                      {"max", vecToJson<D>(b.box.max)},
+                      {"phase", s.phases.at(size_t(b.phase)).name},
+                      {"velocity", vecToJson<D>(b.velocity)}});
+  }
+  j["fluid_blocks"] = blocks;
+
+  json obstacles = json::array();
+  for (const Obstacle<D>& o : s.obstacles) {
+    if (o.shape == ObstacleShape::Box)
+      obstacles.push_back({{"type", "box"}, {"min", vecToJson<D>(o.box.min)}, {"max", vecToJson<D>(o.box.max)}});
+    else
+      obstacles.push_back({{"type", "sphere"}, {"center", vecToJson<D>(o.center)}, {"radius", toJsonNumber(o.radius)}});
+  }
+  j["obstacles"] = obstacles;
+
+  const auto* solverEntry = PressureSolverRegistry<D>::instance().find(s.solver.name);
+  json solver = paramsToJson(s.solver.values, solverEntry ? &solverEntry->params : nullptr);
+  solver["method"] = s.solver.name;
+  j["solver"] = solver;
+
+  j["settings"] = paramsToJson(s.settings, &simulationSettingsSpecs());
+
+  json effects = json::array();
+  for (const NamedParams& e : s.effects) {
+    const auto* entry = EffectRegistry<D>::instance().find(e.name);
+    json o = paramsToJson(e.values, entry ? &entry->params : nullptr);
+    o["name"] = e.name;
+    effects.push_back(o);
+  }
+  j["effects"] = effects;
+  return j;
+}
+
+template SimulationSetup<2> parseScene<2>(const json&, double);
+template SimulationSetup<3> parseScene<3>(const json&, double);
+template json sceneToJson<2>(const SimulationSetup<2>&);
+template json sceneToJson<3>(const SimulationSetup<3>&);
+
+}  // namespace fc

@@ -1,0 +1,47 @@
+#pragma once
+// Scene files: JSON <-> SimulationSetup, with validation that names the key
+// path of every error. The format is documented in scenes/README.md.
+#include "sph/setup.h"
+#include <nlohmann/json.hpp>
+#include <stdexcept>
+#include <string>
+
+namespace fc {
+
+// An invalid scene. `path` locates the offending value the way a user would
+// type it (`fluid_blocks[1].min[0]`, `solver.density_tolerance_pct`); it is
+// empty for file-level errors (missing file, malformed JSON), whose message
+// names the file instead. what() is "<path>: <message>", or just the message
+// when the path is empty.
+struct SceneError : std::runtime_error {
+  SceneError(std::string path, const std::string& message);
+  std::string path;
+  std::string message;  // what() without the path prefix
+};
+
+// Parses scene JSON text. Besides syntax errors (reported with line and
+// column) this rejects duplicate object keys, which plain JSON parsers
+// resolve silently by keeping the last one. `origin` names the source (a file
+// name) in error messages.
+nlohmann::json parseSceneText(const std::string& text, const std::string& origin = "scene");
+
+// Reads and parses a scene file (see parseSceneText).
+nlohmann::json loadSceneJson(const std::string& file);
+
+// The scene's "dimension" (2 or 3), so callers can pick parseScene<2> or <3>.
+int sceneDimension(const nlohmann::json& scene);
+
+// Validates a scene and builds its setup. registerBuiltinSolversAndEffects()
+// is called first, so solver and effect names resolve. A positive
+// particleRadiusOverride replaces the scene's particle_radius (resolution
+// studies, interactive previews); every check, including max_particles, then
+// applies to the overridden radius.
+template <int D>
+SimulationSetup<D> parseScene(const nlohmann::json& scene, double particleRadiusOverride = 0);
+
+// The inverse of parseScene: every key is written, defaults included, so the
+// result documents the full setup and parses back to an identical one.
+template <int D>
+nlohmann::json sceneToJson(const SimulationSetup<D>& setup);
+
+}  // namespace fc

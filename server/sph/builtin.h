@@ -1,0 +1,20 @@
+#pragma once
+// Factories of the built-in solvers and effects; sph/registry.cpp puts them
+// in the registries. Each is defined in the file named after its method.
+#include "sph/pipeline.h"
+
+namespace fc {
+
+const ParamSpecs& dfsphParams();
+template <int D> std::unique_ptr<PressureSolver<D>> makeDFSPH(const ParamValues&);
+
+const ParamSpecs& wcsphParams();
+template <int D> std::unique_ptr<PressureSolver<D>> makeWCSPH(const ParamValues&);
+
+const ParamSpecs& viscosityStandardParams();
+template <int D> std::unique_ptr<Effect<D>> makeViscosityStandard(const ParamValues&);
+
+const ParamSpecs& viscosityXSPHParams();
+template <int D> std::unique_ptr<Effect<D>> makeViscosityXSPH(const ParamValues&);
+
+}  // namespace fc

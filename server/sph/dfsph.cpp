@@ -1,0 +1,263 @@
+// Divergence-free SPH: Bender & Koschier, "Divergence-Free SPH for
+// Incompressible and Viscous Fluids", TVCG 2017 [BK17] (SCA 2015 [BK15]).
+//
+// Both solves use the same Jacobi update. With K_i the stiffness of particle
+// i, the velocity correction is
+//   Δv_i = -Σ_j m_j (K_i + K_j) ∇W_ij - K_i Σ_b Ψ_b ∇W_ib,
+// and requiring it to cancel particle i's own residual r_i (the density rate
+// Dρ_i/Dt, or (ρ*_i - ρ0)/Δt) gives K_i = r_i / S_i with
+//   S_i = |Σ_j m_j ∇W_ij + Σ_b Ψ_b ∇W_ib|² + Σ_j |m_j ∇W_ij|²,
+// i.e. K_i = r_i · α_i with α_i = 1/S_i, the DFSPH factor (eq. (11) in [BK17]).
+#include "sph/builtin.h"
+#include "sph/simulation.h"
+#include <omp.h>
+#include <algorithm>
+#include <cmath>
+
+namespace fc {
+
+const ParamSpecs& dfsphParams() {
+  static const ParamSpecs specs = {
+      {"density_tolerance_pct", "%", 1e-4, 10, 0.01, "average density error at which the density solve stops"},
+      {"divergence_tolerance_pct", "%/step", 1e-4, 100, 0.1,
+       "average density-rate error (relative to rest density, per time step) at which the divergence solve stops"},
+      {"min_iterations", "", 1, 1000, 2, "fewest density-solve iterations", ParamType::Integer},
+      {"max_iterations", "", 1, 10000, 100, "most density-solve iterations", ParamType::Integer},
+      {"max_divergence_iterations", "", 1, 10000, 100, "most divergence-solve iterations", ParamType::Integer},
+      {"divergence_solve", "", 0, 1, 1, "run the divergence-free solve", ParamType::Boolean},
+      {"warm_start", "", 0, 1, 1, "start each solve from the previous step's stiffness", ParamType::Boolean},
+  };
+  return specs;
+}
+
+template <int D>
+class DFSPH final : public PressureSolver<D> {
+ public:
+  explicit DFSPH(const ParamValues& p)
+      : densityTol_(Real(p.get("density_tolerance_pct") * 0.01)),
+        divergenceTol_(Real(p.get("divergence_tolerance_pct") * 0.01)),
+        minIterations_(int(p.get("min_iterations"))),
+        maxIterations_(int(p.get("max_iterations"))),
+        maxDivergenceIterations_(int(p.get("max_divergence_iterations"))),
+        divergenceSolve_(p.get("divergence_solve") != 0),
+        warmStart_(p.get("warm_start") != 0) {}
+
+  void resize(size_t n) override {
+    factor_.resize(n, 0);
+    kappaDensity_.resize(n, 0);
+    kappaDivergence_.resize(n, 0);
+    residual_.resize(n, 0);
+    stiffness_.resize(n, 0);
+    deficient_.resize(n, 0);
+  }
+  void reorder(const std::vector<uint32_t>& perm) override {
+    applyPermutation(kappaDensity_, perm, scratch_);
+    applyPermutation(kappaDivergence_, perm, scratch_);
+  }
+
+  // DFSPH factor α_i = 1/S_i (eq. (11) in [BK17]).
+  void prepare(Simulation<D>& sim) override {
+    const auto& nf = sim.search.dynamicNeighbors();
+    const auto& nb = sim.search.staticNeighbors();
+    const auto& f = sim.fluid;
+    const long n = long(f.size());
+#pragma omp parallel for schedule(static)
+    for (long i = 0; i < n; ++i) {
+      const Real rho0 = sim.restDensity_[f.phase[i]];
+      Vec<D> sum = Vec<D>::Zero();
+      Real sumSq = 0;
+      for (uint32_t k = nf.offsets[i], e = nf.offsets[i + 1]; k < e; ++k) {
+        const Vec<D> g = f.mass[nf.indices[k]] * sim.gradFluid[k];
+        sum += g;
+        sumSq += g.squaredNorm();
+      }
+      for (uint32_t k = nb.offsets[i], e = nb.offsets[i + 1]; k < e; ++k)
+        sum += (rho0 * sim.boundary.volume[nb.indices[k]]) * sim.gradBoundary[k];
+      const Real s = sum.squaredNorm() + sumSq;
+      factor_[i] = s > Real(1e-6) * rho0 * rho0 ? Real(1) / s : Real(0);
+      // Too few neighbours: a surface particle cannot be compressed, and its
+      // divergence estimate is unreliable ([BK17], Section 4).
+      deficient_[i] = (nf.count(i) + nb.count(i)) < (D == 3 ? 20u : 7u);
+    }
+  }
+
+  SolverReport correctDivergence(Simulation<D>& sim, Real dt) override {
+    SolverReport rep;
+    if (!divergenceSolve_) return rep;
+    const long n = long(sim.fluid.size());
+    // Stop when the average density rate is below tol·ρ0 per time step.
+    const Real eta = divergenceTol_ / dt;
+    Real avg = divergenceResidual(sim);
+    if (warmStart_) {
+      warmStartFrom(sim, kappaDivergence_, Real(1), Real(0.5));
+      avg = divergenceResidual(sim);
+    } else {
+      std::fill(kappaDivergence_.begin(), kappaDivergence_.end(), Real(0));
+    }
+    while ((avg > eta || rep.iterations < 1) && rep.iterations < maxDivergenceIterations_) {
+      applyStiffness(sim, kappaDivergence_, Real(1));
+      avg = divergenceResidual(sim);
+      ++rep.iterations;
+    }
+    rep.converged = avg <= eta || n == 0;
+    rep.avgErrorPct = double(avg) * double(dt) * 100.0;
+    return rep;
+  }
+
+  SolverReport correctDensity(Simulation<D>& sim, Real dt) override {
+    SolverReport rep;
+    const long n = long(sim.fluid.size());
+    Real maxErr = 0;
+    Real avg = densityResidual(sim, dt, maxErr);
+    if (warmStart_) {
+      warmStartFrom(sim, kappaDensity_, dt, Real(0.5));
+      avg = densityResidual(sim, dt, maxErr);
+    } else {
+      std::fill(kappaDensity_.begin(), kappaDensity_.end(), Real(0));
+    }
+    while ((avg > densityTol_ || rep.iterations < minIterations_) && rep.iterations < maxIterations_) {
+      applyStiffness(sim, kappaDensity_, dt);
+      avg = densityResidual(sim, dt, maxErr);
+      ++rep.iterations;
+    }
+    rep.converged = avg <= densityTol_ || n == 0;
+    rep.avgErrorPct = double(avg) * 100.0;
+    rep.maxErrorPct = double(maxErr) * 100.0;
+    // The pressure both corrections amount to over the step: Δv = -Δt Σ_j m_j
+    // (p_i/ρ_i² + p_j/ρ_j²) ∇W_ij, so p_i = ρ_i² (K_i + K_i^div)/Δt.
+    auto& f = sim.fluid;
+#pragma omp parallel for schedule(static)
+    for (long i = 0; i < n; ++i)
+      f.pressure[i] = f.density[i] * f.density[i] * (kappaDensity_[i] + kappaDivergence_[i] / dt);
+    return rep;
+  }
+
+ private:
+  // Warm start (as SPlisHSPlasH): a particle that is compressed now starts
+  // from half of its previous stiffness; one that is not starts from zero.
+  // Measured: carrying over all of it converges faster in a deep column but
+  // pumps energy into the liquid, because the increments are never negative
+  // and a push that is no longer needed would be repeated every step. Density stiffness is
+  // stored as K/Δt, an acceleration scale, so it carries over a change of Δt;
+  // divergence stiffness does not depend on Δt (called with dt = 1).
+  // Expects residual_ to hold the current residual.
+  void warmStartFrom(Simulation<D>& sim, std::vector<Real>& kappa, Real dt, Real share) {
+    const long n = long(sim.fluid.size());
+#pragma omp parallel for schedule(static)
+    for (long i = 0; i < n; ++i) {
+      kappa[i] = residual_[i] > 0 ? share * kappa[i] : Real(0);
+      stiffness_[i] = kappa[i] * dt;
+    }
+    updateVelocities(sim);
+  }
+
+  // Adds this iteration's stiffness K_i = r_i α_i to the accumulated one and
+  // corrects the velocities with it.
+  void applyStiffness(Simulation<D>& sim, std::vector<Real>& kappa, Real dt) {
+    const long n = long(sim.fluid.size());
+#pragma omp parallel for schedule(static)
+    for (long i = 0; i < n; ++i) {
+      stiffness_[i] = residual_[i] * factor_[i];
+      kappa[i] += stiffness_[i] / dt;
+    }
+    updateVelocities(sim);
+  }
+
+  // Δv_i = -Σ_j m_j (K_i + K_j) ∇W_ij - K_i Σ_b Ψ_b ∇W_ib (eqs. (9) and (12) in [BK17]).
+  void updateVelocities(Simulation<D>& sim) {
+    const auto& nf = sim.search.dynamicNeighbors();
+    const auto& nb = sim.search.staticNeighbors();
+    auto& f = sim.fluid;
+    const long n = long(f.size());
+#pragma omp parallel for schedule(static)
+    for (long i = 0; i < n; ++i) {
+      const Real ki = stiffness_[i];
+      Vec<D> dv = Vec<D>::Zero();
+      for (uint32_t k = nf.offsets[i], e = nf.offsets[i + 1]; k < e; ++k) {
+        const uint32_t j = nf.indices[k];
+        dv += (f.mass[j] * (ki + stiffness_[j])) * sim.gradFluid[k];
+      }
+      if (ki != 0) {
+        const Real rho0 = sim.restDensity_[f.phase[i]];
+        Vec<D> gb = Vec<D>::Zero();
+        for (uint32_t k = nb.offsets[i], e = nb.offsets[i + 1]; k < e; ++k)
+          gb += sim.boundary.volume[nb.indices[k]] * sim.gradBoundary[k];
+        dv += (ki * rho0) * gb;
+      }
+      f.v[i] -= dv;
+    }
+  }
+
+  // Dρ_i/Dt = Σ_j m_j (v_i - v_j)·∇W_ij + Σ_b Ψ_b (v_i - v_b)·∇W_ib (eq. (8) in [BK17]).
+  // Only compression counts. Returns the average relative to ρ0 (1/s).
+  Real divergenceResidual(Simulation<D>& sim) {
+    const auto& nf = sim.search.dynamicNeighbors();
+    const auto& nb = sim.search.staticNeighbors();
+    const auto& f = sim.fluid;
+    const long n = long(f.size());
+    double sum = 0;
+#pragma omp parallel for schedule(static) reduction(+ : sum)
+    for (long i = 0; i < n; ++i) {
+      const Real rho0 = sim.restDensity_[f.phase[i]];
+      Real r = rateOfDensity(sim, nf, nb, i, rho0);
+      r = deficient_[i] ? Real(0) : std::max(r, Real(0));
+      residual_[i] = r;
+      sum += double(r / rho0);
+    }
+    return n ? Real(sum / double(n)) : Real(0);
+  }
+
+  // ρ*_i = ρ_i + Δt Dρ_i/Dt (eq. (13) in [BK17]); residual (ρ*_i - ρ0)/Δt.
+  // Only compression counts. Returns the average relative error; maxErr the largest.
+  Real densityResidual(Simulation<D>& sim, Real dt, Real& maxErr) {
+    const auto& nf = sim.search.dynamicNeighbors();
+    const auto& nb = sim.search.staticNeighbors();
+    const auto& f = sim.fluid;
+    const long n = long(f.size());
+    double sum = 0;
+    Real mx = 0;
+#pragma omp parallel for schedule(static) reduction(+ : sum) reduction(max : mx)
+    for (long i = 0; i < n; ++i) {
+      const Real rho0 = sim.restDensity_[f.phase[i]];
+      const Real predicted = f.density[i] + dt * rateOfDensity(sim, nf, nb, i, rho0);
+      const Real err = std::max(predicted - rho0, Real(0));
+      residual_[i] = err / dt;
+      mx = std::max(mx, err / rho0);
+      sum += double(err / rho0);
+    }
+    maxErr = mx;
+    return n ? Real(sum / double(n)) : Real(0);
+  }
+
+  static Real rateOfDensity(const Simulation<D>& sim, const NeighborList& nf, const NeighborList& nb, long i,
+                            Real rho0) {
+    const auto& f = sim.fluid;
+    const Vec<D> vi = f.v[i];
+    Real r = 0;
+    for (uint32_t k = nf.offsets[i], e = nf.offsets[i + 1]; k < e; ++k) {
+      const uint32_t j = nf.indices[k];
+      r += f.mass[j] * (vi - f.v[j]).dot(sim.gradFluid[k]);
+    }
+    Real rb = 0;
+    for (uint32_t k = nb.offsets[i], e = nb.offsets[i + 1]; k < e; ++k) {
+      const uint32_t b = nb.indices[k];
+      rb += sim.boundary.volume[b] * (vi - sim.boundary.v[b]).dot(sim.gradBoundary[k]);
+    }
+    return r + rho0 * rb;
+  }
+
+  Real densityTol_, divergenceTol_;
+  int minIterations_, maxIterations_, maxDivergenceIterations_;
+  bool divergenceSolve_, warmStart_;
+  std::vector<Real> factor_, kappaDensity_, kappaDivergence_, residual_, stiffness_, scratch_;
+  std::vector<uint8_t> deficient_;
+};
+
+template <int D>
+std::unique_ptr<PressureSolver<D>> makeDFSPH(const ParamValues& p) {
+  return std::make_unique<DFSPH<D>>(p);
+}
+template std::unique_ptr<PressureSolver<2>> makeDFSPH<2>(const ParamValues&);
+template std::unique_ptr<PressureSolver<3>> makeDFSPH<3>(const ParamValues&);
+
+}  // namespace fc

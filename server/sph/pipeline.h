@@ -1,0 +1,100 @@
+#pragma once
+// Pluggable parts of the step: pressure solvers and non-pressure effects.
+// Each registers by name in one table; the scene's lists pick which exist.
+#include "core/types.h"
+#include "sph/parameters.h"
+#include <functional>
+#include <map>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace fc {
+
+template <int D> class Simulation;
+
+struct SolverReport {
+  int iterations = 0;
+  double avgErrorPct = 0;   // average relative error at exit, percent
+  double maxErrorPct = 0;   // largest particle error at exit, percent
+  bool converged = true;
+};
+
+template <int D>
+class PressureSolver {
+ public:
+  virtual ~PressureSolver() = default;
+  // Called once after the particles exist and before the first step.
+  virtual void init(Simulation<D>&) {}
+  // After densities and kernel gradients of a substep are known.
+  virtual void prepare(Simulation<D>&) {}
+  // Before non-pressure forces: DFSPH's divergence-free solve.
+  virtual SolverReport correctDivergence(Simulation<D>&, Real /*dt*/) { return {}; }
+  // After v += dt·a: make the predicted density match the rest density.
+  virtual SolverReport correctDensity(Simulation<D>&, Real dt) = 0;
+  // Largest time step this solver allows besides the velocity CFL (s).
+  virtual Real maxTimeStep(const Simulation<D>&) const { return Real(1e30); }
+  virtual void reorder(const std::vector<uint32_t>&) {}
+  virtual void resize(size_t) {}
+};
+
+// Stages an effect takes part in; the pipeline only calls what is declared.
+enum EffectStage : unsigned { AddAccelerations = 1, CorrectVelocities = 2 };
+
+template <int D>
+class Effect {
+ public:
+  virtual ~Effect() = default;
+  virtual unsigned stages() const = 0;
+  virtual void init(Simulation<D>&) {}
+  virtual void addAccelerations(Simulation<D>&) {}
+  virtual void correctVelocities(Simulation<D>&, Real /*dt*/) {}
+  virtual void reorder(const std::vector<uint32_t>&) {}
+  virtual void resize(size_t) {}
+};
+
+// A name -> (parameter specs, factory) table.
+template <class Product>
+class Registry {
+ public:
+  struct Entry {
+    std::string help;
+    ParamSpecs params;
+    std::function<std::unique_ptr<Product>(const ParamValues&)> make;
+  };
+  static Registry& instance() {
+    static Registry r;
+    return r;
+  }
+  bool add(const std::string& name, Entry e) {
+    entries_[name] = std::move(e);
+    return true;
+  }
+  const Entry* find(const std::string& name) const {
+    auto it = entries_.find(name);
+    return it == entries_.end() ? nullptr : &it->second;
+  }
+  std::vector<std::string> names() const {
+    std::vector<std::string> n;
+    for (auto& [k, v] : entries_) n.push_back(k);
+    return n;
+  }
+  std::unique_ptr<Product> make(const std::string& name, const ParamValues& p) const {
+    const Entry* e = find(name);
+    if (!e) throw std::invalid_argument("unknown '" + name + "'");
+    return e->make(p);
+  }
+
+ private:
+  std::map<std::string, Entry> entries_;
+};
+
+template <int D> using PressureSolverRegistry = Registry<PressureSolver<D>>;
+template <int D> using EffectRegistry = Registry<Effect<D>>;
+
+// Registration happens in one place (sph/registry.cpp) so that static
+// libraries cannot drop it.
+void registerBuiltinSolversAndEffects();
+
+}  // namespace fc

@@ -1,0 +1,27 @@
+#include "sph/builtin.h"
+#include <mutex>
+
+namespace fc {
+
+namespace {
+template <int D>
+void registerDim() {
+  auto& solvers = PressureSolverRegistry<D>::instance();
+  solvers.add("dfsph", {"Divergence-free SPH (Bender & Koschier 2015/2017)", dfsphParams(), makeDFSPH<D>});
+  solvers.add("wcsph", {"Weakly compressible SPH (Becker & Teschner 2007)", wcsphParams(), makeWCSPH<D>});
+  auto& effects = EffectRegistry<D>::instance();
+  effects.add("viscosity_standard",
+              {"Standard SPH viscosity (Monaghan-type Laplacian)", viscosityStandardParams(), makeViscosityStandard<D>});
+  effects.add("viscosity_xsph", {"XSPH velocity smoothing", viscosityXSPHParams(), makeViscosityXSPH<D>});
+}
+}  // namespace
+
+void registerBuiltinSolversAndEffects() {
+  static std::once_flag once;
+  std::call_once(once, [] {
+    registerDim<2>();
+    registerDim<3>();
+  });
+}
+
+}  // namespace fc

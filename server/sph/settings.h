@@ -1,0 +1,20 @@
+#pragma once
+// Scene-level simulation settings: declared once here.
+#include "sph/parameters.h"
+
+namespace fc {
+
+inline const ParamSpecs& simulationSettingsSpecs() {
+  static const ParamSpecs specs = {
+      {"frame_rate", "1/s", 1, 1000, 60, "frames per simulated second; substeps fit exactly into a frame"},
+      {"cfl_factor", "", 0.01, 2, 1.0, "time step = cfl_factor * 0.4 * particle diameter / max speed"},
+      {"dt_min", "s", 1e-7, 0.1, 1e-5, "smallest substep"},
+      {"dt_max", "s", 1e-6, 0.1, 0.005, "largest substep"},
+      {"reorder_interval", "steps", 0, 100000, 25,
+       "reorder particles along the Morton curve every N substeps (0: never)", ParamType::Integer},
+      {"boundary_layers", "", 1, 4, 2, "layers of boundary particles sampling walls and obstacles", ParamType::Integer},
+  };
+  return specs;
+}
+
+}  // namespace fc

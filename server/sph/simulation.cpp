@@ -1,0 +1,370 @@
+#include "sph/simulation.h"
+#include "sph/sampling.h"
+#include "sph/settings.h"
+#include <omp.h>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <numbers>
+#include <stdexcept>
+
+namespace fc {
+
+namespace {
+using Clock = std::chrono::steady_clock;
+double msSince(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+// Per-axis coordinates of a box shell lattice: the two faces, evenly spaced
+// points between them (spacing close to `spacing`, faces hit exactly), and
+// `extra` further layers beyond each face.
+std::vector<Real> axisCoords(Real lo, Real hi, Real spacing, int extra) {
+  const int n = std::max(1, int(std::lround((hi - lo) / spacing)));
+  std::vector<Real> c;
+  for (int l = extra; l >= 1; --l) c.push_back(lo - l * spacing);
+  for (int k = 0; k <= n; ++k) c.push_back(lo + (hi - lo) * Real(k) / Real(n));
+  for (int l = 1; l <= extra; ++l) c.push_back(hi + l * spacing);
+  return c;
+}
+
+// Boundary samples of a box surface, `layers` deep: outward for the tank
+// walls (the fluid is inside), inward for a solid box obstacle.
+template <int D>
+void sampleBoxShell(const AABB<D>& box, Real spacing, int layers, bool outward, std::vector<Vec<D>>& out) {
+  std::array<std::vector<Real>, D> coords;
+  for (int d = 0; d < D; ++d) coords[d] = axisCoords(box.min[d], box.max[d], spacing, outward ? layers - 1 : 0);
+  const Real depth = (layers - Real(0.5)) * spacing;
+  std::array<size_t, D> i{};
+  while (true) {
+    Vec<D> p;
+    for (int d = 0; d < D; ++d) p[d] = coords[d][i[d]];
+    bool keep;
+    if (outward) {
+      keep = !((p.array() > box.min.array() + spacing * Real(0.01)).all() &&
+               (p.array() < box.max.array() - spacing * Real(0.01)).all());
+    } else {
+      const Real inside = std::min((p - box.min).minCoeff(), (box.max - p).minCoeff());
+      keep = inside < depth;
+    }
+    if (keep) out.push_back(p);
+    int d = 0;
+    while (d < D && ++i[d] == coords[d].size()) i[d++] = 0;
+    if (d == D) break;
+  }
+}
+
+template <int D>
+void sampleSphereShell(const Vec<D>& c, Real radius, Real spacing, int layers, std::vector<Vec<D>>& out) {
+  for (int l = 0; l < layers; ++l) {
+    const Real rr = radius - l * spacing;
+    if (rr <= Real(0.25) * spacing) {
+      if (rr > -Real(0.5) * spacing) out.push_back(c);
+      break;
+    }
+    if constexpr (D == 2) {
+      const int n = std::max(3, int(std::lround(2 * std::numbers::pi * rr / spacing)));
+      for (int k = 0; k < n; ++k) {
+        const double t = 2 * std::numbers::pi * k / n;
+        out.push_back(c + rr * Vec<D>(Real(std::cos(t)), Real(std::sin(t))));
+      }
+    } else {
+      // Fibonacci sphere: near-uniform area per point.
+      const int n = std::max(4, int(std::lround(4 * std::numbers::pi * rr * rr / (spacing * spacing))));
+      const double golden = std::numbers::pi * (3 - std::sqrt(5.0));
+      for (int k = 0; k < n; ++k) {
+        const double y = 1 - 2 * (k + 0.5) / n;
+        const double rxy = std::sqrt(std::max(0.0, 1 - y * y));
+        const double t = golden * k;
+        out.push_back(c + rr * Vec<D>(Real(rxy * std::cos(t)), Real(y), Real(rxy * std::sin(t))));
+      }
+    }
+  }
+}
+}  // namespace
+
+template <int D>
+Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
+  registerBuiltinSolversAndEffects();
+  radius_ = setup_.particleRadius;
+  if (!(radius_ > 0)) throw std::invalid_argument("particle_radius must be positive");
+  if (setup_.domain.empty()) throw std::invalid_argument("domain is empty");
+  if (setup_.phases.empty() || setup_.phases.size() > 255) throw std::invalid_argument("need 1 to 255 phases");
+  // Support radius 4r (two particle diameters), as SPlisHSPlasH.
+  kernel.setRadius(Real(4) * radius_);
+  gravity_ = setup_.gravity;
+  for (const auto& ph : setup_.phases) restDensity_.push_back(ph.restDensity);
+
+  // Settings default where the caller left them out.
+  ParamValues defaults(simulationSettingsSpecs());
+  for (const auto& [k, v] : defaults.all())
+    if (!setup_.settings.has(k)) setup_.settings.set(k, v);
+
+  const std::string solverName = setup_.solver.name.empty() ? "dfsph" : setup_.solver.name;
+  const auto* entry = PressureSolverRegistry<D>::instance().find(solverName);
+  if (!entry) throw std::invalid_argument("unknown pressure solver '" + solverName + "'");
+  ParamValues sp(entry->params);
+  for (const auto& [k, v] : setup_.solver.values.all()) sp.set(k, v);
+  pressure_ = entry->make(sp);
+  stageNames_.push_back("pressure:" + solverName);
+
+  for (const auto& e : setup_.effects) {
+    const auto* ee = EffectRegistry<D>::instance().find(e.name);
+    if (!ee) throw std::invalid_argument("unknown effect '" + e.name + "'");
+    ParamValues ev(ee->params);
+    for (const auto& [k, v] : e.values.all()) ev.set(k, v);
+    effects_.push_back(ee->make(ev));
+    Effect<D>* eff = effects_.back().get();
+    if (eff->stages() & AddAccelerations) accelerationStages_.push_back(eff);
+    if (eff->stages() & CorrectVelocities) velocityStages_.push_back(eff);
+    stageNames_.push_back("effect:" + e.name);
+  }
+
+  search.setGrid(setup_.domain, kernel.radius());
+  buildBoundary();
+  buildFluid();
+  if (fluid.size() > setup_.maxParticles)
+    throw std::invalid_argument("scene has " + std::to_string(fluid.size()) + " particles, more than max_particles " +
+                                std::to_string(setup_.maxParticles));
+  pressure_->resize(fluid.size());
+  for (auto& e : effects_) e->resize(fluid.size());
+  pressure_->init(*this);
+  for (auto& e : effects_) e->init(*this);
+  lastDt_ = Real(setup_.settings.get("dt_max"));
+}
+
+template <int D>
+Simulation<D>::~Simulation() = default;
+
+template <int D>
+void Simulation<D>::buildBoundary() {
+  const Real spacing = 2 * radius_;
+  const int layers = int(setup_.settings.get("boundary_layers"));
+  std::vector<Vec<D>> pts;
+  // Sample centres sit one particle radius behind the solid surface, where
+  // the fluid lattice would continue: a fluid particle resting against the
+  // surface then sees the same neighbourhood as one inside the fluid.
+  sampleBoxShell<D>(setup_.domain.grown(radius_), spacing, layers, true, pts);
+  for (const auto& o : setup_.obstacles) {
+    if (o.shape == ObstacleShape::Box) sampleBoxShell<D>(o.box.grown(-radius_), spacing, layers, false, pts);
+    else sampleSphereShell<D>(o.center, o.radius - radius_, spacing, layers, pts);
+  }
+  boundary.x = pts;
+  boundary.v.assign(pts.size(), Vec<D>::Zero());
+  boundary.volume.assign(pts.size(), 0);
+  search.setStaticPoints(boundary.x);
+  // Boundary samples fill the solid `boundary_layers` deep like the fluid
+  // lattice continued, so each stands for the lattice volume (2r)^D. Where
+  // samples crowd (box edges, curved or touching solids) the volume of Akinci
+  // et al. 2012, eq. (4), V_b = 1 / Σ_k W(x_b - x_k), is smaller and taken
+  // instead, so that no solid counts twice. Akinci's volume alone is meant for
+  // a single layer; on several layers it would overstate the wall's density.
+  const Real latticeVolume = std::pow(spacing, Real(D));
+#pragma omp parallel for schedule(static)
+  for (size_t b = 0; b < pts.size(); ++b) {
+    Real sum = 0;
+    search.forEachStaticNear(pts[b], kernel.radius(), [&](uint32_t, const Vec<D>& q) { sum += kernel.W(Vec<D>(pts[b] - q)); });
+    boundary.volume[b] = sum > 0 ? std::min(latticeVolume, Real(1) / sum) : latticeVolume;
+  }
+}
+
+template <int D>
+void Simulation<D>::buildFluid() {
+  const Real spacing = 2 * radius_;
+  const Real cellVolume = std::pow(spacing, Real(D));
+  for (const auto& blk : setup_.fluidBlocks) {
+    const Real m = restDensity_.at(blk.phase) * cellVolume;
+    forEachLatticePoint<D>(blk.box, spacing, [&](const Vec<D>& p) {
+      for (const auto& o : setup_.obstacles)
+        if (o.signedDistance(p) < radius_) return;  // never start inside a solid
+      fluid.add(p, blk.velocity, m, uint8_t(blk.phase));
+    });
+  }
+}
+
+// ρ_i = Σ_j m_j W_ij + Σ_b Ψ_b W_ib with Ψ_b = ρ0_i V_b (Akinci et al. 2012,
+// eq. (6)); the kernel gradients of every pair are cached for the solvers.
+template <int D>
+void Simulation<D>::computeDensities() {
+  const auto& nf = search.dynamicNeighbors();
+  const auto& nb = search.staticNeighbors();
+  gradFluid.resize(nf.pairs());
+  gradBoundary.resize(nb.pairs());
+  const Real w0 = kernel.W0();
+  const long n = long(fluid.size());
+#pragma omp parallel for schedule(static)
+  for (long i = 0; i < n; ++i) {
+    const Vec<D> xi = fluid.x[i];
+    Real rho = fluid.mass[i] * w0;
+    Real w;
+    for (uint32_t k = nf.offsets[i], e = nf.offsets[i + 1]; k < e; ++k) {
+      const uint32_t j = nf.indices[k];
+      kernel.evaluate(xi - fluid.x[j], w, gradFluid[k]);
+      rho += fluid.mass[j] * w;
+    }
+    Real rhoB = 0;
+    for (uint32_t k = nb.offsets[i], e = nb.offsets[i + 1]; k < e; ++k) {
+      const uint32_t b = nb.indices[k];
+      kernel.evaluate(xi - boundary.x[b], w, gradBoundary[k]);
+      rhoB += boundary.volume[b] * w;
+    }
+    fluid.density[i] = rho + restDensity_[fluid.phase[i]] * rhoB;
+  }
+}
+
+template <int D>
+Real Simulation<D>::cflTimeStep() const {
+  Real vmax2 = 0;
+  const long n = long(fluid.size());
+  const Real h = lastDt_;
+#pragma omp parallel for schedule(static) reduction(max : vmax2)
+  for (long i = 0; i < n; ++i) vmax2 = std::max(vmax2, (fluid.v[i] + h * fluid.a[i]).squaredNorm());
+  const Real cfl = Real(setup_.settings.get("cfl_factor"));
+  const Real vmax = std::sqrt(vmax2);
+  Real dt = vmax > 0 ? cfl * Real(0.4) * (2 * radius_) / vmax : Real(setup_.settings.get("dt_max"));
+  dt = std::min(dt, pressure_->maxTimeStep(*this));
+  return std::clamp(dt, Real(setup_.settings.get("dt_min")), Real(setup_.settings.get("dt_max")));
+}
+
+template <int D>
+void Simulation<D>::reorderParticles() {
+  search.zOrder(fluid.x, perm_);
+  fluid.reorder(perm_);
+  pressure_->reorder(perm_);
+  for (auto& e : effects_) e->reorder(perm_);
+}
+
+// Nothing may leave the tank or sit inside a solid. The solver should never
+// need this; when it does, the particle is put back and the frame counts it.
+template <int D>
+size_t Simulation<D>::guardDomain() {
+  const Vec<D> lo = setup_.domain.min.array() + Real(0.5) * radius_;
+  const Vec<D> hi = setup_.domain.max.array() - Real(0.5) * radius_;
+  size_t escaped = 0;
+  const long n = long(fluid.size());
+#pragma omp parallel for schedule(static) reduction(+ : escaped)
+  for (long i = 0; i < n; ++i) {
+    Vec<D>& x = fluid.x[i];
+    Vec<D>& v = fluid.v[i];
+    bool moved = false;
+    for (int d = 0; d < D; ++d) {
+      if (x[d] < setup_.domain.min[d]) {
+        x[d] = lo[d];
+        v[d] = std::max(v[d], Real(0));
+        moved = true;
+      } else if (x[d] > setup_.domain.max[d]) {
+        x[d] = hi[d];
+        v[d] = std::min(v[d], Real(0));
+        moved = true;
+      }
+    }
+    for (const auto& o : setup_.obstacles) {
+      const Real sd = o.signedDistance(x);
+      if (sd >= 0) continue;
+      Vec<D> g;
+      const Real eps = Real(1e-3) * radius_;
+      for (int d = 0; d < D; ++d) {
+        Vec<D> e = Vec<D>::Zero();
+        e[d] = eps;
+        g[d] = o.signedDistance(x + e) - o.signedDistance(x - e);
+      }
+      if (g.norm() > 0) {
+        g.normalize();
+        x += (-sd + Real(0.5) * radius_) * g;
+        const Real vn = v.dot(g);
+        if (vn < 0) v -= vn * g;
+      }
+      moved = true;
+    }
+    if (moved) ++escaped;
+  }
+  return escaped;
+}
+
+template <int D>
+FrameStats Simulation<D>::advanceFrame() {
+  const auto t0 = Clock::now();
+  FrameStats fs;
+  const double frameEnd = double(frame_ + 1) * frameDuration();
+  const int reorderInterval = int(setup_.settings.get("reorder_interval"));
+  const long n = long(fluid.size());
+  fs.minDt = 1e30;
+
+  while (time_ < frameEnd - 1e-9) {
+    if (reorderInterval > 0 && stepsSinceReorder_ >= size_t(reorderInterval)) {
+      reorderParticles();
+      stepsSinceReorder_ = 0;
+    }
+    const auto tn = Clock::now();
+    search.update(fluid.x);
+    fs.neighborMs += msSince(tn);
+    computeDensities();
+    pressure_->prepare(*this);
+
+    const SolverReport div = pressure_->correctDivergence(*this, lastDt_);
+    fs.divergenceIterations += div.iterations;
+    fs.converged = fs.converged && div.converged;
+
+    // Non-pressure accelerations: gravity, then the scene's effects in order.
+#pragma omp parallel for schedule(static)
+    for (long i = 0; i < n; ++i) fluid.a[i] = gravity_;
+    for (Effect<D>* e : accelerationStages_) e->addAccelerations(*this);
+
+    // Fit the substeps exactly into the frame, without a tiny last step.
+    Real dt = cflTimeStep();
+    const double remaining = frameEnd - time_;
+    if (remaining <= dt) dt = Real(remaining);
+    else if (remaining < 2.0 * dt) dt = Real(0.5 * remaining);
+
+#pragma omp parallel for schedule(static)
+    for (long i = 0; i < n; ++i) fluid.v[i] += dt * fluid.a[i];
+
+    const SolverReport dens = pressure_->correctDensity(*this, dt);
+    fs.densityIterations += dens.iterations;
+    fs.converged = fs.converged && dens.converged;
+    fs.avgDensityErrorPct = std::max(fs.avgDensityErrorPct, dens.avgErrorPct);
+    fs.maxDensityErrorPct = std::max(fs.maxDensityErrorPct, dens.maxErrorPct);
+
+    for (Effect<D>* e : velocityStages_) e->correctVelocities(*this, dt);
+
+#pragma omp parallel for schedule(static)
+    for (long i = 0; i < n; ++i) fluid.x[i] += dt * fluid.v[i];
+    fs.escapedParticles += guardDomain();
+
+    time_ += double(dt);
+    // Keep time exact at frame boundaries despite rounding.
+    if (time_ >= frameEnd - 1e-9) time_ = frameEnd;
+    lastDt_ = dt;
+    fs.minDt = std::min(fs.minDt, double(dt));
+    fs.maxDt = std::max(fs.maxDt, double(dt));
+    ++fs.substeps;
+    ++totalSubsteps_;
+    ++stepsSinceReorder_;
+  }
+  ++frame_;
+
+  double vmax2 = 0, energy = 0;
+  bool finite = true;
+#pragma omp parallel for schedule(static) reduction(max : vmax2) reduction(+ : energy) reduction(&& : finite)
+  for (long i = 0; i < n; ++i) {
+    const double v2 = double(fluid.v[i].squaredNorm());
+    vmax2 = std::max(vmax2, v2);
+    energy += 0.5 * double(fluid.mass[i]) * v2;
+    finite = finite && fluid.x[i].allFinite() && fluid.v[i].allFinite() && std::isfinite(fluid.density[i]);
+  }
+  fs.finite = finite;
+  fs.maxSpeed = std::sqrt(vmax2);
+  fs.kineticEnergy = energy;
+  fs.frame = frame_;
+  fs.time = time_;
+  fs.particles = fluid.size();
+  fs.boundaryParticles = boundary.size();
+  fs.avgNeighbors = n ? double(search.dynamicNeighbors().pairs() + search.staticNeighbors().pairs()) / double(n) : 0;
+  if (fs.substeps == 0) fs.minDt = 0;
+  fs.wallMs = msSince(t0);
+  return fs;
+}
+
+FC_INSTANTIATE_DIMS(Simulation)
+
+}  // namespace fc

@@ -1,0 +1,87 @@
+#pragma once
+// One liquid simulation: particles, boundaries, neighbour search, the
+// pressure solver and the effects the scene names, advanced frame by frame.
+#include "core/kernels.h"
+#include "core/neighborhood_search.h"
+#include "sph/particles.h"
+#include "sph/pipeline.h"
+#include "sph/setup.h"
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace fc {
+
+struct FrameStats {
+  int frame = 0;                 // index of the frame just completed (1-based)
+  double time = 0;               // simulated time at its end, s
+  double wallMs = 0;
+  int substeps = 0;
+  int divergenceIterations = 0;  // summed over substeps
+  int densityIterations = 0;     // summed over substeps
+  double avgDensityErrorPct = 0; // worst substep's average error at solver exit
+  double maxDensityErrorPct = 0; // worst particle error at solver exit
+  bool converged = true;         // every solve reached its tolerance
+  size_t particles = 0;          // liquid particles (all kinds)
+  size_t boundaryParticles = 0;
+  size_t escapedParticles = 0;   // particles the wall guard had to put back
+  double maxSpeed = 0;           // m/s, end of frame
+  double kineticEnergy = 0;      // J (J/m in 2D), end of frame
+  double minDt = 0, maxDt = 0;   // s
+  double neighborMs = 0;         // neighbour search share of wallMs
+  double avgNeighbors = 0;
+  bool finite = true;            // every position and velocity finite
+};
+
+template <int D>
+class Simulation {
+ public:
+  // Throws std::invalid_argument naming what is wrong with the setup.
+  explicit Simulation(const SimulationSetup<D>& setup);
+  ~Simulation();
+
+  FrameStats advanceFrame();
+
+  const SimulationSetup<D>& setup() const { return setup_; }
+  Real particleRadius() const { return radius_; }
+  Real supportRadius() const { return kernel.radius(); }
+  double time() const { return time_; }
+  int frame() const { return frame_; }
+  double frameDuration() const { return 1.0 / setup_.settings.get("frame_rate"); }
+  const std::vector<std::string>& pipelineStages() const { return stageNames_; }
+  size_t totalSubsteps() const { return totalSubsteps_; }
+  Real restDensity(size_t i) const { return restDensity_[fluid.phase[i]]; }
+
+  // State shared with solvers and effects.
+  FluidParticles<D> fluid;
+  BoundaryParticles<D> boundary;
+  CubicSpline<D> kernel;
+  NeighborhoodSearch<D> search;
+  // Kernel gradients ∇W(x_i - x_j), aligned with the neighbour lists.
+  std::vector<Vec<D>> gradFluid, gradBoundary;
+  std::vector<Real> restDensity_;   // per phase
+
+ private:
+  void buildBoundary();
+  void buildFluid();
+  void computeDensities();
+  Real cflTimeStep() const;
+  void reorderParticles();
+  size_t guardDomain();
+
+  SimulationSetup<D> setup_;
+  Real radius_;
+  Vec<D> gravity_;
+  std::unique_ptr<PressureSolver<D>> pressure_;
+  std::vector<std::unique_ptr<Effect<D>>> effects_;
+  std::vector<Effect<D>*> accelerationStages_, velocityStages_;
+  std::vector<std::string> stageNames_;
+  double time_ = 0;
+  int frame_ = 0;
+  Real lastDt_ = 0;
+  size_t totalSubsteps_ = 0;
+  size_t stepsSinceReorder_ = 0;
+  std::vector<uint32_t> perm_;
+};
+
+}  // namespace fc

@@ -1,0 +1,71 @@
+// Standard SPH viscosity: the Laplacian estimate of Monaghan 2005 as used by
+// SPlisHSPlasH ("Standard"):
+//   a_i = 2(D+2) Σ_j ν (m_j/ρ_j) (v_ij·x_ij)/(|x_ij|² + 0.01h²) ∇W_ij,
+// with ν the kinematic viscosity of the phases (their mean for a mixed pair).
+#include "sph/builtin.h"
+#include "sph/simulation.h"
+
+namespace fc {
+
+const ParamSpecs& viscosityStandardParams() {
+  static const ParamSpecs specs = {
+      {"boundary_viscosity", "m^2/s", 0, 1000, 0, "kinematic viscosity against walls and obstacles (0: free slip)"},
+  };
+  return specs;
+}
+
+template <int D>
+class ViscosityStandard final : public Effect<D> {
+ public:
+  explicit ViscosityStandard(const ParamValues& p) : boundaryViscosity_(Real(p.get("boundary_viscosity"))) {}
+  unsigned stages() const override { return AddAccelerations; }
+  void init(Simulation<D>& sim) override {
+    nu_.clear();
+    for (const auto& ph : sim.setup().phases) nu_.push_back(ph.viscosity);
+  }
+
+  void addAccelerations(Simulation<D>& sim) override {
+    auto& f = sim.fluid;
+    const auto& nf = sim.search.dynamicNeighbors();
+    const auto& nb = sim.search.staticNeighbors();
+    const std::vector<Real>& nu = nu_;
+    const Real h = sim.supportRadius();
+    const Real eps = Real(0.01) * h * h;
+    const Real d = Real(2 * (D + 2));
+    const long n = long(f.size());
+#pragma omp parallel for schedule(static)
+    for (long i = 0; i < n; ++i) {
+      const Vec<D> xi = f.x[i], vi = f.v[i];
+      const Real nui = nu[f.phase[i]];
+      Vec<D> a = Vec<D>::Zero();
+      for (uint32_t k = nf.offsets[i], e = nf.offsets[i + 1]; k < e; ++k) {
+        const uint32_t j = nf.indices[k];
+        const Vec<D> xij = xi - f.x[j];
+        const Real nuij = Real(0.5) * (nui + nu[f.phase[j]]);
+        a += (nuij * f.mass[j] / f.density[j] * (vi - f.v[j]).dot(xij) / (xij.squaredNorm() + eps)) * sim.gradFluid[k];
+      }
+      if (boundaryViscosity_ > 0)
+        for (uint32_t k = nb.offsets[i], e = nb.offsets[i + 1]; k < e; ++k) {
+          const uint32_t b = nb.indices[k];
+          const Vec<D> xib = xi - sim.boundary.x[b];
+          a += (boundaryViscosity_ * sim.boundary.volume[b] * (vi - sim.boundary.v[b]).dot(xib) /
+                (xib.squaredNorm() + eps)) *
+               sim.gradBoundary[k];
+        }
+      f.a[i] += d * a;
+    }
+  }
+
+ private:
+  Real boundaryViscosity_;
+  std::vector<Real> nu_;  // per phase
+};
+
+template <int D>
+std::unique_ptr<Effect<D>> makeViscosityStandard(const ParamValues& p) {
+  return std::make_unique<ViscosityStandard<D>>(p);
+}
+template std::unique_ptr<Effect<2>> makeViscosityStandard<2>(const ParamValues&);
+template std::unique_ptr<Effect<3>> makeViscosityStandard<3>(const ParamValues&);
+
+}  // namespace fc

@@ -1,0 +1,54 @@
+// XSPH velocity smoothing (Monaghan 1989; Schechter & Bridson 2012 form):
+//   v_i ← v_i + c Σ_j (m_j/ρ_j) (v_j - v_i) W_ij,
+// applied after the pressure solve. Damps noise; c is dimensionless.
+#include "sph/builtin.h"
+#include "sph/simulation.h"
+
+namespace fc {
+
+const ParamSpecs& viscosityXSPHParams() {
+  static const ParamSpecs specs = {
+      {"coefficient", "", 0, 1, 0.05, "XSPH smoothing factor c"},
+  };
+  return specs;
+}
+
+template <int D>
+class ViscosityXSPH final : public Effect<D> {
+ public:
+  explicit ViscosityXSPH(const ParamValues& p) : c_(Real(p.get("coefficient"))) {}
+  unsigned stages() const override { return CorrectVelocities; }
+  void resize(size_t n) override { old_.resize(n); }
+
+  void correctVelocities(Simulation<D>& sim, Real) override {
+    auto& f = sim.fluid;
+    const auto& nf = sim.search.dynamicNeighbors();
+    const long n = long(f.size());
+    old_.resize(f.size());
+#pragma omp parallel for schedule(static)
+    for (long i = 0; i < n; ++i) old_[i] = f.v[i];
+#pragma omp parallel for schedule(static)
+    for (long i = 0; i < n; ++i) {
+      const Vec<D> xi = f.x[i], vi = old_[i];
+      Vec<D> dv = Vec<D>::Zero();
+      for (uint32_t k = nf.offsets[i], e = nf.offsets[i + 1]; k < e; ++k) {
+        const uint32_t j = nf.indices[k];
+        dv += (f.mass[j] / f.density[j] * sim.kernel.W(xi - f.x[j])) * (old_[j] - vi);
+      }
+      f.v[i] = vi + c_ * dv;
+    }
+  }
+
+ private:
+  Real c_;
+  std::vector<Vec<D>> old_;
+};
+
+template <int D>
+std::unique_ptr<Effect<D>> makeViscosityXSPH(const ParamValues& p) {
+  return std::make_unique<ViscosityXSPH<D>>(p);
+}
+template std::unique_ptr<Effect<2>> makeViscosityXSPH<2>(const ParamValues&);
+template std::unique_ptr<Effect<3>> makeViscosityXSPH<3>(const ParamValues&);
+
+}  // namespace fc

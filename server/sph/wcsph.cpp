@@ -1,0 +1,81 @@
+// Weakly compressible SPH: Becker & Teschner, "Weakly compressible SPH for
+// free surface flows", SCA 2007 [BT07].
+#include "sph/builtin.h"
+#include "sph/simulation.h"
+#include <cmath>
+
+namespace fc {
+
+const ParamSpecs& wcsphParams() {
+  static const ParamSpecs specs = {
+      {"stiffness", "Pa", 1, 1e9, 50000, "B in p = B((ρ/ρ0)^γ - 1)"},
+      {"exponent", "", 1, 7, 7, "γ in p = B((ρ/ρ0)^γ - 1)"},
+  };
+  return specs;
+}
+
+template <int D>
+class WCSPH final : public PressureSolver<D> {
+ public:
+  explicit WCSPH(const ParamValues& p) : stiffness_(Real(p.get("stiffness"))), exponent_(Real(p.get("exponent"))) {}
+
+  // Sound speed c = sqrt(B γ / ρ0); the step must resolve it (acoustic CFL).
+  Real maxTimeStep(const Simulation<D>& sim) const override {
+    Real rho0 = sim.restDensity_[0];
+    for (Real r : sim.restDensity_) rho0 = std::min(rho0, r);
+    const Real c = std::sqrt(stiffness_ * exponent_ / rho0);
+    return Real(sim.setup().settings.get("cfl_factor")) * Real(0.4) * 2 * sim.particleRadius() / c;
+  }
+
+  SolverReport correctDensity(Simulation<D>& sim, Real dt) override {
+    auto& f = sim.fluid;
+    const auto& nf = sim.search.dynamicNeighbors();
+    const auto& nb = sim.search.staticNeighbors();
+    const long n = long(f.size());
+    double sum = 0;
+    Real mx = 0;
+    // Equation of state, eq. (7) in [BT07], clamped at zero to avoid tensile
+    // instability at the free surface.
+#pragma omp parallel for schedule(static) reduction(+ : sum) reduction(max : mx)
+    for (long i = 0; i < n; ++i) {
+      const Real rho0 = sim.restDensity_[f.phase[i]];
+      const Real ratio = std::max(f.density[i] / rho0, Real(1));
+      f.pressure[i] = stiffness_ * (std::pow(ratio, exponent_) - Real(1));
+      const Real err = ratio - Real(1);
+      sum += double(err);
+      mx = std::max(mx, err);
+    }
+    // Symmetric pressure acceleration, eq. (6) in [BT07]; boundaries mirror
+    // the particle's own pressure (Akinci et al. 2012, eq. (10)).
+#pragma omp parallel for schedule(static)
+    for (long i = 0; i < n; ++i) {
+      const Real rho0 = sim.restDensity_[f.phase[i]];
+      const Real pi = f.pressure[i] / (f.density[i] * f.density[i]);
+      Vec<D> a = Vec<D>::Zero();
+      for (uint32_t k = nf.offsets[i], e = nf.offsets[i + 1]; k < e; ++k) {
+        const uint32_t j = nf.indices[k];
+        a -= (f.mass[j] * (pi + f.pressure[j] / (f.density[j] * f.density[j]))) * sim.gradFluid[k];
+      }
+      if (pi != 0)
+        for (uint32_t k = nb.offsets[i], e = nb.offsets[i + 1]; k < e; ++k)
+          a -= (rho0 * sim.boundary.volume[nb.indices[k]] * pi) * sim.gradBoundary[k];
+      f.v[i] += dt * a;
+    }
+    SolverReport rep;
+    rep.avgErrorPct = n ? sum / double(n) * 100.0 : 0;
+    rep.maxErrorPct = double(mx) * 100.0;
+    return rep;
+  }
+
+ private:
+  Real stiffness_, exponent_;
+};
+
+template <int D>
+std::unique_ptr<PressureSolver<D>> makeWCSPH(const ParamValues& p) {
+  return std::make_unique<WCSPH<D>>(p);
+}
+template std::unique_ptr<PressureSolver<2>> makeWCSPH<2>(const ParamValues&);
+template std::unique_ptr<PressureSolver<3>> makeWCSPH<3>(const ParamValues&);
+
+}  // namespace fc

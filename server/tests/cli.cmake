@@ -1,0 +1,72 @@
+# Command-line tests of scene validation: `flowclip run <bad scene>` must exit
+# with status 2 (bad input) and name the offending key path. Included by
+# server/CMakeLists.txt; run with `ctest -L cli`.
+set(FC_CLI_TESTS_DIR ${CMAKE_CURRENT_LIST_DIR})
+set(FC_BAD_SCENES ${FC_CLI_TESTS_DIR}/bad_scenes)
+
+# fc_cli_expect(<test name> <exit code> <literal text expected in output> <flowclip args...>)
+function(fc_cli_expect name code text)
+  list(JOIN ARGN "|" args)
+  add_test(NAME ${name}
+    COMMAND ${CMAKE_COMMAND} "-DCMD=$<TARGET_FILE:flowclip>|${args}" -DEXPECT_CODE=${code}
+            "-DEXPECT_TEXT=${text}" -P ${FC_CLI_TESTS_DIR}/expect_exit.cmake)
+  set_tests_properties(${name} PROPERTIES LABELS cli TIMEOUT 300)
+endfunction()
+
+# One bad scene per validation rule: file name (without .json) and the key
+# path the error must name, as "<path>:" so that the path, not some other
+# mention of the key, is checked.
+set(FC_BAD_SCENE_CASES
+  "unknown_key_top=gravty:"
+  "unknown_key_nested=fluid_blocks[0].velocty:"
+  "unknown_solver_param=solver.density_tolerance:"
+  "wrong_type_string=particle_radius:"
+  "wrong_type_integer_param=settings.reorder_interval:"
+  "wrong_type_boolean_param=solver.divergence_solve:"
+  "negative_radius=particle_radius:"
+  "vector_wrong_length=gravity:"
+  "huge_param=solver.density_tolerance_pct:"
+  "out_of_range_param=settings.cfl_factor:"
+  "domain_inverted=domain:"
+  "block_inverted=fluid_blocks[0]:"
+  "block_outside_domain=fluid_blocks[0].max[0]:"
+  "block_in_obstacle=fluid_blocks[0]:"
+  "block_near_obstacle=fluid_blocks[0]:"
+  "obstacle_radius_zero=obstacles[0].radius:"
+  "disk_in_3d=obstacles[0].type:"
+  "unknown_phase=fluid_blocks[0].phase:"
+  "duplicate_phase=phases[1].name:"
+  "rest_density_zero=phases[0].rest_density:"
+  "negative_viscosity=phases[0].viscosity:"
+  "unknown_solver=solver.method:"
+  "unknown_effect=effects[0]:"
+  "duplicate_effect=effects[1]:"
+  "too_many_particles=fluid_blocks:"
+  "max_particles_out_of_range=max_particles:"
+  "no_fluid_blocks=fluid_blocks:"
+  "bad_dimension=dimension:"
+  "duplicate_key=particle_radius:"
+  # File-level errors name the file with line and column instead of a key.
+  "malformed=malformed.json:3:18: malformed JSON"
+  "number_overflow=number_overflow.json:4:22: malformed JSON"
+)
+foreach(case IN LISTS FC_BAD_SCENE_CASES)
+  string(FIND "${case}" "=" eq)
+  string(SUBSTRING "${case}" 0 ${eq} file)
+  math(EXPR eq "${eq} + 1")
+  string(SUBSTRING "${case}" ${eq} -1 text)
+  fc_cli_expect(cli_bad_scene_${file} 2 "${text}" run ${FC_BAD_SCENES}/${file}.json --frames 1)
+endforeach()
+
+fc_cli_expect(cli_bad_scene_missing_file 2 "does_not_exist.json" run ${FC_BAD_SCENES}/does_not_exist.json --frames 1)
+fc_cli_expect(cli_bad_particle_radius_override 2 "fluid_blocks:"
+  run ${FC_BAD_SCENES}/../../../scenes/bench/dambreak2d_r010.json --particle-radius 0.0001 --frames 1)
+
+# Every shipped scene loads and builds its simulation (no step is taken).
+file(GLOB FC_SHIPPED_SCENES CONFIGURE_DEPENDS ${FC_CLI_TESTS_DIR}/../../scenes/*.json ${FC_CLI_TESTS_DIR}/../../scenes/bench/*.json)
+foreach(scene IN LISTS FC_SHIPPED_SCENES)
+  get_filename_component(stem ${scene} NAME_WE)
+  get_filename_component(dir ${scene} DIRECTORY)
+  get_filename_component(dir ${dir} NAME)
+  fc_cli_expect(cli_scene_loads_${dir}_${stem} 0 "" run ${scene} --frames 0 --quiet)
+endforeach()

@@ -1,0 +1,122 @@
+// Kernel normalisation and discrete consistency on regular lattices.
+#include "core/kernels.h"
+#include <gtest/gtest.h>
+#include <cmath>
+
+using namespace fc;
+
+namespace {
+// Tolerances scale with the precision Real was built with.
+constexpr double kTight = sizeof(Real) == 8 ? 1e-9 : 2e-5;
+
+// ∫W over its support by the midpoint rule on a fine grid.
+template <int D, class K>
+double integrate(const K& kernel, int cellsPerRadius) {
+  const double h = kernel.radius();
+  const double dx = h / cellsPerRadius;
+  double sum = 0;
+  const int n = cellsPerRadius;
+  if constexpr (D == 2) {
+    for (int i = -n; i < n; ++i)
+      for (int j = -n; j < n; ++j) sum += kernel.W(Vec<2>(Real((i + 0.5) * dx), Real((j + 0.5) * dx)));
+    return sum * dx * dx;
+  } else {
+    for (int i = -n; i < n; ++i)
+      for (int j = -n; j < n; ++j)
+        for (int k = -n; k < n; ++k)
+          sum += kernel.W(Vec<3>(Real((i + 0.5) * dx), Real((j + 0.5) * dx), Real((k + 0.5) * dx)));
+    return sum * dx * dx * dx;
+  }
+}
+
+// On a lattice of spacing s with particle volume s^D:
+//   Σ V W_ij ≈ 1, Σ V ∇W_ij = 0 (by symmetry, exactly), Σ V (x_j - x_i) ⊗ ∇W_ij ≈ I.
+template <int D, class K>
+void latticeSums(const K& kernel, Real spacing, double& sumW, Vec<D>& sumGrad, Mat<D>& moment) {
+  const double V = std::pow(double(spacing), D);
+  const int n = int(std::ceil(kernel.radius() / spacing)) + 1;
+  sumW = 0;
+  sumGrad.setZero();
+  moment.setZero();
+  Eigen::Matrix<double, D, 1> g = Eigen::Matrix<double, D, 1>::Zero();
+  Eigen::Matrix<double, D, D> m = Eigen::Matrix<double, D, D>::Zero();
+  auto visit = [&](const Vec<D>& xj) {  // x_i = 0
+    sumW += V * kernel.W(Vec<D>(-xj));
+    const Vec<D> gw = kernel.gradW(Vec<D>(-xj));
+    g += V * gw.template cast<double>();
+    m += V * xj.template cast<double>() * gw.template cast<double>().transpose();
+  };
+  if constexpr (D == 2) {
+    for (int i = -n; i <= n; ++i)
+      for (int j = -n; j <= n; ++j) visit(Vec<2>(i * spacing, j * spacing));
+  } else {
+    for (int i = -n; i <= n; ++i)
+      for (int j = -n; j <= n; ++j)
+        for (int k = -n; k <= n; ++k) visit(Vec<3>(i * spacing, j * spacing, k * spacing));
+  }
+  sumGrad = g.template cast<Real>();
+  moment = m.template cast<Real>();
+}
+}  // namespace
+
+TEST(Kernels, CubicSplineIntegratesToOne2D) { EXPECT_NEAR(integrate<2>(CubicSpline<2>(0.4f), 400), 1.0, 1e-4); }
+TEST(Kernels, CubicSplineIntegratesToOne3D) { EXPECT_NEAR(integrate<3>(CubicSpline<3>(0.4f), 100), 1.0, 1e-3); }
+TEST(Kernels, Poly6IntegratesToOne2D) { EXPECT_NEAR(integrate<2>(Poly6<2>(0.3f), 400), 1.0, 1e-4); }
+TEST(Kernels, Poly6IntegratesToOne3D) { EXPECT_NEAR(integrate<3>(Poly6<3>(0.3f), 100), 1.0, 1e-3); }
+
+TEST(Kernels, CubicSplineShapeAndGradient) {
+  CubicSpline<3> k(1.0f);
+  EXPECT_NEAR(k.W(Real(0)), 8.0 / M_PI, 1e-5);
+  EXPECT_EQ(k.W(Real(1.0001)), 0);
+  EXPECT_NEAR(k.W(Real(0.5)), 8.0 / M_PI * 2 * 0.125, 1e-5);  // both branches meet at q = 1/2
+  // The gradient matches a central difference and points from j to i with negative slope.
+  const Vec<3> r(0.3f, -0.2f, 0.25f);
+  const Vec<3> g = k.gradW(r);
+  for (int d = 0; d < 3; ++d) {
+    Vec<3> e = Vec<3>::Zero();
+    e[d] = 1e-3f;
+    EXPECT_NEAR(g[d], (k.W(Vec<3>(r + e)) - k.W(Vec<3>(r - e))) / 2e-3, 2e-3);
+  }
+  EXPECT_LT(g.dot(r), 0);
+  Real w;
+  Vec<3> g2;
+  k.evaluate(r, w, g2);
+  EXPECT_NEAR(w, k.W(r), 1e-6);
+  EXPECT_NEAR((g2 - g).norm(), 0, 1e-5);
+  EXPECT_EQ(k.gradW(Vec<3>::Zero()).norm(), 0);
+}
+
+TEST(Kernels, LatticeConsistency2D) {
+  const Real r = 0.01f;
+  CubicSpline<2> k(4 * r);
+  double sumW;
+  Vec<2> g;
+  Mat<2> m;
+  latticeSums<2>(k, 2 * r, sumW, g, m);
+  EXPECT_NEAR(sumW, 1.0, 0.02);
+  EXPECT_NEAR(g.norm() * 2 * r, 0.0, kTight);  // exact by symmetry, up to rounding
+  EXPECT_NEAR((m - Mat<2>::Identity()).norm(), 0.0, 0.02);
+}
+
+TEST(Kernels, LatticeConsistency3D) {
+  const Real r = 0.01f;
+  CubicSpline<3> k(4 * r);
+  double sumW;
+  Vec<3> g;
+  Mat<3> m;
+  latticeSums<3>(k, 2 * r, sumW, g, m);
+  EXPECT_NEAR(sumW, 1.0, 0.02);
+  EXPECT_NEAR(g.norm() * 2 * r, 0.0, kTight);
+  EXPECT_NEAR((m - Mat<3>::Identity()).norm(), 0.0, 0.02);
+}
+
+TEST(Kernels, Poly6LatticeConsistency3D) {
+  const Real r = 0.01f;
+  Poly6<3> k(4 * r);
+  double sumW;
+  Vec<3> g;
+  Mat<3> m;
+  latticeSums<3>(k, 2 * r, sumW, g, m);
+  EXPECT_NEAR(sumW, 1.0, 0.03);
+  EXPECT_NEAR((m - Mat<3>::Identity()).norm(), 0.0, 0.03);
+}

@@ -1,0 +1,132 @@
+// The grid neighbour search equals brute force, before and after reordering.
+#include "core/neighborhood_search.h"
+#include "sph/particles.h"
+#include <gtest/gtest.h>
+#include <algorithm>
+#include <random>
+#include <set>
+
+using namespace fc;
+
+namespace {
+
+template <int D>
+std::vector<std::vector<uint32_t>> bruteForce(const std::vector<Vec<D>>& x, const std::vector<Vec<D>>& y, Real r,
+                                              bool excludeSelf) {
+  std::vector<std::vector<uint32_t>> out(x.size());
+  for (size_t i = 0; i < x.size(); ++i)
+    for (size_t j = 0; j < y.size(); ++j)
+      if ((!excludeSelf || i != j) && (x[i] - y[j]).squaredNorm() <= r * r) out[i].push_back(uint32_t(j));
+  return out;
+}
+
+std::vector<std::vector<uint32_t>> fromList(const NeighborList& l, size_t n) {
+  std::vector<std::vector<uint32_t>> out(n);
+  for (uint32_t i = 0; i < n; ++i) {
+    out[i].assign(l.begin(i), l.end(i));
+    std::sort(out[i].begin(), out[i].end());
+  }
+  return out;
+}
+
+template <int D>
+void checkEqual(const std::vector<Vec<D>>& x, const std::vector<Vec<D>>& statics, const AABB<D>& box, Real r) {
+  NeighborhoodSearch<D> ns;
+  ns.setGrid(box, r);
+  ns.setStaticPoints(statics);
+  ns.update(x);
+  EXPECT_EQ(fromList(ns.dynamicNeighbors(), x.size()), bruteForce<D>(x, x, r, true));
+  EXPECT_EQ(fromList(ns.staticNeighbors(), x.size()), bruteForce<D>(x, statics, r, false));
+
+  // Reorder along the Morton curve and search again: same pairs, renamed.
+  std::vector<uint32_t> perm;
+  ns.zOrder(x, perm);
+  ASSERT_EQ(perm.size(), x.size());
+  std::vector<uint32_t> sorted = perm;
+  std::sort(sorted.begin(), sorted.end());
+  for (uint32_t k = 0; k < sorted.size(); ++k) ASSERT_EQ(sorted[k], k) << "not a permutation";
+  std::vector<Vec<D>> y = x, scratch;
+  applyPermutation(y, perm, scratch);
+  ns.update(y);
+  EXPECT_EQ(fromList(ns.dynamicNeighbors(), y.size()), bruteForce<D>(y, y, r, true));
+  EXPECT_EQ(fromList(ns.staticNeighbors(), y.size()), bruteForce<D>(y, statics, r, false));
+
+  // Z-order keeps neighbours close in memory: the mean index distance of
+  // neighbour pairs shrinks compared with a random order.
+  auto meanGap = [](const NeighborList& l, size_t n) {
+    double s = 0;
+    for (uint32_t i = 0; i < n; ++i)
+      for (const uint32_t* j = l.begin(i); j != l.end(i); ++j) s += std::abs(double(*j) - double(i));
+    return s / std::max<size_t>(1, l.pairs());
+  };
+  const double sortedGap = meanGap(ns.dynamicNeighbors(), y.size());
+  std::vector<Vec<D>> shuffled = x;
+  std::shuffle(shuffled.begin(), shuffled.end(), std::mt19937(7));
+  ns.update(shuffled);
+  EXPECT_LT(sortedGap, 0.5 * meanGap(ns.dynamicNeighbors(), shuffled.size()));
+}
+
+template <int D>
+std::vector<Vec<D>> randomPoints(size_t n, const AABB<D>& box, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::vector<Vec<D>> p(n);
+  for (auto& v : p)
+    for (int d = 0; d < D; ++d)
+      v[d] = std::uniform_real_distribution<Real>(box.min[d], box.max[d])(rng);
+  return p;
+}
+
+// Points exactly on cell borders (multiples of the radius) and at exactly the
+// search radius from each other: the hardest case for off-by-one errors.
+template <int D>
+std::vector<Vec<D>> latticePoints(int n, Real spacing) {
+  std::vector<Vec<D>> p;
+  VecI<D> i = VecI<D>::Zero();
+  while (true) {
+    p.push_back(spacing * i.template cast<Real>());
+    int d = 0;
+    while (d < D && ++i[d] == n) i[d++] = 0;
+    if (d == D) break;
+  }
+  return p;
+}
+}  // namespace
+
+TEST(NeighborhoodSearch, RandomPoints2D) {
+  AABB<2> box(Vec<2>(0, 0), Vec<2>(1, 0.7f));
+  // Some points outside the grid too: they must still be found.
+  auto x = randomPoints<2>(3000, AABB<2>(Vec<2>(-0.1f, -0.1f), Vec<2>(1.1f, 0.8f)), 1);
+  checkEqual<2>(x, randomPoints<2>(500, box, 2), box, 0.04f);
+}
+
+TEST(NeighborhoodSearch, RandomPoints3D) {
+  AABB<3> box(Vec<3>(0, 0, 0), Vec<3>(0.6f, 0.4f, 0.5f));
+  auto x = randomPoints<3>(6000, AABB<3>(Vec<3>(-0.05f, 0, 0), Vec<3>(0.65f, 0.45f, 0.5f)), 3);
+  checkEqual<3>(x, randomPoints<3>(1000, box, 4), box, 0.05f);
+}
+
+TEST(NeighborhoodSearch, LatticeOnCellBorders2D) {
+  const Real r = 0.25f;  // = spacing: neighbours at exactly the radius
+  auto x = latticePoints<2>(20, r);
+  AABB<2> box(Vec<2>(0, 0), Vec<2>(19 * r, 19 * r));
+  checkEqual<2>(x, latticePoints<2>(5, 2 * r), box, r);
+}
+
+TEST(NeighborhoodSearch, LatticeOnCellBorders3D) {
+  const Real r = 0.5f;
+  auto x = latticePoints<3>(12, r);
+  AABB<3> box(Vec<3>(0, 0, 0), Vec<3>(11 * r, 11 * r, 11 * r));
+  checkEqual<3>(x, latticePoints<3>(4, 2 * r), box, r);
+}
+
+TEST(NeighborhoodSearch, NonFiniteAndFarPointsDoNotCrash) {
+  AABB<2> box(Vec<2>(0, 0), Vec<2>(1, 1));
+  std::vector<Vec<2>> x = {Vec<2>(0.5f, 0.5f), Vec<2>(std::nanf(""), 0.2f), Vec<2>(1e30f, -1e30f),
+                           Vec<2>(0.51f, 0.5f)};
+  NeighborhoodSearch<2> ns;
+  ns.setGrid(box, 0.1f);
+  ns.update(x);
+  EXPECT_EQ(ns.dynamicNeighbors().count(0), 1u);
+  EXPECT_EQ(*ns.dynamicNeighbors().begin(0), 3u);
+  EXPECT_EQ(ns.dynamicNeighbors().count(1), 0u);  // NaN is nobody's neighbour
+}

@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# Installs what a fresh Debian 12 machine is missing: apt packages, the test
+# Python venv, and the web editor's npm packages. Idempotent and quiet when
+# everything is already there.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+APT_PACKAGES=(build-essential cmake ninja-build pkg-config libeigen3-dev libhdf5-dev
+  libflatbuffers-dev flatbuffers-compiler libboost-dev nlohmann-json3-dev
+  libgtest-dev libbenchmark-dev libcli11-dev chromium python3-venv)
+
+missing=()
+for p in "${APT_PACKAGES[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  echo "setup: installing apt packages: ${missing[*]}"
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+# Python venv for the scripted clients and h5py checks. Debian's python, not
+# pyenv's, so the venv module is the one apt installed.
+VENV=build/venv
+if [ ! -x "$VENV/bin/python" ] || ! cmp -s requirements.txt "$VENV/.requirements"; then
+  echo "setup: creating Python venv in $VENV"
+  mkdir -p build
+  /usr/bin/python3 -m venv "$VENV"
+  "$VENV/bin/pip" install -q --disable-pip-version-check -r requirements.txt
+  cp requirements.txt "$VENV/.requirements"
+fi
+
+# Web editor packages (present once web/package.json exists).
+if [ -f web/package.json ]; then
+  if [ ! -d web/node_modules ] || [ web/package-lock.json -nt web/node_modules/.package-lock.json ]; then
+    echo "setup: installing npm packages in web/"
+    (cd web && PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 npm ci --no-audit --no-fund --loglevel=error)
+  fi
+fi
