@@ -49,6 +49,10 @@ nlohmann::json frameJson(const FrameStats& s) {
           {"min_dt", s.minDt},
           {"max_dt", s.maxDt},
           {"neighbor_ms", s.neighborMs},
+          {"density_ms", s.densityMs},
+          {"divergence_ms", s.divergenceMs},
+          {"non_pressure_ms", s.nonPressureMs},
+          {"pressure_ms", s.pressureMs},
           {"avg_neighbors", s.avgNeighbors}};
 }
 

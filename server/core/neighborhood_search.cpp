@@ -28,7 +28,8 @@ void NeighborhoodSearch<D>::setGrid(const AABB<D>& domain, Real radius) {
   cellCount_ = size_t(cells);
   dynStart_.clear();
   statStart_.clear();
-  staticPos_.clear();
+  staticIdx_.clear();
+  for (auto& s : staticPos_) s.clear();
 }
 
 template <int D>
@@ -45,11 +46,11 @@ VecI<D> NeighborhoodSearch<D>::cellCoord(const Vec<D>& p) const {
 
 template <int D>
 void NeighborhoodSearch<D>::countingSort(const std::vector<Vec<D>>& x, std::vector<uint32_t>& start,
-                                         std::vector<Vec<D>>& sorted, std::vector<uint32_t>& sortedIdx,
+                                         SortedCoords& sorted, std::vector<uint32_t>& sortedIdx,
                                          std::vector<uint32_t>& cellOf) const {
   const size_t n = x.size();
   cellOf.resize(n);
-  sorted.resize(n);
+  for (auto& s : sorted) s.resize(n);
   sortedIdx.resize(n);
   start.assign(cellCount_ + 1, 0);
 #pragma omp parallel for schedule(static)
@@ -62,53 +63,72 @@ void NeighborhoodSearch<D>::countingSort(const std::vector<Vec<D>>& x, std::vect
   for (size_t c = cellCount_; c > 0; --c) start[c] = start[c - 1];
   start[0] = 0;
 #pragma omp parallel for schedule(static)
-  for (size_t k = 0; k < n; ++k) sorted[k] = x[sortedIdx[k]];
+  for (size_t k = 0; k < n; ++k)
+    for (int d = 0; d < D; ++d) sorted[d][k] = x[sortedIdx[k]][d];
 }
 
 template <int D>
 void NeighborhoodSearch<D>::buildLists(const std::vector<Vec<D>>& x, const std::vector<uint32_t>& start,
-                                       const std::vector<Vec<D>>& sorted,
-                                       const std::vector<uint32_t>& sortedIdx, bool excludeSelf,
-                                       NeighborList& out) {
+                                       const SortedCoords& sorted, const std::vector<uint32_t>& sortedIdx,
+                                       bool excludeSelf, NeighborList& out) {
   const size_t n = x.size();
   out.offsets.resize(n + 1);
   const int maxThreads = omp_get_max_threads();
   if (int(threadBuf_.size()) < maxThreads) threadBuf_.resize(maxThreads);
   threadCounts_.assign(maxThreads + 1, 0);
   const Real r2 = radius_ * radius_;
-  const bool haveTargets = !sorted.empty();
+  const bool haveTargets = !sortedIdx.empty();
 #pragma omp parallel
   {
     const int t = omp_get_thread_num(), T = omp_get_num_threads();
     const size_t begin = n * size_t(t) / size_t(T), end = n * size_t(t + 1) / size_t(T);
     std::vector<uint32_t>& buf = threadBuf_[t];
-    buf.clear();
+    size_t used = 0;
+    constexpr int rows = D == 2 ? 3 : 9;
+    std::array<uint32_t, rows> rowBegin{}, rowEnd{};
     for (size_t i = begin; i < end; ++i) {
-      out.offsets[i] = uint32_t(buf.size());
+      out.offsets[i] = uint32_t(used);
       if (!haveTargets) continue;
       const Vec<D> p = x[i];
       const VecI<D> c = cellCoord(p);
       const int x0 = std::max(c[0] - 1, 0), x1 = std::min(c[0] + 1, dims_[0] - 1);
-      auto row = [&](VecI<D> cc) {
+      int nrows = 0;
+      size_t candidates = 0;
+      auto addRow = [&](VecI<D> cc) {
         cc[0] = x0;
         const size_t a = linearCell(cc);
-        const size_t b = a + size_t(x1 - x0) + 1;
-        for (uint32_t k = start[a], e = start[b]; k < e; ++k) {
-          if ((sorted[k] - p).squaredNorm() <= r2) {
-            const uint32_t j = sortedIdx[k];
-            if (!excludeSelf || j != i) buf.push_back(j);
-          }
-        }
+        rowBegin[nrows] = start[a];
+        rowEnd[nrows] = start[a + size_t(x1 - x0) + 1];
+        candidates += rowEnd[nrows] - rowBegin[nrows];
+        ++nrows;
       };
       if constexpr (D == 2) {
-        for (int y = std::max(c[1] - 1, 0); y <= std::min(c[1] + 1, dims_[1] - 1); ++y) row(VecI<D>(0, y));
+        for (int y = std::max(c[1] - 1, 0); y <= std::min(c[1] + 1, dims_[1] - 1); ++y) addRow(VecI<D>(0, y));
       } else {
         for (int z = std::max(c[2] - 1, 0); z <= std::min(c[2] + 1, dims_[2] - 1); ++z)
           for (int y = std::max(c[1] - 1, 0); y <= std::min(c[1] + 1, dims_[1] - 1); ++y)
-            row(VecI<D>(0, y, z));
+            addRow(VecI<D>(0, y, z));
       }
+      // Room for every candidate, so the loop below can write each one and
+      // advance the cursor only for hits, without a branch.
+      if (buf.size() < used + candidates) buf.resize(std::max(2 * buf.size(), used + candidates + 1024));
+      uint32_t* dst = buf.data() + used;
+      size_t hits = 0;
+      for (int rr = 0; rr < nrows; ++rr) {
+        for (uint32_t k = rowBegin[rr], e = rowEnd[rr]; k < e; ++k) {
+          Real d2 = 0;
+          for (int d = 0; d < D; ++d) {
+            const Real dd = sorted[d][k] - p[d];
+            d2 += dd * dd;
+          }
+          const uint32_t j = sortedIdx[k];
+          dst[hits] = j;
+          hits += (d2 <= r2) & (!excludeSelf | (j != uint32_t(i)));
+        }
+      }
+      used += hits;
     }
-    threadCounts_[t + 1] = uint32_t(buf.size());
+    threadCounts_[t + 1] = uint32_t(used);
 #pragma omp barrier
 #pragma omp single
     {
@@ -118,22 +138,20 @@ void NeighborhoodSearch<D>::buildLists(const std::vector<Vec<D>>& x, const std::
     }
     const uint32_t base = threadCounts_[t];
     for (size_t i = begin; i < end; ++i) out.offsets[i] += base;
-    if (!buf.empty()) std::memcpy(out.indices.data() + base, buf.data(), buf.size() * sizeof(uint32_t));
+    if (used) std::memcpy(out.indices.data() + base, buf.data(), used * sizeof(uint32_t));
   }
 }
 
 template <int D>
 void NeighborhoodSearch<D>::setStaticPoints(const std::vector<Vec<D>>& points) {
-  std::vector<Vec<D>> sorted;
-  countingSort(points, statStart_, sorted, staticIdx_, statCellOf_);
-  staticPos_ = std::move(sorted);
+  countingSort(points, statStart_, staticPos_, staticIdx_, statCellOf_);
 }
 
 template <int D>
 void NeighborhoodSearch<D>::update(const std::vector<Vec<D>>& x) {
   countingSort(x, dynStart_, dynSorted_, dynSortedIdx_, dynCellOf_);
   buildLists(x, dynStart_, dynSorted_, dynSortedIdx_, true, dyn_);
-  if (!staticPos_.empty()) {
+  if (!staticIdx_.empty()) {
     buildLists(x, statStart_, staticPos_, staticIdx_, false, stat_);
   } else {
     stat_.offsets.assign(x.size() + 1, 0);

@@ -11,6 +11,7 @@
 // adjacent) and only costs speed.
 #include "core/aabb.h"
 #include "core/types.h"
+#include <array>
 #include <vector>
 
 namespace fc {
@@ -35,7 +36,7 @@ class NeighborhoodSearch {
   // A second point set (boundary particles) whose grid is built here and
   // kept until the next call.
   void setStaticPoints(const std::vector<Vec<D>>& points);
-  size_t staticPointCount() const { return staticPos_.size(); }
+  size_t staticPointCount() const { return staticIdx_.size(); }
 
   // Rebuilds the dynamic grid from x and both neighbour lists of every x[i]:
   // dynamic neighbours (self excluded) and static neighbours.
@@ -66,17 +67,18 @@ class NeighborhoodSearch {
   }
 
  private:
-  void countingSort(const std::vector<Vec<D>>& x, std::vector<uint32_t>& start,
-                    std::vector<Vec<D>>& sorted, std::vector<uint32_t>& sortedIdx,
-                    std::vector<uint32_t>& cellOf) const;
-  void buildLists(const std::vector<Vec<D>>& x, const std::vector<uint32_t>& start,
-                  const std::vector<Vec<D>>& sorted, const std::vector<uint32_t>& sortedIdx,
-                  bool excludeSelf, NeighborList& out);
+  // Positions in cell order, one array per axis so that the distance test
+  // of a row of candidates is a plain loop over floats.
+  using SortedCoords = std::array<std::vector<Real>, D>;
+
+  void countingSort(const std::vector<Vec<D>>& x, std::vector<uint32_t>& start, SortedCoords& sorted,
+                    std::vector<uint32_t>& sortedIdx, std::vector<uint32_t>& cellOf) const;
+  void buildLists(const std::vector<Vec<D>>& x, const std::vector<uint32_t>& start, const SortedCoords& sorted,
+                  const std::vector<uint32_t>& sortedIdx, bool excludeSelf, NeighborList& out);
 
   template <class F>
-  void forEachNear(const Vec<D>& p, Real r, const std::vector<uint32_t>& start,
-                   const std::vector<Vec<D>>& sorted, const std::vector<uint32_t>& idx,
-                   F& f) const {
+  void forEachNear(const Vec<D>& p, Real r, const std::vector<uint32_t>& start, const SortedCoords& sorted,
+                   const std::vector<uint32_t>& idx, F& f) const {
     if (start.empty()) return;
     const Real r2 = r * r;
     const VecI<D> c = cellCoord(p);
@@ -85,8 +87,11 @@ class NeighborhoodSearch {
       cc[0] = x0;
       const size_t a = linearCell(cc);
       const size_t b = a + size_t(x1 - x0) + 1;
-      for (uint32_t k = start[a]; k < start[b]; ++k)
-        if ((sorted[k] - p).squaredNorm() <= r2) f(idx[k], sorted[k]);
+      for (uint32_t k = start[a]; k < start[b]; ++k) {
+        Vec<D> q;
+        for (int d = 0; d < D; ++d) q[d] = sorted[d][k];
+        if ((q - p).squaredNorm() <= r2) f(idx[k], q);
+      }
     };
     if constexpr (D == 2) {
       for (int y = std::max(c[1] - 1, 0); y <= std::min(c[1] + 1, dims_[1] - 1); ++y) row(VecI<D>(0, y));
@@ -103,9 +108,9 @@ class NeighborhoodSearch {
   size_t cellCount_ = 1;
 
   std::vector<uint32_t> dynStart_, dynSortedIdx_, dynCellOf_;
-  std::vector<Vec<D>> dynSorted_;
+  SortedCoords dynSorted_;
   std::vector<uint32_t> statStart_, staticIdx_, statCellOf_;
-  std::vector<Vec<D>> staticPos_;
+  SortedCoords staticPos_;
 
   NeighborList dyn_, stat_;
   std::vector<std::vector<uint32_t>> threadBuf_;

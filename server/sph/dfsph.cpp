@@ -64,15 +64,13 @@ class DFSPH final : public PressureSolver<D> {
 #pragma omp parallel for schedule(static)
     for (long i = 0; i < n; ++i) {
       const Real rho0 = sim.restDensity_[f.phase[i]];
-      Vec<D> sum = Vec<D>::Zero();
+      Vec<D> sum = rho0 * sim.boundaryGradW[i];
       Real sumSq = 0;
       for (uint32_t k = nf.offsets[i], e = nf.offsets[i + 1]; k < e; ++k) {
-        const Vec<D> g = f.mass[nf.indices[k]] * sim.gradFluid[k];
+        const Vec<D>& g = sim.massGradW[k];
         sum += g;
         sumSq += g.squaredNorm();
       }
-      for (uint32_t k = nb.offsets[i], e = nb.offsets[i + 1]; k < e; ++k)
-        sum += (rho0 * sim.boundary.volume[nb.indices[k]]) * sim.gradBoundary[k];
       const Real s = sum.squaredNorm() + sumSq;
       factor_[i] = s > Real(1e-6) * rho0 * rho0 ? Real(1) / s : Real(0);
       // Too few neighbours: a surface particle cannot be compressed, and its
@@ -166,40 +164,29 @@ class DFSPH final : public PressureSolver<D> {
   // Δv_i = -Σ_j m_j (K_i + K_j) ∇W_ij - K_i Σ_b Ψ_b ∇W_ib (eqs. (9) and (12) in [BK17]).
   void updateVelocities(Simulation<D>& sim) {
     const auto& nf = sim.search.dynamicNeighbors();
-    const auto& nb = sim.search.staticNeighbors();
     auto& f = sim.fluid;
     const long n = long(f.size());
 #pragma omp parallel for schedule(static)
     for (long i = 0; i < n; ++i) {
       const Real ki = stiffness_[i];
-      Vec<D> dv = Vec<D>::Zero();
-      for (uint32_t k = nf.offsets[i], e = nf.offsets[i + 1]; k < e; ++k) {
-        const uint32_t j = nf.indices[k];
-        dv += (f.mass[j] * (ki + stiffness_[j])) * sim.gradFluid[k];
-      }
-      if (ki != 0) {
-        const Real rho0 = sim.restDensity_[f.phase[i]];
-        Vec<D> gb = Vec<D>::Zero();
-        for (uint32_t k = nb.offsets[i], e = nb.offsets[i + 1]; k < e; ++k)
-          gb += sim.boundary.volume[nb.indices[k]] * sim.gradBoundary[k];
-        dv += (ki * rho0) * gb;
-      }
+      Vec<D> dv = (ki * sim.restDensity_[f.phase[i]]) * sim.boundaryGradW[i];
+      for (uint32_t k = nf.offsets[i], e = nf.offsets[i + 1]; k < e; ++k)
+        dv += (ki + stiffness_[nf.indices[k]]) * sim.massGradW[k];
       f.v[i] -= dv;
     }
   }
 
-  // Dρ_i/Dt = Σ_j m_j (v_i - v_j)·∇W_ij + Σ_b Ψ_b (v_i - v_b)·∇W_ib (eq. (8) in [BK17]).
-  // Only compression counts. Returns the average relative to ρ0 (1/s).
+  // Dρ_i/Dt = Σ_j m_j (v_i - v_j)·∇W_ij + Σ_b Ψ_b (v_i - v_b)·∇W_ib (eq. (8) in [BK17]),
+  // only compression counts. Returns the average over particles, relative to ρ0.
   Real divergenceResidual(Simulation<D>& sim) {
     const auto& nf = sim.search.dynamicNeighbors();
-    const auto& nb = sim.search.staticNeighbors();
     const auto& f = sim.fluid;
     const long n = long(f.size());
     double sum = 0;
 #pragma omp parallel for schedule(static) reduction(+ : sum)
     for (long i = 0; i < n; ++i) {
       const Real rho0 = sim.restDensity_[f.phase[i]];
-      Real r = rateOfDensity(sim, nf, nb, i, rho0);
+      Real r = rateOfDensity(sim, nf, i, rho0);
       r = deficient_[i] ? Real(0) : std::max(r, Real(0));
       residual_[i] = r;
       sum += double(r / rho0);
@@ -207,11 +194,10 @@ class DFSPH final : public PressureSolver<D> {
     return n ? Real(sum / double(n)) : Real(0);
   }
 
-  // ρ*_i = ρ_i + Δt Dρ_i/Dt (eq. (13) in [BK17]); residual (ρ*_i - ρ0)/Δt.
-  // Only compression counts. Returns the average relative error; maxErr the largest.
+  // ρ*_i = ρ_i + Δt Dρ_i/Dt (eq. (13) in [BK17]); residual (ρ*_i - ρ0)/Δt,
+  // compression only. Returns the average relative error; maxErr the largest.
   Real densityResidual(Simulation<D>& sim, Real dt, Real& maxErr) {
     const auto& nf = sim.search.dynamicNeighbors();
-    const auto& nb = sim.search.staticNeighbors();
     const auto& f = sim.fluid;
     const long n = long(f.size());
     double sum = 0;
@@ -219,7 +205,7 @@ class DFSPH final : public PressureSolver<D> {
 #pragma omp parallel for schedule(static) reduction(+ : sum) reduction(max : mx)
     for (long i = 0; i < n; ++i) {
       const Real rho0 = sim.restDensity_[f.phase[i]];
-      const Real predicted = f.density[i] + dt * rateOfDensity(sim, nf, nb, i, rho0);
+      const Real predicted = f.density[i] + dt * rateOfDensity(sim, nf, i, rho0);
       const Real err = std::max(predicted - rho0, Real(0));
       residual_[i] = err / dt;
       mx = std::max(mx, err / rho0);
@@ -229,21 +215,13 @@ class DFSPH final : public PressureSolver<D> {
     return n ? Real(sum / double(n)) : Real(0);
   }
 
-  static Real rateOfDensity(const Simulation<D>& sim, const NeighborList& nf, const NeighborList& nb, long i,
-                            Real rho0) {
+  static Real rateOfDensity(const Simulation<D>& sim, const NeighborList& nf, long i, Real rho0) {
     const auto& f = sim.fluid;
     const Vec<D> vi = f.v[i];
     Real r = 0;
-    for (uint32_t k = nf.offsets[i], e = nf.offsets[i + 1]; k < e; ++k) {
-      const uint32_t j = nf.indices[k];
-      r += f.mass[j] * (vi - f.v[j]).dot(sim.gradFluid[k]);
-    }
-    Real rb = 0;
-    for (uint32_t k = nb.offsets[i], e = nb.offsets[i + 1]; k < e; ++k) {
-      const uint32_t b = nb.indices[k];
-      rb += sim.boundary.volume[b] * (vi - sim.boundary.v[b]).dot(sim.gradBoundary[k]);
-    }
-    return r + rho0 * rb;
+    for (uint32_t k = nf.offsets[i], e = nf.offsets[i + 1]; k < e; ++k)
+      r += (vi - f.v[nf.indices[k]]).dot(sim.massGradW[k]);
+    return r + rho0 * (vi.dot(sim.boundaryGradW[i]) - sim.boundaryFlux[i]);
   }
 
   Real densityTol_, divergenceTol_;

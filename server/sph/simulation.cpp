@@ -183,32 +183,43 @@ void Simulation<D>::buildFluid() {
 }
 
 // ρ_i = Σ_j m_j W_ij + Σ_b Ψ_b W_ib with Ψ_b = ρ0_i V_b (Akinci et al. 2012,
-// eq. (6)); the kernel gradients of every pair are cached for the solvers.
+// eq. (6)). The pair gradients and the boundary sums are cached for the
+// solvers and effects of this substep.
 template <int D>
 void Simulation<D>::computeDensities() {
   const auto& nf = search.dynamicNeighbors();
   const auto& nb = search.staticNeighbors();
-  gradFluid.resize(nf.pairs());
-  gradBoundary.resize(nb.pairs());
-  const Real w0 = kernel.W0();
   const long n = long(fluid.size());
+  massGradW.resize(nf.pairs());
+  boundaryGradW.resize(size_t(n));
+  boundaryFlux.resize(size_t(n));
+  const Real w0 = kernel.W0();
 #pragma omp parallel for schedule(static)
   for (long i = 0; i < n; ++i) {
     const Vec<D> xi = fluid.x[i];
     Real rho = fluid.mass[i] * w0;
     Real w;
+    Vec<D> g;
     for (uint32_t k = nf.offsets[i], e = nf.offsets[i + 1]; k < e; ++k) {
       const uint32_t j = nf.indices[k];
-      kernel.evaluate(xi - fluid.x[j], w, gradFluid[k]);
-      rho += fluid.mass[j] * w;
+      const Real mj = fluid.mass[j];
+      kernel.evaluate(xi - fluid.x[j], w, g);
+      rho += mj * w;
+      massGradW[k] = mj * g;
     }
-    Real rhoB = 0;
+    Real volume = 0, flux = 0;
+    Vec<D> gb = Vec<D>::Zero();
     for (uint32_t k = nb.offsets[i], e = nb.offsets[i + 1]; k < e; ++k) {
       const uint32_t b = nb.indices[k];
-      kernel.evaluate(xi - boundary.x[b], w, gradBoundary[k]);
-      rhoB += boundary.volume[b] * w;
+      kernel.evaluate(xi - boundary.x[b], w, g);
+      const Real vb = boundary.volume[b];
+      volume += vb * w;
+      gb += vb * g;
+      flux += vb * boundary.v[b].dot(g);
     }
-    fluid.density[i] = rho + restDensity_[fluid.phase[i]] * rhoB;
+    fluid.density[i] = rho + restDensity_[fluid.phase[i]] * volume;
+    boundaryGradW[i] = gb;
+    boundaryFlux[i] = flux;
   }
 }
 
@@ -291,24 +302,33 @@ FrameStats Simulation<D>::advanceFrame() {
   fs.minDt = 1e30;
 
   while (time_ < frameEnd - 1e-9) {
+    auto lap = Clock::now();
+    auto took = [&lap]() {
+      const auto now = Clock::now();
+      const double ms = std::chrono::duration<double, std::milli>(now - lap).count();
+      lap = now;
+      return ms;
+    };
     if (reorderInterval > 0 && stepsSinceReorder_ >= size_t(reorderInterval)) {
       reorderParticles();
       stepsSinceReorder_ = 0;
     }
-    const auto tn = Clock::now();
     search.update(fluid.x);
-    fs.neighborMs += msSince(tn);
+    fs.neighborMs += took();
     computeDensities();
     pressure_->prepare(*this);
+    fs.densityMs += took();
 
     const SolverReport div = pressure_->correctDivergence(*this, lastDt_);
     fs.divergenceIterations += div.iterations;
     fs.converged = fs.converged && div.converged;
+    fs.divergenceMs += took();
 
     // Non-pressure accelerations: gravity, then the scene's effects in order.
 #pragma omp parallel for schedule(static)
     for (long i = 0; i < n; ++i) fluid.a[i] = gravity_;
     for (Effect<D>* e : accelerationStages_) e->addAccelerations(*this);
+    fs.nonPressureMs += took();
 
     // Fit the substeps exactly into the frame, without a tiny last step.
     Real dt = cflTimeStep();
@@ -320,6 +340,7 @@ FrameStats Simulation<D>::advanceFrame() {
     for (long i = 0; i < n; ++i) fluid.v[i] += dt * fluid.a[i];
 
     const SolverReport dens = pressure_->correctDensity(*this, dt);
+    fs.pressureMs += took();
     fs.densityIterations += dens.iterations;
     fs.converged = fs.converged && dens.converged;
     fs.avgDensityErrorPct = std::max(fs.avgDensityErrorPct, dens.avgErrorPct);

@@ -28,7 +28,11 @@ struct FrameStats {
   double maxSpeed = 0;           // m/s, end of frame
   double kineticEnergy = 0;      // J (J/m in 2D), end of frame
   double minDt = 0, maxDt = 0;   // s
-  double neighborMs = 0;         // neighbour search share of wallMs
+  double neighborMs = 0;         // wallMs spent in: neighbour search (incl. reordering),
+  double densityMs = 0;          //   densities, kernel gradients and solver factors,
+  double divergenceMs = 0;       //   the divergence solve,
+  double nonPressureMs = 0;      //   gravity and effects,
+  double pressureMs = 0;         //   the density (pressure) solve
   double avgNeighbors = 0;
   bool finite = true;            // every position and velocity finite
 };
@@ -57,8 +61,13 @@ class Simulation {
   BoundaryParticles<D> boundary;
   CubicSpline<D> kernel;
   NeighborhoodSearch<D> search;
-  // Kernel gradients ∇W(x_i - x_j), aligned with the neighbour lists.
-  std::vector<Vec<D>> gradFluid, gradBoundary;
+  // Per substep, aligned with the fluid neighbour lists: m_j ∇W(x_i - x_j).
+  // Masses are folded in because every solver loop multiplies by them.
+  std::vector<Vec<D>> massGradW;
+  // Per particle, summed over its boundary neighbours b (boundary velocities
+  // are constant during a substep, so no solver iteration loops over them):
+  std::vector<Vec<D>> boundaryGradW;  // Σ_b V_b ∇W_ib
+  std::vector<Real> boundaryFlux;     // Σ_b V_b v_b·∇W_ib
   std::vector<Real> restDensity_;   // per phase
 
  private:

@@ -42,7 +42,7 @@ class ViscosityStandard final : public Effect<D> {
         const uint32_t j = nf.indices[k];
         const Vec<D> xij = xi - f.x[j];
         const Real nuij = Real(0.5) * (nui + nu[f.phase[j]]);
-        a += (nuij * f.mass[j] / f.density[j] * (vi - f.v[j]).dot(xij) / (xij.squaredNorm() + eps)) * sim.gradFluid[k];
+        a += (nuij / f.density[j] * (vi - f.v[j]).dot(xij) / (xij.squaredNorm() + eps)) * sim.massGradW[k];
       }
       if (boundaryViscosity_ > 0)
         for (uint32_t k = nb.offsets[i], e = nb.offsets[i + 1]; k < e; ++k) {
@@ -50,7 +50,7 @@ class ViscosityStandard final : public Effect<D> {
           const Vec<D> xib = xi - sim.boundary.x[b];
           a += (boundaryViscosity_ * sim.boundary.volume[b] * (vi - sim.boundary.v[b]).dot(xib) /
                 (xib.squaredNorm() + eps)) *
-               sim.gradBoundary[k];
+               sim.kernel.gradW(xib);
         }
       f.a[i] += d * a;
     }

