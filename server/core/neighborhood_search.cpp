@@ -1,6 +1,10 @@
 #include "core/neighborhood_search.h"
 #include "core/morton.h"
 #include <omp.h>
+#if defined(__AVX512F__)
+#include <immintrin.h>
+#endif
+#include <type_traits>
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -67,6 +71,54 @@ void NeighborhoodSearch<D>::countingSort(const std::vector<Vec<D>>& x, std::vect
     for (int d = 0; d < D; ++d) sorted[d][k] = x[sortedIdx[k]][d];
 }
 
+namespace {
+
+// Writes the indices of the candidates k in [begin, end) within sqrt(r2) of p
+// (except `self`) to dst and returns how many. dst must have room for every
+// candidate: misses are written too, only the cursor skips them.
+template <int D>
+size_t scanRow(const std::array<std::vector<Real>, D>& sorted, const uint32_t* sortedIdx, uint32_t begin,
+               uint32_t end, const Vec<D>& p, Real r2, uint32_t self, uint32_t* dst) {
+  size_t hits = 0;
+  uint32_t k = begin;
+#if defined(__AVX512F__)
+  if constexpr (std::is_same_v<Real, float>) {
+    // Sixteen candidates per step; the hits are packed with one compress-store.
+    std::array<__m512, D> pv;
+    for (int d = 0; d < D; ++d) pv[d] = _mm512_set1_ps(p[d]);
+    const __m512 r2v = _mm512_set1_ps(r2);
+    const __m512i selfv = _mm512_set1_epi32(int(self));
+    for (; k < end; k += 16) {
+      const __mmask16 live = end - k >= 16 ? __mmask16(0xffff) : __mmask16((1u << (end - k)) - 1);
+      __m512 d2 = _mm512_setzero_ps();
+      for (int d = 0; d < D; ++d) {
+        const __m512 dd = _mm512_sub_ps(_mm512_maskz_loadu_ps(live, sorted[d].data() + k), pv[d]);
+        d2 = _mm512_fmadd_ps(dd, dd, d2);
+      }
+      const __m512i idx = _mm512_maskz_loadu_epi32(live, sortedIdx + k);
+      const __mmask16 m = _mm512_mask_cmp_ps_mask(live, d2, r2v, _CMP_LE_OQ) &
+                          ~_mm512_cmpeq_epi32_mask(idx, selfv);
+      _mm512_mask_compressstoreu_epi32(dst + hits, m, idx);
+      hits += size_t(__builtin_popcount(unsigned(m)));
+    }
+    return hits;
+  }
+#endif
+  for (; k < end; ++k) {
+    Real d2 = 0;
+    for (int d = 0; d < D; ++d) {
+      const Real dd = sorted[d][k] - p[d];
+      d2 += dd * dd;
+    }
+    const uint32_t j = sortedIdx[k];
+    dst[hits] = j;
+    hits += (d2 <= r2) & (j != self);
+  }
+  return hits;
+}
+
+}  // namespace
+
 template <int D>
 void NeighborhoodSearch<D>::buildLists(const std::vector<Vec<D>>& x, const std::vector<uint32_t>& start,
                                        const SortedCoords& sorted, const std::vector<uint32_t>& sortedIdx,
@@ -114,18 +166,9 @@ void NeighborhoodSearch<D>::buildLists(const std::vector<Vec<D>>& x, const std::
       if (buf.size() < used + candidates) buf.resize(std::max(2 * buf.size(), used + candidates + 1024));
       uint32_t* dst = buf.data() + used;
       size_t hits = 0;
-      for (int rr = 0; rr < nrows; ++rr) {
-        for (uint32_t k = rowBegin[rr], e = rowEnd[rr]; k < e; ++k) {
-          Real d2 = 0;
-          for (int d = 0; d < D; ++d) {
-            const Real dd = sorted[d][k] - p[d];
-            d2 += dd * dd;
-          }
-          const uint32_t j = sortedIdx[k];
-          dst[hits] = j;
-          hits += (d2 <= r2) & (!excludeSelf | (j != uint32_t(i)));
-        }
-      }
+      for (int rr = 0; rr < nrows; ++rr)
+        hits += scanRow<D>(sorted, sortedIdx.data(), rowBegin[rr], rowEnd[rr], p, r2,
+                        excludeSelf ? uint32_t(i) : UINT32_MAX, dst + hits);
       used += hits;
     }
     threadCounts_[t + 1] = uint32_t(used);
@@ -151,12 +194,16 @@ template <int D>
 void NeighborhoodSearch<D>::update(const std::vector<Vec<D>>& x) {
   countingSort(x, dynStart_, dynSorted_, dynSortedIdx_, dynCellOf_);
   buildLists(x, dynStart_, dynSorted_, dynSortedIdx_, true, dyn_);
-  if (!staticIdx_.empty()) {
-    buildLists(x, statStart_, staticPos_, staticIdx_, false, stat_);
-  } else {
-    stat_.offsets.assign(x.size() + 1, 0);
-    stat_.indices.clear();
+}
+
+template <int D>
+void NeighborhoodSearch<D>::staticNeighborLists(const std::vector<Vec<D>>& x, NeighborList& out) {
+  if (statStart_.empty()) {
+    out.offsets.assign(x.size() + 1, 0);
+    out.indices.clear();
+    return;
   }
+  buildLists(x, statStart_, staticPos_, staticIdx_, false, out);
 }
 
 template <int D>

@@ -38,12 +38,15 @@ class NeighborhoodSearch {
   void setStaticPoints(const std::vector<Vec<D>>& points);
   size_t staticPointCount() const { return staticIdx_.size(); }
 
-  // Rebuilds the dynamic grid from x and both neighbour lists of every x[i]:
-  // dynamic neighbours (self excluded) and static neighbours.
+  // Rebuilds the dynamic grid from x and the neighbour list of every x[i]
+  // among x (self excluded).
   void update(const std::vector<Vec<D>>& x);
-
   const NeighborList& dynamicNeighbors() const { return dyn_; }
-  const NeighborList& staticNeighbors() const { return stat_; }
+
+  // Static neighbours of every x[i], as a list. The solver does not need it
+  // (it sums over static neighbours with forEachStaticNear); tools and
+  // effects that keep per-pair data do.
+  void staticNeighborLists(const std::vector<Vec<D>>& x, NeighborList& out);
 
   // Permutation that orders x along the Morton curve of their cells:
   // new index k holds old particle perm[k].
@@ -112,7 +115,7 @@ class NeighborhoodSearch {
   std::vector<uint32_t> statStart_, staticIdx_, statCellOf_;
   SortedCoords staticPos_;
 
-  NeighborList dyn_, stat_;
+  NeighborList dyn_;
   std::vector<std::vector<uint32_t>> threadBuf_;
   std::vector<uint32_t> threadCounts_;
 };

@@ -188,12 +188,13 @@ void Simulation<D>::buildFluid() {
 template <int D>
 void Simulation<D>::computeDensities() {
   const auto& nf = search.dynamicNeighbors();
-  const auto& nb = search.staticNeighbors();
   const long n = long(fluid.size());
-  massGradW.resize(nf.pairs());
+  pairs.resize(nf.pairs());
   boundaryGradW.resize(size_t(n));
   boundaryFlux.resize(size_t(n));
+  boundaryNeighbors.resize(size_t(n));
   const Real w0 = kernel.W0();
+  const Real h = kernel.radius();
 #pragma omp parallel for schedule(static)
   for (long i = 0; i < n; ++i) {
     const Vec<D> xi = fluid.x[i];
@@ -205,21 +206,23 @@ void Simulation<D>::computeDensities() {
       const Real mj = fluid.mass[j];
       kernel.evaluate(xi - fluid.x[j], w, g);
       rho += mj * w;
-      massGradW[k] = mj * g;
+      pairs[k] = {mj * g, j};
     }
     Real volume = 0, flux = 0;
     Vec<D> gb = Vec<D>::Zero();
-    for (uint32_t k = nb.offsets[i], e = nb.offsets[i + 1]; k < e; ++k) {
-      const uint32_t b = nb.indices[k];
-      kernel.evaluate(xi - boundary.x[b], w, g);
+    unsigned count = 0;
+    search.forEachStaticNear(xi, h, [&](uint32_t b, const Vec<D>& xb) {
+      kernel.evaluate(xi - xb, w, g);
       const Real vb = boundary.volume[b];
       volume += vb * w;
       gb += vb * g;
       flux += vb * boundary.v[b].dot(g);
-    }
+      ++count;
+    });
     fluid.density[i] = rho + restDensity_[fluid.phase[i]] * volume;
     boundaryGradW[i] = gb;
     boundaryFlux[i] = flux;
+    boundaryNeighbors[i] = uint16_t(std::min(count, 65535u));
   }
 }
 
@@ -380,7 +383,9 @@ FrameStats Simulation<D>::advanceFrame() {
   fs.time = time_;
   fs.particles = fluid.size();
   fs.boundaryParticles = boundary.size();
-  fs.avgNeighbors = n ? double(search.dynamicNeighbors().pairs() + search.staticNeighbors().pairs()) / double(n) : 0;
+  size_t boundaryPairs = 0;
+  for (uint16_t c : boundaryNeighbors) boundaryPairs += c;
+  fs.avgNeighbors = n ? double(search.dynamicNeighbors().pairs() + boundaryPairs) / double(n) : 0;
   if (fs.substeps == 0) fs.minDt = 0;
   fs.wallMs = msSince(t0);
   return fs;

@@ -61,13 +61,21 @@ class Simulation {
   BoundaryParticles<D> boundary;
   CubicSpline<D> kernel;
   NeighborhoodSearch<D> search;
-  // Per substep, aligned with the fluid neighbour lists: m_j ∇W(x_i - x_j).
-  // Masses are folded in because every solver loop multiplies by them.
-  std::vector<Vec<D>> massGradW;
+  // Per substep, one entry per fluid neighbour pair (CSR order of
+  // search.dynamicNeighbors()): the neighbour and m_j ∇W(x_i - x_j). Masses
+  // are folded in because every solver loop multiplies by them; index and
+  // gradient side by side make each solver sweep one sequential stream.
+  struct Pair {
+    Vec<D> massGradW;
+    uint32_t j;
+  };
+  std::vector<Pair> pairs;
+  const uint32_t* pairOffsets() const { return search.dynamicNeighbors().offsets.data(); }
   // Per particle, summed over its boundary neighbours b (boundary velocities
   // are constant during a substep, so no solver iteration loops over them):
   std::vector<Vec<D>> boundaryGradW;  // Σ_b V_b ∇W_ib
   std::vector<Real> boundaryFlux;     // Σ_b V_b v_b·∇W_ib
+  std::vector<uint16_t> boundaryNeighbors;  // how many b
   std::vector<Real> restDensity_;   // per phase
 
  private:

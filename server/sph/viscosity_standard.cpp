@@ -26,8 +26,7 @@ class ViscosityStandard final : public Effect<D> {
 
   void addAccelerations(Simulation<D>& sim) override {
     auto& f = sim.fluid;
-    const auto& nf = sim.search.dynamicNeighbors();
-    const auto& nb = sim.search.staticNeighbors();
+    const uint32_t* off = sim.pairOffsets();
     const std::vector<Real>& nu = nu_;
     const Real h = sim.supportRadius();
     const Real eps = Real(0.01) * h * h;
@@ -38,20 +37,19 @@ class ViscosityStandard final : public Effect<D> {
       const Vec<D> xi = f.x[i], vi = f.v[i];
       const Real nui = nu[f.phase[i]];
       Vec<D> a = Vec<D>::Zero();
-      for (uint32_t k = nf.offsets[i], e = nf.offsets[i + 1]; k < e; ++k) {
-        const uint32_t j = nf.indices[k];
+      for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
+        const uint32_t j = sim.pairs[k].j;
         const Vec<D> xij = xi - f.x[j];
         const Real nuij = Real(0.5) * (nui + nu[f.phase[j]]);
-        a += (nuij / f.density[j] * (vi - f.v[j]).dot(xij) / (xij.squaredNorm() + eps)) * sim.massGradW[k];
+        a += (nuij / f.density[j] * (vi - f.v[j]).dot(xij) / (xij.squaredNorm() + eps)) * sim.pairs[k].massGradW;
       }
       if (boundaryViscosity_ > 0)
-        for (uint32_t k = nb.offsets[i], e = nb.offsets[i + 1]; k < e; ++k) {
-          const uint32_t b = nb.indices[k];
-          const Vec<D> xib = xi - sim.boundary.x[b];
+        sim.search.forEachStaticNear(xi, sim.supportRadius(), [&](uint32_t b, const Vec<D>& xb) {
+          const Vec<D> xib = xi - xb;
           a += (boundaryViscosity_ * sim.boundary.volume[b] * (vi - sim.boundary.v[b]).dot(xib) /
                 (xib.squaredNorm() + eps)) *
                sim.kernel.gradW(xib);
-        }
+        });
       f.a[i] += d * a;
     }
   }

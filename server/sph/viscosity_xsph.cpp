@@ -22,7 +22,7 @@ class ViscosityXSPH final : public Effect<D> {
 
   void correctVelocities(Simulation<D>& sim, Real) override {
     auto& f = sim.fluid;
-    const auto& nf = sim.search.dynamicNeighbors();
+    const uint32_t* off = sim.pairOffsets();
     const long n = long(f.size());
     old_.resize(f.size());
 #pragma omp parallel for schedule(static)
@@ -31,8 +31,8 @@ class ViscosityXSPH final : public Effect<D> {
     for (long i = 0; i < n; ++i) {
       const Vec<D> xi = f.x[i], vi = old_[i];
       Vec<D> dv = Vec<D>::Zero();
-      for (uint32_t k = nf.offsets[i], e = nf.offsets[i + 1]; k < e; ++k) {
-        const uint32_t j = nf.indices[k];
+      for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
+        const uint32_t j = sim.pairs[k].j;
         dv += (f.mass[j] / f.density[j] * sim.kernel.W(xi - f.x[j])) * (old_[j] - vi);
       }
       f.v[i] = vi + c_ * dv;

@@ -29,7 +29,7 @@ class WCSPH final : public PressureSolver<D> {
 
   SolverReport correctDensity(Simulation<D>& sim, Real dt) override {
     auto& f = sim.fluid;
-    const auto& nf = sim.search.dynamicNeighbors();
+    const uint32_t* off = sim.pairOffsets();
     const long n = long(f.size());
     double sum = 0;
     Real mx = 0;
@@ -51,9 +51,9 @@ class WCSPH final : public PressureSolver<D> {
       const Real rho0 = sim.restDensity_[f.phase[i]];
       const Real pi = f.pressure[i] / (f.density[i] * f.density[i]);
       Vec<D> a = -(rho0 * pi) * sim.boundaryGradW[i];
-      for (uint32_t k = nf.offsets[i], e = nf.offsets[i + 1]; k < e; ++k) {
-        const uint32_t j = nf.indices[k];
-        a -= (pi + f.pressure[j] / (f.density[j] * f.density[j])) * sim.massGradW[k];
+      for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
+        const uint32_t j = sim.pairs[k].j;
+        a -= (pi + f.pressure[j] / (f.density[j] * f.density[j])) * sim.pairs[k].massGradW;
       }
       f.v[i] += dt * a;
     }
