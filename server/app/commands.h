@@ -9,7 +9,7 @@ void addRunCommand(CLI::App& app);
 void addBenchCommand(CLI::App& app);
 
 // Exit codes shared by every command.
-enum ExitCode { Ok = 0, Failure = 1, BadInput = 2, SimulationFailed = 3 };
+enum ExitCode { Ok = 0, Failure = 1, BadInput = 2, SimulationFailed = 3, Interrupted = 130 };
 
 double peakRssMb();
 std::string selfExecutable();

@@ -6,6 +6,8 @@
 #include "sph/simulation.h"
 #include <nlohmann/json.hpp>
 #include <omp.h>
+#include <atomic>
+#include <csignal>
 #include <unistd.h>
 #include <chrono>
 #include <cmath>
@@ -18,6 +20,11 @@
 namespace fc::app {
 
 namespace {
+
+// Ctrl-C stops the run after the current frame; what was simulated is still
+// exported and summarised.
+std::atomic<bool> interrupted{false};
+extern "C" void onInterrupt(int) { interrupted = true; }
 
 struct RunOptions {
   std::string scene;
@@ -113,7 +120,9 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
   int status = Ok;
   std::string failure;
   const bool tty = isatty(fileno(stderr));
-  for (int f = 0; f < frames; ++f) {
+  interrupted = false;
+  auto previousHandler = std::signal(SIGINT, onInterrupt);
+  for (int f = 0; f < frames && !interrupted; ++f) {
     const FrameStats s = sim.advanceFrame();
     particleSteps += double(s.particles) * s.substeps;
     substeps += size_t(s.substeps);
@@ -137,7 +146,12 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
       std::fflush(stderr);
     }
   }
+  std::signal(SIGINT, previousHandler);
   if (!opt.quiet && tty) std::fprintf(stderr, "\n");
+  if (interrupted) {
+    std::fprintf(stderr, "interrupted after %zu frames: keeping what was simulated\n", framesJson.size());
+    status = Interrupted;
+  }
   if (exporter) exporter->close();
 
   const double wallS = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -162,7 +176,7 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
       {"escaped_particles", escaped},
       {"peak_rss_mb", peakRssMb()},
       {"pipeline", sim.pipelineStages()},
-      {"status", status == Ok ? "ok" : "failed"}};
+      {"status", status == Ok ? "ok" : status == Interrupted ? "interrupted" : "failed"}};
   if (!failure.empty()) summary["error"] = failure;
   if (!opt.statsPath.empty()) writeJsonAtomically(opt.statsPath, {{"frames", framesJson}, {"summary", summary}});
   if (!opt.quiet) {
@@ -202,7 +216,9 @@ void addRunCommand(CLI::App& app) {
       const nlohmann::json j = loadSceneJson(opt->scene);
       code = sceneDimension(j) == 2 ? runScene<2>(*opt, j) : runScene<3>(*opt, j);
     } catch (const SceneError& e) {
-      std::fprintf(stderr, "error: %s: %s\n", opt->scene.c_str(), e.what());
+      // File-level errors already name the file (and line, column).
+      if (e.path.empty()) std::fprintf(stderr, "error: %s\n", e.what());
+      else std::fprintf(stderr, "error: %s: %s\n", opt->scene.c_str(), e.what());
       code = BadInput;
     } catch (const std::invalid_argument& e) {
       std::fprintf(stderr, "error: %s: %s\n", opt->scene.c_str(), e.what());

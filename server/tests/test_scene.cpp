@@ -707,11 +707,11 @@ TEST(SceneFiles, ExpectedResolutions) {
   EXPECT_EQ(count2("dambreak2d.json"), 5000u);
   EXPECT_EQ(count3("dambreak3d.json"), 31250u);
   EXPECT_EQ(count2("hydrostatic2d.json"), 2500u);
-  EXPECT_EQ(count3("hydrostatic3d.json"), 15000u);
-  EXPECT_EQ(count3("bench/dambreak3d_r010.json"), 125000u);
-  EXPECT_EQ(count3("bench/dambreak3d_r0125.json"), 64000u);
-  EXPECT_EQ(count2("bench/dambreak2d_r010.json"), 5625u);
-  EXPECT_EQ(count2("bench/dambreak2d_r005.json"), 22500u);
+  EXPECT_EQ(count3("hydrostatic3d.json"), 3375u);
+  EXPECT_EQ(count3("bench/dambreak3d_r010.json"), 117649u);  // 49^3, as SPlisHSPlasH samples it
+  EXPECT_EQ(count3("bench/dambreak3d_r0125.json"), 59319u);  // 39^3
+  EXPECT_EQ(count2("bench/dambreak2d_r010.json"), 5476u);  // 74^2
+  EXPECT_EQ(count2("bench/dambreak2d_r005.json"), 22201u);  // 149^2
 }
 
 TEST(SceneFiles, HalvingTheRadiusMultipliesTheCountByTwoToTheD) {
