@@ -51,6 +51,8 @@ nlohmann::json frameJson(const FrameStats& s) {
           {"particles", s.particles},
           {"boundary_particles", s.boundaryParticles},
           {"escaped_particles", s.escapedParticles},
+          {"wall_contacts", s.wallContacts},
+          {"crossed_surface", s.crossedSurface},
           {"max_speed", s.maxSpeed},
           {"kinetic_energy", s.kineticEnergy},
           {"min_dt", s.minDt},
@@ -116,7 +118,7 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
   nlohmann::json framesJson = nlohmann::json::array();
   const auto t0 = std::chrono::steady_clock::now();
   double particleSteps = 0;
-  size_t substeps = 0, unconverged = 0, escaped = 0;
+  size_t substeps = 0, unconverged = 0, escaped = 0, contacts = 0;
   int status = Ok;
   std::string failure;
   const bool tty = isatty(fileno(stderr));
@@ -128,6 +130,7 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
     substeps += size_t(s.substeps);
     unconverged += s.converged ? 0 : 1;
     escaped += s.escapedParticles;
+    contacts += s.wallContacts;
     if (!s.finite) {
       // A non-finite frame is never published: stop before exporting it.
       status = SimulationFailed;
@@ -174,6 +177,7 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
       {"boundary_particles", sim.boundary.size()},
       {"unconverged_frames", unconverged},
       {"escaped_particles", escaped},
+      {"wall_contacts", contacts},
       {"peak_rss_mb", peakRssMb()},
       {"pipeline", sim.pipelineStages()},
       {"status", status == Ok ? "ok" : status == Interrupted ? "interrupted" : "failed"}};

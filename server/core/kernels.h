@@ -2,6 +2,7 @@
 // SPH smoothing kernels in 2D and 3D, normalised so that ∫W dV = 1 over the
 // support ball of radius h (the support radius, not the smoothing length).
 #include "core/types.h"
+#include <algorithm>
 #include <cmath>
 #include <numbers>
 
@@ -63,6 +64,23 @@ class CubicSpline {
       w = k_ * Real(2) * f * f * f;
       grad = (l_ * (-f * f) * scale) * r;
     }
+  }
+
+  // Branch-free form for vectorised loops: from |r|², W and the factor F
+  // with ∇W = F r. Zero outside the support and at r = 0.
+  void evaluateSquared(Real r2, Real& w, Real& f) const {
+    const Real rl = std::sqrt(r2);
+    const Real q = rl * invH_;
+    const Real g = Real(1) - q;
+    const Real inner = k_ * (Real(6) * q * q * q - Real(6) * q * q + Real(1));
+    const Real outer = k_ * Real(2) * g * g * g;
+    const Real dInner = l_ * q * (Real(3) * q - Real(2));
+    const Real dOuter = -l_ * g * g;
+    const bool in = q <= Real(1);
+    const bool near = q <= Real(0.5);
+    w = in ? (near ? inner : outer) : Real(0);
+    const Real scale = invH_ / std::max(rl, Real(1e-9) * h_);
+    f = (in && rl > Real(1e-9) * h_) ? (near ? dInner : dOuter) * scale : Real(0);
   }
 
   // ∇W(r) with r = x_i - x_j.

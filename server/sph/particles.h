@@ -16,6 +16,9 @@ void applyPermutation(std::vector<T>& a, const std::vector<uint32_t>& perm, std:
   a.swap(scratch);
 }
 
+// Hot loops read std::vector<Vec<D>> as D packed Reals per particle.
+static_assert(sizeof(Vec<2>) == 2 * sizeof(Real) && sizeof(Vec<3>) == 3 * sizeof(Real));
+
 template <int D>
 struct FluidParticles {
   std::vector<Vec<D>> x;        // position, m

@@ -50,6 +50,8 @@ class Effect {
   virtual void init(Simulation<D>&) {}
   virtual void addAccelerations(Simulation<D>&) {}
   virtual void correctVelocities(Simulation<D>&, Real /*dt*/) {}
+  // Largest time step this effect stays stable with (s).
+  virtual Real maxTimeStep(const Simulation<D>&) const { return Real(1e30); }
   virtual void reorder(const std::vector<uint32_t>&) {}
   virtual void resize(size_t) {}
 };

@@ -13,6 +13,8 @@ inline const ParamSpecs& simulationSettingsSpecs() {
       {"reorder_interval", "steps", 0, 100000, 25,
        "reorder particles along the Morton curve every N substeps (0: never)", ParamType::Integer},
       {"boundary_layers", "", 1, 4, 2, "layers of boundary particles sampling walls and obstacles", ParamType::Integer},
+      {"contact_distance", "r", 0, 1, 0.25,
+       "particle centres are kept this many particle radii away from solid surfaces"},
   };
   return specs;
 }

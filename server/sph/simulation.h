@@ -6,6 +6,7 @@
 #include "sph/particles.h"
 #include "sph/pipeline.h"
 #include "sph/setup.h"
+#include <array>
 #include <memory>
 #include <string>
 #include <vector>
@@ -24,7 +25,9 @@ struct FrameStats {
   bool converged = true;         // every solve reached its tolerance
   size_t particles = 0;          // liquid particles (all kinds)
   size_t boundaryParticles = 0;
-  size_t escapedParticles = 0;   // particles the wall guard had to put back
+  size_t escapedParticles = 0;   // particles outside the tank or inside a solid at frame end (0 unless broken)
+  size_t wallContacts = 0;       // contact corrections (centres kept contact_distance from solids)
+  size_t crossedSurface = 0;     // of those, centres that had crossed the solid surface within a substep
   double maxSpeed = 0;           // m/s, end of frame
   double kineticEnergy = 0;      // J (J/m in 2D), end of frame
   double minDt = 0, maxDt = 0;   // s
@@ -49,6 +52,7 @@ class Simulation {
   const SimulationSetup<D>& setup() const { return setup_; }
   Real particleRadius() const { return radius_; }
   Real supportRadius() const { return kernel.radius(); }
+  Real latticeVolume() const { return latticeVolume_; }
   double time() const { return time_; }
   int frame() const { return frame_; }
   double frameDuration() const { return 1.0 / setup_.settings.get("frame_rate"); }
@@ -61,16 +65,18 @@ class Simulation {
   BoundaryParticles<D> boundary;
   CubicSpline<D> kernel;
   NeighborhoodSearch<D> search;
-  // Per substep, one entry per fluid neighbour pair (CSR order of
-  // search.dynamicNeighbors()): the neighbour and m_j ∇W(x_i - x_j). Masses
-  // are folded in because every solver loop multiplies by them; index and
-  // gradient side by side make each solver sweep one sequential stream.
-  struct Pair {
-    Vec<D> massGradW;
-    uint32_t j;
-  };
-  std::vector<Pair> pairs;
+  // Per substep, one entry per fluid neighbour pair, in the CSR order of
+  // search.dynamicNeighbors(): m_j ∇W(x_i - x_j), one array per axis so that
+  // the solver sweeps vectorise. Masses are folded in because every solver
+  // loop multiplies by them.
+  std::array<std::vector<Real>, D> massGradW;
   const uint32_t* pairOffsets() const { return search.dynamicNeighbors().offsets.data(); }
+  const uint32_t* pairNeighbors() const { return search.dynamicNeighbors().indices.data(); }
+  Vec<D> massGradWAt(size_t k) const {
+    Vec<D> g;
+    for (int d = 0; d < D; ++d) g[d] = massGradW[d][k];
+    return g;
+  }
   // Per particle, summed over its boundary neighbours b (boundary velocities
   // are constant during a substep, so no solver iteration loops over them):
   std::vector<Vec<D>> boundaryGradW;  // Σ_b V_b ∇W_ib
@@ -84,10 +90,11 @@ class Simulation {
   void computeDensities();
   Real cflTimeStep() const;
   void reorderParticles();
-  size_t guardDomain();
+  void enforceSolidContact(FrameStats& fs);
 
   SimulationSetup<D> setup_;
   Real radius_;
+  Real latticeVolume_ = 0;  // volume per particle of the initial lattice
   Vec<D> gravity_;
   std::unique_ptr<PressureSolver<D>> pressure_;
   std::vector<std::unique_ptr<Effect<D>>> effects_;

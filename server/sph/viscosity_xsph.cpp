@@ -1,6 +1,8 @@
-// XSPH velocity smoothing (Monaghan 1989; Schechter & Bridson 2012 form):
-//   v_i ← v_i + c Σ_j (m_j/ρ_j) (v_j - v_i) W_ij,
-// applied after the pressure solve. Damps noise; c is dimensionless.
+// XSPH velocity smoothing (Monaghan 1989):
+//   v_i ← v_i + c Σ_j 2 m_j/(ρ_i + ρ_j) (v_j - v_i) W_ij,
+// applied after the pressure solve. Damps noise; c is dimensionless. The
+// symmetric weight conserves momentum (m_j/ρ_j alone does not where
+// densities differ, as at a free surface).
 #include "sph/builtin.h"
 #include "sph/simulation.h"
 
@@ -32,8 +34,8 @@ class ViscosityXSPH final : public Effect<D> {
       const Vec<D> xi = f.x[i], vi = old_[i];
       Vec<D> dv = Vec<D>::Zero();
       for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
-        const uint32_t j = sim.pairs[k].j;
-        dv += (f.mass[j] / f.density[j] * sim.kernel.W(xi - f.x[j])) * (old_[j] - vi);
+        const uint32_t j = sim.pairNeighbors()[k];
+        dv += (Real(2) * f.mass[j] / (f.density[i] + f.density[j]) * sim.kernel.W(xi - f.x[j])) * (old_[j] - vi);
       }
       f.v[i] = vi + c_ * dv;
     }

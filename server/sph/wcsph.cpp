@@ -52,8 +52,8 @@ class WCSPH final : public PressureSolver<D> {
       const Real pi = f.pressure[i] / (f.density[i] * f.density[i]);
       Vec<D> a = -(rho0 * pi) * sim.boundaryGradW[i];
       for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
-        const uint32_t j = sim.pairs[k].j;
-        a -= (pi + f.pressure[j] / (f.density[j] * f.density[j])) * sim.pairs[k].massGradW;
+        const uint32_t j = sim.pairNeighbors()[k];
+        a -= (pi + f.pressure[j] / (f.density[j] * f.density[j])) * sim.massGradWAt(k);
       }
       f.v[i] += dt * a;
     }

@@ -9,6 +9,7 @@
 #include "sph/simulation.h"
 
 #include <gtest/gtest.h>
+#include "physics_checks.h"
 
 #include <algorithm>
 #include <chrono>
@@ -21,69 +22,13 @@
 namespace fc {
 namespace {
 
-bool verbose() {
-  const char* v = std::getenv("FLOWCLIP_TEST_VERBOSE");
-  return v && *v && std::string(v) != "0";
-}
-
-// The checks every frame must pass: finite state, the wall guard never had
-// to act, every particle strictly inside the tank.
-template <int D>
-::testing::AssertionResult frameIsSane(const Simulation<D>& sim, const FrameStats& fs) {
-  if (!fs.finite) return ::testing::AssertionFailure() << "frame " << fs.frame << " (t = " << fs.time << " s): non-finite state";
-  const AABB<D>& dom = sim.setup().domain;
-  if (fs.escapedParticles != 0) {
-    auto failure = ::testing::AssertionFailure() << "frame " << fs.frame << " (t = " << fs.time
-                                                 << " s): the wall guard put back " << fs.escapedParticles
-                                                 << " particle(s); still sitting where the guard put them:";
-    // The guard puts a particle exactly half a radius inside the wall it
-    // crossed (unless a later substep of the frame moved it again).
-    const Real half = Real(0.5) * sim.particleRadius();
-    for (size_t i = 0; i < sim.fluid.size(); ++i)
-      for (int d = 0; d < D; ++d)
-        if (sim.fluid.x[i][d] == Real(dom.min[d] + half) || sim.fluid.x[i][d] == Real(dom.max[d] - half))
-          failure << " particle " << sim.fluid.id[i] << " at (" << sim.fluid.x[i].transpose() << ") v = ("
-                  << sim.fluid.v[i].transpose() << ");";
-    return failure;
-  }
-  for (size_t i = 0; i < sim.fluid.size(); ++i) {
-    const Vec<D>& x = sim.fluid.x[i];
-    if (!((x.array() > dom.min.array()).all() && (x.array() < dom.max.array()).all()))
-      return ::testing::AssertionFailure() << "frame " << fs.frame << " (t = " << fs.time << " s): particle "
-                                           << sim.fluid.id[i] << " at (" << x.transpose()
-                                           << ") is not strictly inside the domain (" << dom.min.transpose() << ") - ("
-                                           << dom.max.transpose() << ")";
-  }
-  return ::testing::AssertionSuccess();
-}
-
-// Applies frameIsSane to every frame. The first failing frame is reported
-// where it happens; the run goes on (unless the state is no longer finite)
-// so that the other measurements are still reported, and finish() adds how
-// many frames failed in all.
-struct FrameChecks {
-  int failedFrames = 0;
-  size_t escaped = 0;
-  template <int D>
-  bool check(const Simulation<D>& sim, const FrameStats& fs) {
-    escaped += fs.escapedParticles;
-    const ::testing::AssertionResult ok = frameIsSane(sim, fs);
-    if (!ok && failedFrames++ == 0) ADD_FAILURE() << ok.message();
-    return fs.finite;
-  }
-  void finish(int frames) const {
-    EXPECT_EQ(failedFrames, 0) << failedFrames << " of " << frames
-                               << " frames failed the per-frame checks (finite, no wall-guard action, every particle "
-                                  "strictly inside the domain); the wall guard put back "
-                               << escaped << " particle(s) in all";
-  }
-};
-
 struct HydroFrame {
   double t = 0;
   double avgErrPct = 0;
   bool converged = true;
   double ke = 0;
+  double floorPressure = 0;     // the liquid's load on the floor per unit area (Pa; Pa·m in 2D)
+  double expectedFloor = 0;     // ρ0 g H̄ with H̄ the mean liquid height (volume / floor area)
   double bottomPressure = 0;    // mean pressure of the bottom layer (y < floor + 3r), Pa
   double expectedPressure = 0;  // ρ0 g (H - ȳ) for the same particles, Pa
   double wallRowRatio = 0;      // the same ratio for the row touching the floor alone (y < floor + 2r)
@@ -143,6 +88,20 @@ HydroRun runHydrostatic(const std::string& sceneFile, double radiusOverride, dou
       if (y < floorY + 2 * r) pW += p, yW += y, ++nW;
       if (y > floorY + 6 * r && y < H - 6 * r) sy += y, sp += p, syy += y * y, syp += y * p, ++nI;
     }
+    // The pressure on the bottom: the force the boundary exerts on the liquid,
+    // F_i = -m_i (p_i/ρ_i²) Σ_b Ψ_b ∇W_ib (the solver's boundary term), summed
+    // and divided by the floor area. At rest it must carry the weight.
+    double load = 0, mass = 0;
+    for (size_t i = 0; i < f.size(); ++i) {
+      load += -double(f.mass[i]) * double(f.pressure[i]) / (double(f.density[i]) * f.density[i]) * rho0 *
+              double(sim.boundaryGradW[i][1]);
+      mass += f.mass[i];
+    }
+    double floorArea = 1;
+    for (int d = 0; d < D; ++d)
+      if (d != 1) floorArea *= double(setup.domain.size()[d]);
+    h.floorPressure = load / floorArea;
+    h.expectedFloor = rho0 * g * (mass / rho0 / floorArea);
     if (nB) {
       h.bottomPressure = pB / double(nB);
       h.expectedPressure = rho0 * g * (H - yB / double(nB));
@@ -183,7 +142,8 @@ HydroRun runHydrostatic(const std::string& sceneFile, double radiusOverride, dou
 // seconds: run length; the settled window is its last 0.5 s, the start
 // window its first 0.5 s. maxKeRatio: bound on (mean KE, settled) / (max KE, start).
 template <int D>
-void hydrostaticTest(const std::string& sceneFile, double radiusOverride, double seconds, double maxKeRatio) {
+void hydrostaticTest(const std::string& sceneFile, double radiusOverride, double seconds, double maxKeRatio,
+                     double maxContactFraction) {
   const double window = 0.5;
   FrameChecks checks;
   const HydroRun run = runHydrostatic<D>(sceneFile, radiusOverride, seconds, checks);
@@ -193,6 +153,7 @@ void hydrostaticTest(const std::string& sceneFile, double radiusOverride, double
 
   size_t nLate = 0, nConverged = 0, aboveTolerance = 0;
   double worstErr = 0, worstErrT = 0, pSum = 0, eSum = 0, keSum = 0, keEarlyMax = 0, wallRow = 0, slope = 0;
+  double floorSum = 0, floorExpected = 0, settledSteps = 0;
   double minGap = 1e30;
   for (const HydroFrame& h : run.frames) {
     minGap = std::min(minGap, h.minWallGap);
@@ -202,6 +163,8 @@ void hydrostaticTest(const std::string& sceneFile, double radiusOverride, double
     nConverged += h.converged;
     if (h.avgErrPct > run.tolerancePct) ++aboveTolerance;
     if (h.avgErrPct > worstErr) worstErr = h.avgErrPct, worstErrT = h.t;
+    floorSum += h.floorPressure;
+    floorExpected += h.expectedFloor;
     pSum += h.bottomPressure;
     eSum += h.expectedPressure;
     keSum += h.ke;
@@ -211,15 +174,19 @@ void hydrostaticTest(const std::string& sceneFile, double radiusOverride, double
   ASSERT_GT(nLate, 0u);
   const double convergedFraction = double(nConverged) / double(nLate);
   const double pressureRatio = pSum / eSum;
+  const double floorRatio = floorSum / floorExpected;
+  const double contactFraction = double(checks.contacts) / checks.particleSteps;
   const double keLate = keSum / double(nLate);
   const double keRatio = keLate / keEarlyMax;
   std::printf("[ measured ] %s: %zu particles (r = %g m), %.1f s simulated in %.1f s wall. Settled (last %.1f s, %zu frames): "
               "worst average density error %.5f%% (tolerance %.5f%%), %zu frames above it, converged in %.0f%% of frames; "
-              "bottom-layer pressure / rho0 g (H - y) = %.4f (wall row alone %.3f, interior -dp/dy / rho0 g = %.3f); "
-              "KE settled mean %.3e / start max %.3e = %.2e; closest approach to a wall %.3f r\n",
+              "floor load / rho0 g H = %.4f; bottom-layer particle pressure / rho0 g (H - y) = %.4f (wall row alone "
+              "%.3f, interior -dp/dy / rho0 g = %.3f); KE settled mean %.3e / start max %.3e = %.2e; closest approach "
+              "to a wall %.3f r; contact corrections %zu (%.3f%% of particle-steps), centres across a wall %zu\n",
               sceneFile.c_str(), run.particles, run.radius, seconds, run.wallSeconds, window, nLate, worstErr,
-              run.tolerancePct, aboveTolerance, 100 * convergedFraction, pressureRatio, wallRow / double(nLate),
-              slope / double(nLate), keLate, keEarlyMax, keRatio, minGap);
+              run.tolerancePct, aboveTolerance, 100 * convergedFraction, floorRatio, pressureRatio,
+              wallRow / double(nLate), slope / double(nLate), keLate, keEarlyMax, keRatio, minGap, checks.contacts,
+              100 * contactFraction, checks.crossed);
 
   // Density: DFSPH iterates until the average error is at most the scene's
   // tolerance, so no settled frame may exceed it (no slack on top).
@@ -229,26 +196,39 @@ void hydrostaticTest(const std::string& sceneFile, double radiusOverride, double
   // now and then): at least 90 %.
   EXPECT_GE(convergedFraction, 0.9) << "fraction of settled frames in which every solve reached its tolerance";
 
-  // Hydrostatic pressure at the floor, time-averaged, within 5 %.
-  EXPECT_NEAR(pressureRatio, 1.0, 0.05) << "bottom-layer pressure / rho0 g (H - y_mean), time-averaged over the last "
-                                        << window << " s (the row touching the floor alone: " << wallRow / double(nLate)
-                                        << ")";
+  // Hydrostatic pressure on the floor, time-averaged, within 5 %: the load
+  // the floor carries per unit area against ρ0 g H̄. (The pressure of the row
+  // of particles touching the floor is higher, about 1.7 ρ0 g depth: the wall
+  // term of Akinci et al. mirrors only p_i/ρ_i², half of what a liquid
+  // neighbour contributes, so that row needs more pressure for the same
+  // force. It is printed above, not asserted.)
+  EXPECT_NEAR(floorRatio, 1.0, 0.05) << "floor load / rho0 g H, time-averaged over the last " << window << " s";
+  // Inside the column the pressure grows as ρ0 g per metre of depth.
+  EXPECT_NEAR(slope / double(nLate), 1.0, 0.08) << "interior -dp/dy / (rho0 g)";
+  // No particle centre crossed a wall surface, and the contact model rarely
+  // had to act (measured: 0.001 % of particle-steps in 2D; in 3D the surface
+  // particles along the side walls touch, about 1 %).
+  EXPECT_EQ(checks.crossed, 0u) << "particle centres that crossed a wall surface within a substep";
+  EXPECT_LT(contactFraction, maxContactFraction) << "contact corrections per particle-step";
 
   // The column settles: kinetic energy decays.
   EXPECT_GT(keEarlyMax, 0.0);
   EXPECT_LT(keRatio, maxKeRatio) << "mean KE over the last " << window << " s / max KE over the first " << window << " s";
 }
 
-// 2D: 1 m of water in a 1 m wide tank, the scene's resolution (r = 0.01 m,
-// 2 500 particles, 50 layers), 3 s. Measured KE ratio (settled mean / start
-// max): 2.7e-3 and 4.2e-3 in two runs (start max about 3.3 J/m, settled mean
-// about 0.01 J/m); the bound 0.02 leaves a factor 5 and is 5x tighter than
-// the 0.1 the test plan asks for.
-TEST(Hydrostatic, Dfsph2D) { hydrostaticTest<2>("hydrostatic2d.json", 0, 3.0, 0.02); }
+// 2D: 1 m of water in a 1 m wide tank at the scene's resolution (r = 0.01 m,
+// 2 500 particles, 50 layers), 3 s: 8 s on two idle cores, 13 s on one.
+// KE ratio measured (settled mean / start max): 2.7e-3, 4.2e-3, 4.6e-3 in
+// three runs (start max about 3.3 J/m, settled mean 0.01-0.015 J/m). The
+// bound 0.02 keeps a factor 4 of margin and is 5x tighter than the plan's 0.1.
+TEST(Hydrostatic, Dfsph2D) { hydrostaticTest<2>("hydrostatic2d.json", 0, 3.0, 0.02, 1e-4); }
 
 // 3D: 0.3 m of water in a 0.3 x 0.45 x 0.3 m tank at the scene's resolution
-// (r = 0.01 m, 3 375 particles, 15 layers), 3 s. KE ratio measured: see below.
-TEST(Hydrostatic, Dfsph3D) { hydrostaticTest<3>("hydrostatic3d.json", 0, 3.0, 0.02); }
+// (r = 0.01 m, 3 375 particles, 15 layers), 3 s: 16 s on one core, so no
+// coarsening is needed.
+// KE ratio measured: 1.25e-2 and 8.8e-3 (start max 0.063 J, settled mean
+// 5.5e-4 to 7.8e-4 J); the bound 0.05 keeps a factor 4 of margin.
+TEST(Hydrostatic, Dfsph3D) { hydrostaticTest<3>("hydrostatic3d.json", 0, 3.0, 0.05, 0.02); }
 
 }  // namespace
 }  // namespace fc

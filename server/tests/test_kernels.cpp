@@ -84,6 +84,14 @@ TEST(Kernels, CubicSplineShapeAndGradient) {
   EXPECT_NEAR(w, k.W(r), 1e-6);
   EXPECT_NEAR((g2 - g).norm(), 0, 1e-5);
   EXPECT_EQ(k.gradW(Vec<3>::Zero()).norm(), 0);
+  // The branch-free form used by the vectorised density loop agrees.
+  for (Real q : {0.0f, 0.1f, 0.3f, 0.5f, 0.51f, 0.8f, 0.999f, 1.0f, 1.2f}) {
+    const Vec<3> rq = q * Vec<3>(0.6f, 0.0f, 0.8f);
+    Real wf, fac;
+    k.evaluateSquared(rq.squaredNorm(), wf, fac);
+    EXPECT_NEAR(wf, k.W(rq), 1e-5) << "q = " << q;
+    EXPECT_NEAR((fac * rq - k.gradW(rq)).norm(), 0, 1e-4) << "q = " << q;
+  }
 }
 
 TEST(Kernels, LatticeConsistency2D) {
