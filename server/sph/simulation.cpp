@@ -298,8 +298,9 @@ void Simulation<D>::enforceSolidContact(FrameStats& fs) {
   const Vec<D> lo = setup_.domain.min.array() + c;
   const Vec<D> hi = setup_.domain.max.array() - c;
   size_t contacts = 0, crossed = 0;
+  double impulse[2 * D] = {};
   const long n = long(fluid.size());
-#pragma omp parallel for schedule(static) reduction(+ : contacts, crossed)
+#pragma omp parallel for schedule(static) reduction(+ : contacts, crossed, impulse[:2 * D])
   for (long i = 0; i < n; ++i) {
     Vec<D>& x = fluid.x[i];
     Vec<D>& v = fluid.v[i];
@@ -308,12 +309,12 @@ void Simulation<D>::enforceSolidContact(FrameStats& fs) {
       if (x[d] < lo[d]) {
         through = through || x[d] < setup_.domain.min[d];
         x[d] = lo[d];
-        v[d] = std::max(v[d], Real(0));
+        if (v[d] < 0) impulse[2 * d] -= double(fluid.mass[i]) * v[d], v[d] = 0;
         touched = true;
       } else if (x[d] > hi[d]) {
         through = through || x[d] > setup_.domain.max[d];
         x[d] = hi[d];
-        v[d] = std::min(v[d], Real(0));
+        if (v[d] > 0) impulse[2 * d + 1] += double(fluid.mass[i]) * v[d], v[d] = 0;
         touched = true;
       }
     }
@@ -341,6 +342,7 @@ void Simulation<D>::enforceSolidContact(FrameStats& fs) {
   }
   fs.wallContacts += contacts;
   fs.crossedSurface += crossed;
+  for (int k = 0; k < 2 * D; ++k) fs.contactImpulse[k] += impulse[k];
 }
 
 template <int D>

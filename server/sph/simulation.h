@@ -28,6 +28,10 @@ struct FrameStats {
   size_t escapedParticles = 0;   // particles outside the tank or inside a solid at frame end (0 unless broken)
   size_t wallContacts = 0;       // contact corrections (centres kept contact_distance from solids)
   size_t crossedSurface = 0;     // of those, centres that had crossed the solid surface within a substep
+  // Momentum the contacts removed against each tank wall over the frame
+  // (N·s; N·s/m in 2D), index 2·axis for the min wall, 2·axis + 1 for the
+  // max wall: with the boundary particles' force, what the walls carry.
+  std::array<double, 6> contactImpulse{};
   double maxSpeed = 0;           // m/s, end of frame
   double kineticEnergy = 0;      // J (J/m in 2D), end of frame
   double minDt = 0, maxDt = 0;   // s

@@ -148,10 +148,11 @@ void damBreakTest(const std::string& sceneFile, double radiusOverride, const std
               run.reachedFarWall ? "reached" : "not reached", furthest / run.a, run.frames.back().frontMax / run.a, zAt2,
               worstStep / run.r, worstStepT, worstVolume, worstVolumeT, 100 * checks.contacts / checks.particleSteps,
               checks.crossed, 100 * checks.crossed / checks.particleSteps);
-  // The SPH boundary keeps the liquid off the walls; the contact model only
-  // catches spray and the toe of the surge (bounds: about 5x the measured
-  // rates, see the table below).
-  EXPECT_LT(checks.contacts / checks.particleSteps, 2e-3) << "contact corrections per particle-step";
+  // The SPH boundary keeps the liquid off the walls; the contact model
+  // catches spray and the toe of the surge: measured 0.016-0.022 % of
+  // particle-steps in 2D, 1.7-2.2 % in 3D (where more of the liquid is
+  // surface along the side walls). Bounds 0.1 % and 4 %.
+  EXPECT_LT(checks.contacts / checks.particleSteps, D == 2 ? 1e-3 : 4e-2) << "contact corrections per particle-step";
   EXPECT_LT(checks.crossed / checks.particleSteps, 1e-5) << "centres across a wall surface per particle-step";
 
   EXPECT_EQ(backwardFrames, 0) << "frames in which the front moved back by more than 0.1 r; worst step "
