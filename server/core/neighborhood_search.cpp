@@ -209,7 +209,8 @@ void NeighborhoodSearch<D>::staticNeighborLists(const std::vector<Vec<D>>& x, Ne
 template <int D>
 void NeighborhoodSearch<D>::zOrder(const std::vector<Vec<D>>& x, std::vector<uint32_t>& perm) const {
   const size_t n = x.size();
-  std::vector<std::pair<uint64_t, uint32_t>> keys(n);
+  auto& keys = mortonKeys_;
+  keys.resize(n);
 #pragma omp parallel for schedule(static)
   for (size_t i = 0; i < n; ++i) {
     const VecI<D> c = cellCoord(x[i]);

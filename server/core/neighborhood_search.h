@@ -116,6 +116,7 @@ class NeighborhoodSearch {
   SortedCoords staticPos_;
 
   NeighborList dyn_;
+  mutable std::vector<std::pair<uint64_t, uint32_t>> mortonKeys_;  // zOrder's scratch
   std::vector<std::vector<uint32_t>> threadBuf_;
   std::vector<uint32_t> threadCounts_;
 };

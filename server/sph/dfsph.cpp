@@ -26,7 +26,7 @@ const ParamSpecs& dfsphParams() {
       {"max_iterations", "", 1, 10000, 100, "most density-solve iterations", ParamType::Integer},
       {"max_divergence_iterations", "", 1, 10000, 100, "most divergence-solve iterations", ParamType::Integer},
       {"divergence_solve", "", 0, 1, 1, "run the divergence-free solve", ParamType::Boolean},
-      {"warm_start", "", 0, 1, 1, "start each solve from the previous step's stiffness", ParamType::Boolean},
+      {"warm_start", "", 0, 1, 1, "start each solve from half the previous step's stiffness where the particle is still compressed", ParamType::Boolean},
   };
   return specs;
 }

@@ -43,11 +43,16 @@ struct FluidParticles {
     kind.push_back(uint8_t(k));
     id.push_back(uint32_t(id.size()));
   }
-  void reorder(const std::vector<uint32_t>& perm) {
+  // Scratch arrays kept between reorders, so that reordering allocates
+  // nothing once they have grown.
+  struct Scratch {
     std::vector<Vec<D>> sv;
     std::vector<Real> sr;
     std::vector<uint8_t> s8;
     std::vector<uint32_t> s32;
+  };
+  void reorder(const std::vector<uint32_t>& perm, Scratch& scratch) {
+    auto& [sv, sr, s8, s32] = scratch;
     applyPermutation(x, perm, sv);
     applyPermutation(v, perm, sv);
     applyPermutation(a, perm, sv);

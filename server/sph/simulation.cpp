@@ -278,7 +278,7 @@ Real Simulation<D>::cflTimeStep() const {
 template <int D>
 void Simulation<D>::reorderParticles() {
   search.zOrder(fluid.x, perm_);
-  fluid.reorder(perm_);
+  fluid.reorder(perm_, reorderScratch_);
   pressure_->reorder(perm_);
   for (auto& e : effects_) e->reorder(perm_);
 }

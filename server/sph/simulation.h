@@ -110,6 +110,7 @@ class Simulation {
   size_t totalSubsteps_ = 0;
   size_t stepsSinceReorder_ = 0;
   std::vector<uint32_t> perm_;
+  typename FluidParticles<D>::Scratch reorderScratch_;
 };
 
 }  // namespace fc
