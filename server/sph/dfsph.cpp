@@ -82,6 +82,7 @@ class DFSPH final : public PressureSolver<D> {
   SolverReport correctDivergence(Simulation<D>& sim, Real dt) override {
     SolverReport rep;
     if (!divergenceSolve_) return rep;
+    boundaryImpulse_ = {};
     const long n = long(sim.fluid.size());
     // Stop when the average density rate is below tol·ρ0 per time step.
     const Real eta = divergenceTol_ / dt;
@@ -99,12 +100,14 @@ class DFSPH final : public PressureSolver<D> {
     }
     rep.converged = avg <= eta || n == 0;
     rep.avgErrorPct = double(avg) * double(dt) * 100.0;
+    rep.boundaryImpulse = boundaryImpulse_;
     return rep;
   }
 
   SolverReport correctDensity(Simulation<D>& sim, Real dt) override {
     SolverReport rep;
     const long n = long(sim.fluid.size());
+    boundaryImpulse_ = {};
     Real maxErr = 0;
     Real avg = densityResidual(sim, dt, maxErr);
     if (warmStart_) {
@@ -121,6 +124,7 @@ class DFSPH final : public PressureSolver<D> {
     rep.converged = avg <= densityTol_ || n == 0;
     rep.avgErrorPct = double(avg) * 100.0;
     rep.maxErrorPct = double(maxErr) * 100.0;
+    rep.boundaryImpulse = boundaryImpulse_;
     // The pressure both corrections amount to over the step: Δv = -Δt Σ_j m_j
     // (p_i/ρ_i² + p_j/ρ_j²) ∇W_ij, so p_i = ρ_i² (K_i + K_i^div)/Δt.
     auto& f = sim.fluid;
@@ -170,9 +174,10 @@ class DFSPH final : public PressureSolver<D> {
     const Real* gy = sim.massGradW[1].data();
     auto& f = sim.fluid;
     const long n = long(f.size());
+    double ix = 0, iy = 0, iz = 0;
     // Named scalar accumulators with `omp simd`, so the neighbour loop
     // vectorises (the reduction may be reordered).
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) reduction(+ : ix, iy, iz)
     for (long i = 0; i < n; ++i) {
       const Real ki = stiffness[i];
       const uint32_t b = off[i], e = off[i + 1];
@@ -199,7 +204,14 @@ class DFSPH final : public PressureSolver<D> {
       f.v[i][0] -= dx + kb * gb[0];
       f.v[i][1] -= dy + kb * gb[1];
       if constexpr (D == 3) f.v[i][2] -= dz + kb * gb[2];
+      const double mk = -double(f.mass[i]) * double(kb);
+      ix += mk * gb[0];
+      iy += mk * gb[1];
+      if constexpr (D == 3) iz += mk * gb[2];
     }
+    boundaryImpulse_[0] += ix;
+    boundaryImpulse_[1] += iy;
+    boundaryImpulse_[2] += iz;
   }
 
   // Dρ_i/Dt = Σ_j m_j (v_i - v_j)·∇W_ij + Σ_b Ψ_b (v_i - v_b)·∇W_ib (eq. (8) in [BK17]),
@@ -271,6 +283,7 @@ class DFSPH final : public PressureSolver<D> {
   bool divergenceSolve_, warmStart_;
   std::vector<Real> factor_, kappaDensity_, kappaDivergence_, residual_, stiffness_, scratch_;
   std::vector<uint8_t> deficient_;
+  std::array<double, 3> boundaryImpulse_{};
 };
 
 template <int D>

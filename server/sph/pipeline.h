@@ -3,6 +3,7 @@
 // Each registers by name in one table; the scene's lists pick which exist.
 #include "core/types.h"
 #include "sph/parameters.h"
+#include <array>
 #include <functional>
 #include <map>
 #include <memory>
@@ -19,6 +20,9 @@ struct SolverReport {
   double avgErrorPct = 0;   // average relative error at exit, percent
   double maxErrorPct = 0;   // largest particle error at exit, percent
   bool converged = true;
+  // Momentum the boundary gave the liquid during this solve (N·s; N·s/m in
+  // 2D), per axis: what the walls carry, measured where it is applied.
+  std::array<double, 3> boundaryImpulse{};
 };
 
 template <int D>

@@ -374,6 +374,7 @@ FrameStats Simulation<D>::advanceFrame() {
 
     const SolverReport div = pressure_->correctDivergence(*this, lastDt_);
     fs.divergenceIterations += div.iterations;
+    for (int d = 0; d < 3; ++d) fs.boundaryImpulse[d] += div.boundaryImpulse[d];
     fs.converged = fs.converged && div.converged;
     fs.divergenceMs += took();
 
@@ -395,6 +396,7 @@ FrameStats Simulation<D>::advanceFrame() {
     const SolverReport dens = pressure_->correctDensity(*this, dt);
     fs.pressureMs += took();
     fs.densityIterations += dens.iterations;
+    for (int d = 0; d < 3; ++d) fs.boundaryImpulse[d] += dens.boundaryImpulse[d];
     fs.converged = fs.converged && dens.converged;
     fs.avgDensityErrorPct = std::max(fs.avgDensityErrorPct, dens.avgErrorPct);
     fs.maxDensityErrorPct = std::max(fs.maxDensityErrorPct, dens.maxErrorPct);

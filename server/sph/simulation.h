@@ -32,6 +32,7 @@ struct FrameStats {
   // (N·s; N·s/m in 2D), index 2·axis for the min wall, 2·axis + 1 for the
   // max wall: with the boundary particles' force, what the walls carry.
   std::array<double, 6> contactImpulse{};
+  std::array<double, 3> boundaryImpulse{};  // what the boundary particles gave the liquid, per axis
   double maxSpeed = 0;           // m/s, end of frame
   double kineticEnergy = 0;      // J (J/m in 2D), end of frame
   double minDt = 0, maxDt = 0;   // s

@@ -58,6 +58,11 @@ class WCSPH final : public PressureSolver<D> {
       f.v[i] += dt * a;
     }
     SolverReport rep;
+    for (long i = 0; i < n; ++i) {
+      const Real pi = f.pressure[i] / (f.density[i] * f.density[i]);
+      const Vec<D> j = (-double(dt) * f.mass[i] * sim.restDensity_[f.phase[i]] * pi) * sim.boundaryGradW[i];
+      for (int d = 0; d < D; ++d) rep.boundaryImpulse[d] += double(j[d]);
+    }
     rep.avgErrorPct = n ? sum / double(n) * 100.0 : 0;
     rep.maxErrorPct = double(mx) * 100.0;
     return rep;
