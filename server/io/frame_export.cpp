@@ -1,5 +1,7 @@
 #include "io/frame_export.h"
 
+#include "io/hdf5_util.h"
+
 #include <hdf5.h>
 #include <omp.h>
 #include <zlib.h>
@@ -25,6 +27,14 @@ static_assert(std::is_same_v<hid_t, int64_t>, "frame_export.h stores hid_t as in
 
 namespace {
 
+using hdf5::checked;
+using hdf5::Handle;
+using hdf5::syncPath;
+using hdf5::writeArray;
+using hdf5::writeScalar;
+using hdf5::writeString;
+using hdf5::writeStrings;
+
 // Rows per chunk of the particle datasets (the contract says ~64k rows) and
 // of the small per-frame tables.
 constexpr hsize_t kParticleChunkRows = 65536;
@@ -35,134 +45,6 @@ constexpr int kDeflateLevel = 1;
 // Completed particle chunks are compressed in parallel in batches of at most
 // this many uncompressed bytes, which bounds the exporter's memory.
 constexpr size_t kMaxBatchBytes = size_t(64) << 20;
-
-// Closes an HDF5 identifier at scope exit.
-class Handle {
- public:
-  Handle(hid_t id, herr_t (*closer)(hid_t)) : id_(id), closer_(closer) {}
-  ~Handle() {
-    if (id_ >= 0) closer_(id_);
-  }
-  Handle(const Handle&) = delete;
-  Handle& operator=(const Handle&) = delete;
-  hid_t get() const { return id_; }
-  bool ok() const { return id_ >= 0; }
-
- private:
-  hid_t id_;
-  herr_t (*closer_)(hid_t);
-};
-
-// The error stack of the first failed call since the last QuietHdf5 guard was
-// set up: later calls (closing handles on the way out) clear the stack.
-thread_local std::string tFirstError;
-
-// Silences HDF5's automatic error printing while we call it: failures are
-// reported once, through the exception, with the library's own messages.
-class QuietHdf5 {
- public:
-  QuietHdf5() {
-    H5Eget_auto2(H5E_DEFAULT, &func_, &data_);
-    H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
-    tFirstError.clear();
-  }
-  ~QuietHdf5() { H5Eset_auto2(H5E_DEFAULT, func_, data_); }
-  QuietHdf5(const QuietHdf5&) = delete;
-  QuietHdf5& operator=(const QuietHdf5&) = delete;
-
- private:
-  H5E_auto2_t func_ = nullptr;
-  void* data_ = nullptr;
-};
-
-std::string hdf5ErrorText();
-
-// Passes an HDF5 result through, remembering the error stack of a failure.
-template <class R>
-R checked(R result) {
-  if (result < 0 && tFirstError.empty()) tFirstError = hdf5ErrorText();
-  return result;
-}
-
-// The descriptions on HDF5's error stack, innermost (most specific) last.
-std::string hdf5ErrorText() {
-  std::vector<std::string> lines;
-  H5Ewalk2(
-      H5E_DEFAULT, H5E_WALK_DOWNWARD,
-      [](unsigned, const H5E_error2_t* e, void* out) -> herr_t {
-        if (e && e->desc && *e->desc) static_cast<std::vector<std::string>*>(out)->push_back(e->desc);
-        return 0;
-      },
-      &lines);
-  // The API-level line and the innermost two carry the useful information
-  // (the innermost one has errno and its message for I/O failures).
-  std::string s;
-  const size_t n = lines.size();
-  for (size_t i = 0; i < n; ++i) {
-    if (i != 0 && i + 2 < n) continue;
-    if (!s.empty()) s += "; ";
-    s += lines[i];
-  }
-  for (char& c : s)
-    if (c == '\n' || c == '\r') c = ' ';
-  return s;
-}
-
-hid_t utf8StringType() {
-  hid_t t = checked(H5Tcopy(H5T_C_S1));
-  if (t < 0) return t;
-  if (checked(H5Tset_size(t, H5T_VARIABLE)) < 0 || checked(H5Tset_cset(t, H5T_CSET_UTF8)) < 0) {
-    H5Tclose(t);
-    return -1;
-  }
-  return t;
-}
-
-bool writeAttribute(hid_t loc, const char* name, hid_t fileType, hid_t memType, hid_t space, const void* data) {
-  Handle attr(checked(H5Acreate2(loc, name, fileType, space, H5P_DEFAULT, H5P_DEFAULT)), H5Aclose);
-  return attr.ok() && checked(H5Awrite(attr.get(), memType, data)) >= 0;
-}
-
-bool writeScalar(hid_t loc, const char* name, hid_t fileType, hid_t memType, const void* data) {
-  Handle space(checked(H5Screate(H5S_SCALAR)), H5Sclose);
-  return space.ok() && writeAttribute(loc, name, fileType, memType, space.get(), data);
-}
-
-bool writeArray(hid_t loc, const char* name, hid_t fileType, hid_t memType, hsize_t n, const void* data) {
-  Handle space(checked(H5Screate_simple(1, &n, nullptr)), H5Sclose);
-  return space.ok() && writeAttribute(loc, name, fileType, memType, space.get(), data);
-}
-
-bool writeString(hid_t loc, const char* name, const std::string& value) {
-  Handle type(utf8StringType(), H5Tclose);
-  const char* p = value.c_str();
-  return type.ok() && writeScalar(loc, name, type.get(), type.get(), &p);
-}
-
-bool writeStrings(hid_t loc, const char* name, const std::vector<std::string>& values) {
-  Handle type(utf8StringType(), H5Tclose);
-  std::vector<const char*> p;
-  for (auto& v : values) p.push_back(v.c_str());
-  return type.ok() && writeArray(loc, name, type.get(), type.get(), p.size(), p.data());
-}
-
-// An empty, extendible, chunked and compressed dataset of `cols` columns
-// (cols == 0: one-dimensional).
-hid_t createDataset(hid_t loc, const char* name, hid_t fileType, int cols, hsize_t chunkRows) {
-  const int rank = cols > 0 ? 2 : 1;
-  const hsize_t dims[2] = {0, hsize_t(cols)};
-  const hsize_t maxDims[2] = {H5S_UNLIMITED, hsize_t(cols)};
-  const hsize_t chunk[2] = {chunkRows, hsize_t(cols)};
-  Handle space(checked(H5Screate_simple(rank, dims, maxDims)), H5Sclose);
-  Handle dcpl(checked(H5Pcreate(H5P_DATASET_CREATE)), H5Pclose);
-  if (!space.ok() || !dcpl.ok()) return -1;
-  // The pipeline packChunk() reproduces: shuffle (for multi-byte types), then
-  // deflate. Chunks written with H5Dwrite_chunk declare it applied.
-  if (checked(H5Pset_chunk(dcpl.get(), rank, chunk)) < 0) return -1;
-  if (H5Tget_size(fileType) > 1 && checked(H5Pset_shuffle(dcpl.get())) < 0) return -1;
-  if (checked(H5Pset_deflate(dcpl.get(), unsigned(kDeflateLevel))) < 0) return -1;
-  return checked(H5Dcreate2(loc, name, fileType, space.get(), H5P_DEFAULT, dcpl.get(), H5P_DEFAULT));
-}
 
 // HDF5's shuffle filter (byte planes: byte b of element i goes to
 // b * count + i) followed by its deflate filter (zlib compress2), on one
@@ -195,15 +77,6 @@ const char* datasetName(int ds) {
   return names[ds];
 }
 
-void syncPath(const std::string& p, bool directory) {
-  const int fd = ::open(p.c_str(), (directory ? O_DIRECTORY : 0) | O_RDONLY | O_CLOEXEC);
-  if (fd < 0) throw std::system_error(errno, std::generic_category());
-  const int rc = ::fsync(fd);
-  const int err = errno;
-  ::close(fd);
-  if (rc != 0) throw std::system_error(err, std::generic_category());
-}
-
 }  // namespace
 
 template <int D>
@@ -221,7 +94,7 @@ FrameExporter<D>::FrameExporter(const std::string& path, const ExportHeader& hea
     invalid("domain min/max must have " + std::to_string(D) + " values");
   if (header.phases.size() > 256) invalid("more than 256 phases do not fit the uint8 phase column");
 
-  QuietHdf5 quiet;
+  hdf5::Quiet quiet;
   {
     // sec2 explicitly: discardFile() relies on its handle being a POSIX fd.
     Handle fapl(checked(H5Pcreate(H5P_FILE_ACCESS)), H5Pclose);
@@ -275,8 +148,11 @@ FrameExporter<D>::FrameExporter(const std::string& path, const ExportHeader& hea
       {FrameTime, H5T_IEEE_F64LE, 0, kFrameChunkRows},    {FrameOffset, H5T_STD_U64LE, 0, kFrameChunkRows},
       {FrameCount, H5T_STD_U32LE, 0, kFrameChunkRows},
   };
+  // Empty; the filter pipeline is the one packChunk() reproduces (chunks
+  // written with H5Dwrite_chunk declare it applied).
   for (const Spec& s : specs) {
-    datasets_[s.ds] = createDataset(file_, datasetName(s.ds), s.type, s.cols, s.chunkRows);
+    datasets_[s.ds] =
+        hdf5::createDataset(file_, datasetName(s.ds), s.type, 0, s.cols, s.chunkRows, unsigned(kDeflateLevel));
     if (datasets_[s.ds] < 0) fail(std::string("cannot create ") + datasetName(s.ds));
   }
   const uint64_t zero = 0;
@@ -333,8 +209,7 @@ void FrameExporter<D>::releaseHandles() noexcept {
 
 template <int D>
 void FrameExporter<D>::fail(const std::string& what) {
-  std::string detail = tFirstError.empty() ? hdf5ErrorText() : tFirstError;
-  tFirstError.clear();
+  const std::string detail = hdf5::takeError();
   discardFile();
   releaseHandles();
   // Only ever called after our H5Fcreate(TRUNC) of this exact name, so a
@@ -434,7 +309,7 @@ void FrameExporter<D>::writeFrame(int frameIndex, double time, const FluidPartic
   if (n > UINT32_MAX)
     throw std::runtime_error("cannot export frames to '" + path_ + "': more than 2^32 particles in one frame");
 
-  QuietHdf5 quiet;
+  hdf5::Quiet quiet;
   const uint64_t end = rows_ + n;
   if (n > 0) {
     // Extents first: every chunk written below lies inside the dataset.
@@ -472,7 +347,7 @@ void FrameExporter<D>::writeFrame(int frameIndex, double time, const FluidPartic
 template <int D>
 void FrameExporter<D>::close() {
   if (!open_) return;
-  QuietHdf5 quiet;
+  hdf5::Quiet quiet;
   for (int ds = 0; ds < NumParticleDs; ++ds) {
     PendingChunk& p = pending_[ds];
     if (p.rows > 0) ready_.push_back(ReadyChunk{ds, p.index++, std::move(p.bytes)});
@@ -510,7 +385,7 @@ void FrameExporter<D>::close() {
 template <int D>
 void FrameExporter<D>::abort() noexcept {
   if (!open_) return;
-  QuietHdf5 quiet;
+  hdf5::Quiet quiet;
   discardFile();
   releaseHandles();
   std::remove(tempPath_.c_str());

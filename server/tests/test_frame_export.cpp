@@ -1,5 +1,6 @@
 // FrameExporter: round trip through HDF5, atomic publication, error paths.
 #include "io/frame_export.h"
+#include "tests/hdf5_test_util.h"
 
 #include <gtest/gtest.h>
 #include <hdf5.h>
@@ -16,33 +17,10 @@
 
 namespace fs = std::filesystem;
 using namespace fc;
+using fc::test::readFile;
+using fc::test::TempDir;
 
 namespace {
-
-// A fresh directory per test, removed afterwards.
-class TempDir {
- public:
-  TempDir() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() /
-           ("flowclip-export-" + std::to_string(::getpid()) + "-" + info->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(dir_, ec);
-  }
-  std::string file(const std::string& name) const { return (dir_ / name).string(); }
-  std::vector<std::string> entries() const {
-    std::vector<std::string> e;
-    for (auto& p : fs::directory_iterator(dir_)) e.push_back(p.path().filename().string());
-    return e;
-  }
-
- private:
-  fs::path dir_;
-};
 
 template <int D>
 ExportHeader makeHeader(const std::string& scene = "unit") {
@@ -251,13 +229,6 @@ void roundTrip() {
   expectFileHolds<D>(path, h, indices, times, frames);
 }
 
-std::string readText(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
 void writeText(const std::string& path, const std::string& text) {
   std::ofstream out(path, std::ios::binary);
   out << text;
@@ -291,7 +262,7 @@ TEST(FrameExport, ExistingFileUntouchedUntilClose) {
   FrameExporter<2> ex(path, h);
   for (int k = 0; k < 3; ++k) {
     ex.writeFrame(k, k / 60.0, fluid);
-    EXPECT_EQ(readText(path), "previous export");
+    EXPECT_EQ(readFile(path), "previous export");
   }
   ex.close();
   expectFileHolds<2>(path, h, {0, 1, 2}, {0, 1 / 60.0, 2 / 60.0}, {fluid, fluid, fluid});
@@ -322,7 +293,7 @@ TEST(FrameExport, AbortAndFailedRunNeverPublish) {
     EXPECT_FALSE(ex.isOpen());
     EXPECT_THROW(ex.writeFrame(1, 0.1, fluid), std::runtime_error);
   }
-  EXPECT_EQ(readText(path), "previous export");
+  EXPECT_EQ(readFile(path), "previous export");
   EXPECT_EQ(dir.entries(), std::vector<std::string>{"out.h5"});
 
   // An exception unwinding through the exporter's scope: the run failed, its
@@ -333,7 +304,7 @@ TEST(FrameExport, AbortAndFailedRunNeverPublish) {
     throw std::logic_error("simulation blew up");
   } catch (const std::logic_error&) {
   }
-  EXPECT_EQ(readText(path), "previous export");
+  EXPECT_EQ(readFile(path), "previous export");
   EXPECT_EQ(dir.entries(), std::vector<std::string>{"out.h5"});
 }
 
@@ -395,7 +366,7 @@ TEST(FrameExport, WriteErrorRemovesTemporaryFile) {
       message = e.what();
     }
     EXPECT_NE(message.find(path), std::string::npos) << "no error naming the path: '" << message << "'";
-    EXPECT_EQ(readText(path), "previous export");
+    EXPECT_EQ(readFile(path), "previous export");
     EXPECT_EQ(dir.entries(), std::vector<std::string>{"out.h5"}) << "temporary file left behind";
   }
   // The process must also exit cleanly afterwards (ctest runs each test in

@@ -1,0 +1,73 @@
+#pragma once
+// The animation-template file (paper §3.2): one HDF5 file per template.
+//
+// The layout is a contract, documented exactly in templates/README.md
+// (format "flowclip-template", format_version 1). In short:
+//   root attributes   format, format_version, name, dimension, frame_rate,
+//                     frame_count, duration, particle_radius, support_radius,
+//                     rest_density, region_min, region_max, recipe, created_by,
+//                     position_encoding (+ position_origin, position_step),
+//                     velocity_encoding, mass_encoding (+ mass_table)
+//   /frames/offset          uint64 [F+1]  frame f = rows offset[f]..offset[f+1]
+//   /frames/velocity_scale  float64 [F]   m/s per velocity unit of frame f
+//   /particles/position     uint16 [N,D] (quantized) or float32 [N,D]
+//   /particles/velocity     int16  [N,D]  v = q * velocity_scale[f]
+//   /particles/mass_index   uint8  [N]    index into mass_table (or
+//   /particles/mass         float64 [N]   when more than 256 distinct masses)
+//   /particles/phase        uint8  [N]
+// Chunked, byte-shuffled (multi-byte types) and deflate-compressed.
+//
+// Precision (what readTemplate returns versus what writeTemplate was given):
+//   positions   |error| <= 0.01 * particle_radius per axis (uint16 encoding),
+//               float32 rounding otherwise;
+//   velocities  |error| <= velocity_scale[f] / 2 per component (plus float
+//               rounding), where velocity_scale[f] = max_i,d |v_id| of
+//               frame f / 1023, i.e. 0.049 % of the frame's largest component;
+//   masses, phases exact.
+// Particles of a frame are stored (and read back) sorted by the Morton code of
+// their quantized position: the order within a frame carries no meaning.
+//
+// Writing is atomic: the file is written as "<path>.tmp-<pid>-<n>" in the same
+// directory and renamed to <path> only on success; on any failure the
+// temporary file is removed and an existing <path> is untouched.
+#include "control/template.h"
+
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+
+namespace fc {
+
+// Every failure to write or read a template file; the message names the file
+// and what is wrong with it.
+struct TemplateError : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+inline constexpr int kTemplateFormatVersion = 1;
+
+template <int D>
+void writeTemplate(const std::string& path, const Template<D>& tpl);
+
+// Reads and validates the whole file. Throws TemplateError if the file is
+// missing, not HDF5, not a template, of another format_version, of another
+// dimension than D, or inconsistent (offsets, dataset shapes and types,
+// non-finite values, mass indices out of the table).
+template <int D>
+Template<D> readTemplate(const std::string& path);
+
+// The header attributes only (validated), without reading particle data.
+TemplateHeader readTemplateHeader(const std::string& path);
+
+struct TemplateFileStats {
+  size_t frames = 0;
+  size_t minParticles = 0, maxParticles = 0;  // per frame (0 without frames)
+  double avgParticles = 0;
+  uint64_t bytesOnDisk = 0;
+  double bytesPerParticleFrame = 0;  // bytesOnDisk / total particle-frames (0 if none)
+};
+
+// Reads the header and the frame-offset index only.
+TemplateFileStats templateFileStats(const std::string& path);
+
+}  // namespace fc
