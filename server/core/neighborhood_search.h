@@ -36,7 +36,6 @@ class NeighborhoodSearch {
   // A second point set (boundary particles) whose grid is built here and
   // kept until the next call.
   void setStaticPoints(const std::vector<Vec<D>>& points);
-  size_t staticPointCount() const { return staticIdx_.size(); }
 
   // Rebuilds the dynamic grid from x and the neighbour list of every x[i]
   // among x (self excluded).

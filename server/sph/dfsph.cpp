@@ -88,7 +88,7 @@ class DFSPH final : public PressureSolver<D> {
     const Real eta = divergenceTol_ / dt;
     Real avg = divergenceResidual(sim);
     if (warmStart_) {
-      warmStartFrom(sim, kappaDivergence_, Real(1), Real(0.5));
+      warmStartFrom(sim, kappaDivergence_, Real(1));
       avg = divergenceResidual(sim);
     } else {
       std::fill(kappaDivergence_.begin(), kappaDivergence_.end(), Real(0));
@@ -111,7 +111,7 @@ class DFSPH final : public PressureSolver<D> {
     Real maxErr = 0;
     Real avg = densityResidual(sim, dt, maxErr);
     if (warmStart_) {
-      warmStartFrom(sim, kappaDensity_, dt, Real(0.5));
+      warmStartFrom(sim, kappaDensity_, dt);
       avg = densityResidual(sim, dt, maxErr);
     } else {
       std::fill(kappaDensity_.begin(), kappaDensity_.end(), Real(0));
@@ -143,11 +143,11 @@ class DFSPH final : public PressureSolver<D> {
   // stored as K/Δt, an acceleration scale, so it carries over a change of Δt;
   // divergence stiffness does not depend on Δt (called with dt = 1).
   // Expects residual_ to hold the current residual.
-  void warmStartFrom(Simulation<D>& sim, std::vector<Real>& kappa, Real dt, Real share) {
+  void warmStartFrom(Simulation<D>& sim, std::vector<Real>& kappa, Real dt) {
     const long n = long(sim.fluid.size());
 #pragma omp parallel for schedule(static)
     for (long i = 0; i < n; ++i) {
-      kappa[i] = residual_[i] > 0 ? share * kappa[i] : Real(0);
+      kappa[i] = residual_[i] > 0 ? Real(0.5) * kappa[i] : Real(0);
       stiffness_[i] = kappa[i] * dt;
     }
     updateVelocities(sim);

@@ -57,7 +57,6 @@ class Simulation {
   const SimulationSetup<D>& setup() const { return setup_; }
   Real particleRadius() const { return radius_; }
   Real supportRadius() const { return kernel.radius(); }
-  Real latticeVolume() const { return latticeVolume_; }
   double time() const { return time_; }
   int frame() const { return frame_; }
   double frameDuration() const { return 1.0 / setup_.settings.get("frame_rate"); }
