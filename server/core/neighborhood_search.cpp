@@ -84,7 +84,7 @@ size_t scanRow(const std::array<std::vector<Real>, D>& sorted, const uint32_t* s
 #if defined(__AVX512F__)
   if constexpr (std::is_same_v<Real, float>) {
     // Sixteen candidates per step; the hits are packed with one compress-store.
-    std::array<__m512, D> pv;
+    __m512 pv[D];
     for (int d = 0; d < D; ++d) pv[d] = _mm512_set1_ps(p[d]);
     const __m512 r2v = _mm512_set1_ps(r2);
     const __m512i selfv = _mm512_set1_epi32(int(self));
