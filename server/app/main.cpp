@@ -31,6 +31,7 @@ int main(int argc, char** argv) {
   app.set_version_flag("--version", FLOWCLIP_VERSION);
   fc::app::addRunCommand(app);
   fc::app::addBenchCommand(app);
+  fc::app::addTemplatesCommands(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -1,0 +1,249 @@
+// `flowclip record RECIPE.json`: simulate a recipe and store the captured
+// template in the database. `flowclip templates list|inspect|remove`: the
+// database.
+#include "app/commands.h"
+#include "io/recipe.h"
+#include "io/template_database.h"
+#include "io/template_file.h"
+
+#include <omp.h>
+#include <unistd.h>
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <csignal>
+#include <cstdio>
+#include <limits>
+#include <memory>
+
+namespace fc::app {
+
+namespace {
+
+std::atomic<bool> recordInterrupted{false};
+extern "C" void onRecordInterrupt(int) { recordInterrupted = true; }
+
+struct RecordCliOptions {
+  std::string recipe;
+  std::string templatesDir = "templates";
+  bool force = false;
+  bool quiet = false;
+  int threads = 0;
+  double particleRadius = 0;
+};
+
+struct TemplatesCliOptions {
+  std::string templatesDir = "templates";
+  std::string name;
+};
+
+std::string vecText(const std::vector<double>& v) {
+  std::string s = "[";
+  for (size_t i = 0; i < v.size(); ++i) {
+    char b[32];
+    std::snprintf(b, sizeof b, "%s%g", i ? ", " : "", v[i]);
+    s += b;
+  }
+  return s + "]";
+}
+
+// Reports an exception the way every command does; returns the exit code.
+int reportError(const std::string& origin) {
+  try {
+    throw;
+  } catch (const SceneError& e) {
+    if (e.path.empty()) std::fprintf(stderr, "error: %s\n", e.what());
+    else std::fprintf(stderr, "error: %s: %s\n", origin.c_str(), e.what());
+    return BadInput;
+  } catch (const DatabaseError& e) {
+    std::fprintf(stderr, "error: %s\n", e.what());
+    return BadInput;
+  } catch (const TemplateError& e) {
+    std::fprintf(stderr, "error: %s\n", e.what());
+    return BadInput;
+  } catch (const RecordAborted& e) {
+    std::fprintf(stderr, "%s\n", e.what());
+    return Interrupted;
+  } catch (const std::invalid_argument& e) {
+    std::fprintf(stderr, "error: %s: %s\n", origin.c_str(), e.what());
+    return BadInput;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "error: %s\n", e.what());
+    return SimulationFailed;
+  }
+}
+
+int record(const RecordCliOptions& opt) {
+  const Recipe recipe = loadRecipe(opt.recipe);
+  RecordOptions ro;
+  ro.templatesDir = opt.templatesDir;
+  ro.force = opt.force;
+  ro.particleRadiusOverride = opt.particleRadius;
+  const bool tty = isatty(fileno(stderr));
+  const auto t0 = std::chrono::steady_clock::now();
+  ro.progress = [&](const RecordProgress& p) {
+    if (!opt.quiet && (tty || p.frame == p.frames || p.frame % std::max(1, p.frames / 20) == 0)) {
+      const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      const double eta = wall / p.frame * (p.frames - p.frame);
+      std::fprintf(stderr,
+                   "%sframe %d/%d  t=%.3f s  %zu captured  %d substeps  iter %d/%d  err %.3f%%  %.1f ms/frame  ETA "
+                   "%.0f s%s",
+                   tty ? "\r" : "", p.frame, p.frames, p.stats.time, p.captured, p.stats.substeps,
+                   p.stats.divergenceIterations, p.stats.densityIterations, p.stats.avgDensityErrorPct,
+                   p.stats.wallMs, eta, tty ? "   " : "\n");
+      std::fflush(stderr);
+    }
+    return !recordInterrupted.load();
+  };
+  if (!opt.quiet)
+    std::fprintf(stderr, "recording '%s' (%dD) from %s, %d threads\n", recipe.capture.name.c_str(),
+                 recipe.dimension, opt.recipe.c_str(), omp_get_max_threads());
+  recordInterrupted = false;
+  auto previous = std::signal(SIGINT, onRecordInterrupt);
+  RecordResult res;
+  try {
+    res = recordRecipe(recipe, ro);
+  } catch (...) {
+    std::signal(SIGINT, previous);
+    if (!opt.quiet && tty) std::fprintf(stderr, "\n");
+    throw;
+  }
+  std::signal(SIGINT, previous);
+  if (!opt.quiet && tty) std::fprintf(stderr, "\n");
+  const TemplateFileStats st = templateFileStats(res.path);
+  std::fprintf(stderr,
+               "wrote %s: %zu frames, %zu particle-frames (%.0f per frame), %llu bytes (%.2f B per particle-frame); "
+               "simulated in %.2f s, written in %.2f s\n",
+               res.path.c_str(), res.frames, res.particleFrames,
+               res.frames ? double(res.particleFrames) / double(res.frames) : 0.0,
+               (unsigned long long)st.bytesOnDisk, st.bytesPerParticleFrame, res.wallSeconds, res.writeSeconds);
+  return Ok;
+}
+
+int list(const TemplatesCliOptions& opt) {
+  TemplateDatabase db(opt.templatesDir);
+  const auto entries = db.list();
+  if (entries.empty()) {
+    std::printf("no templates in '%s'\n", db.directory().c_str());
+    return Ok;
+  }
+  std::printf("%-24s %3s %7s %7s %9s %10s %12s  %s\n", "name", "dim", "frames", "fps", "duration", "avg parts",
+              "bytes", "region");
+  for (const auto& e : entries) {
+    if (!e.error.empty()) {
+      std::printf("%-24s unreadable: %s\n", e.name.c_str(), e.error.c_str());
+      continue;
+    }
+    std::printf("%-24s %3d %7zu %7.2f %8.3fs %10.1f %12llu  %s - %s\n", e.name.c_str(), e.dimension, e.frames,
+                e.frameRate, e.duration, e.avgParticles, (unsigned long long)e.bytesOnDisk,
+                vecText(e.regionMin).c_str(), vecText(e.regionMax).c_str());
+  }
+  return Ok;
+}
+
+template <int D>
+void printLoadStats(TemplateDatabase& db, const std::string& name) {
+  const auto t0 = std::chrono::steady_clock::now();
+  auto lt = db.load<D>(name);
+  const double total = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const auto& acc = lt->accel;
+  size_t rmin = std::numeric_limits<size_t>::max(), rmax = 0;
+  for (const auto& f : acc.frames) {
+    rmin = std::min(rmin, f.repulsionCount());
+    rmax = std::max(rmax, f.repulsionCount());
+  }
+  if (acc.frames.empty()) rmin = 0;
+  const double ravg = acc.frames.empty() ? 0.0 : double(acc.repulsionParticleFrames()) / double(acc.frames.size());
+  const double mpf = double(acc.particleFrames()) / 1e6;
+  std::printf("repulsion particles per frame: min %zu, avg %.1f, max %zu (a = %g, thinning %g m)\n", rmin, ravg, rmax,
+              double(acc.options.a), double(acc.options.thinDistance));
+  std::printf("load: read %.3f s, repulsion layer + grids %.3f s, total %.3f s", lt->readSeconds, lt->buildSeconds,
+              total);
+  if (mpf > 0)
+    std::printf(" (read %.3f s, layer %.3f s per million particle-frames)", lt->readSeconds / mpf,
+                lt->buildSeconds / mpf);
+  std::printf("\nmemory when loaded: particles %.2f MB, grids + repulsion layer %.2f MB\n",
+              double(TemplateAccel<D>::templateBytes(lt->templ())) / 1e6, double(acc.memoryBytes()) / 1e6);
+}
+
+int inspect(const TemplatesCliOptions& opt) {
+  TemplateDatabase db(opt.templatesDir);
+  const std::string path = db.pathFor(opt.name);
+  if (!db.contains(opt.name)) throw DatabaseError("no template '" + opt.name + "' in '" + db.directory() + "'");
+  const TemplateHeader h = readTemplateHeader(path);
+  const TemplateFileStats s = templateFileStats(path);
+  std::printf("template %s (%s)\n", h.name.c_str(), path.c_str());
+  std::printf("  dimension        %d\n", h.dimension);
+  std::printf("  frames           %zu at %g fps (duration %.4f s)\n", s.frames, h.frameRate,
+              s.frames > 1 ? double(s.frames - 1) / h.frameRate : 0.0);
+  std::printf("  particle radius  %g m\n", h.particleRadius);
+  std::printf("  support radius   %g m\n", h.supportRadius);
+  std::printf("  rest density     %g kg/m^3\n", h.restDensity);
+  std::printf("  region           %s - %s\n", vecText(h.regionMin).c_str(), vecText(h.regionMax).c_str());
+  std::printf("  created by       %s\n", h.createdBy.c_str());
+  std::printf("  recipe           %zu bytes of JSON\n", h.recipe.size());
+  std::printf("particles per frame: min %zu, avg %.1f, max %zu\n", s.minParticles, s.avgParticles, s.maxParticles);
+  std::printf("on disk: %llu bytes, %.3f bytes per particle-frame\n", (unsigned long long)s.bytesOnDisk,
+              s.bytesPerParticleFrame);
+  std::fflush(stdout);
+  if (h.dimension == 2) printLoadStats<2>(db, opt.name);
+  else printLoadStats<3>(db, opt.name);
+  return Ok;
+}
+
+}  // namespace
+
+void addTemplatesCommands(CLI::App& app) {
+  auto ro = std::make_shared<RecordCliOptions>();
+  CLI::App* rec = app.add_subcommand("record", "simulate a recipe and store the captured animation template");
+  rec->add_option("recipe", ro->recipe, "recipe file (a scene plus a \"capture\" object, JSON)")->required();
+  rec->add_option("--templates", ro->templatesDir, "template directory (default: templates)");
+  rec->add_flag("--force", ro->force, "overwrite an existing template of the same name");
+  rec->add_option("--threads", ro->threads, "OpenMP threads (default: all cores)")->check(CLI::PositiveNumber);
+  rec->add_option("--particle-radius", ro->particleRadius, "override the recipe's particle radius, m")
+      ->check(CLI::PositiveNumber);
+  rec->add_flag("--quiet", ro->quiet, "no progress line");
+  rec->callback([ro] {
+    if (ro->threads > 0) omp_set_num_threads(ro->threads);
+    int code = Ok;
+    try {
+      code = record(*ro);
+    } catch (...) {
+      code = reportError(ro->recipe);
+    }
+    if (code != Ok) throw ExitCode(code);
+  });
+
+  auto to = std::make_shared<TemplatesCliOptions>();
+  CLI::App* tpl = app.add_subcommand("templates", "list, inspect or remove templates of the database");
+  tpl->require_subcommand(1);
+  tpl->add_option("--templates", to->templatesDir, "template directory (default: templates)");
+  auto wrap = [to](int (*fn)(const TemplatesCliOptions&)) {
+    return [to, fn] {
+      int code = Ok;
+      try {
+        code = fn(*to);
+      } catch (...) {
+        code = reportError(to->name);
+      }
+      if (code != Ok) throw ExitCode(code);
+    };
+  };
+  CLI::App* ls = tpl->add_subcommand("list", "list the templates (name, dimension, frames, size, region)");
+  ls->add_option("--templates", to->templatesDir, "template directory (default: templates)");
+  ls->callback(wrap(list));
+  CLI::App* in = tpl->add_subcommand("inspect", "print a template's header, statistics and load timings");
+  in->add_option("name", to->name, "template name")->required();
+  in->add_option("--templates", to->templatesDir, "template directory (default: templates)");
+  in->callback(wrap(inspect));
+  CLI::App* rm = tpl->add_subcommand("remove", "delete a template file from the database");
+  rm->add_option("name", to->name, "template name")->required();
+  rm->add_option("--templates", to->templatesDir, "template directory (default: templates)");
+  rm->callback(wrap(+[](const TemplatesCliOptions& o) {
+    TemplateDatabase(o.templatesDir).remove(o.name);
+    std::printf("removed %s\n", o.name.c_str());
+    return int(Ok);
+  }));
+}
+
+}  // namespace fc::app
