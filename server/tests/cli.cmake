@@ -70,3 +70,12 @@ foreach(scene IN LISTS FC_SHIPPED_SCENES)
   get_filename_component(dir ${dir} NAME)
   fc_cli_expect(cli_scene_loads_${dir}_${stem} 0 "" run ${scene} --frames 0 --quiet)
 endforeach()
+
+# Templates: bad recipes and names exit with status 2 and say what is wrong;
+# nothing is written (the output directory is the bad recipes' own folder,
+# which holds no template).
+set(FC_BAD_RECIPES ${FC_CLI_TESTS_DIR}/bad_recipes)
+fc_cli_expect(cli_record_bad_region 2 "capture.region.min[1]:" record ${FC_BAD_RECIPES}/bad_region.json --templates ${FC_BAD_RECIPES})
+fc_cli_expect(cli_record_bad_name 2 "capture.name: invalid template name '../evil'" record ${FC_BAD_RECIPES}/bad_name.json --templates ${FC_BAD_RECIPES})
+fc_cli_expect(cli_templates_inspect_path 2 "invalid template name '../x'" templates inspect ../x --templates ${FC_BAD_RECIPES})
+fc_cli_expect(cli_templates_inspect_missing 2 "no template 'nosuch'" templates inspect nosuch --templates ${FC_BAD_RECIPES})
