@@ -15,4 +15,25 @@ enum ExitCode { Ok = 0, Failure = 1, BadInput = 2, SimulationFailed = 3, Interru
 double peakRssMb();
 std::string selfExecutable();
 
+// While a guard lives, Ctrl-C (SIGINT) only sets requested(), so a long
+// command can stop cleanly after its current frame; the previous handler is
+// restored when the guard ends.
+class InterruptGuard {
+ public:
+  InterruptGuard();
+  ~InterruptGuard();
+  InterruptGuard(const InterruptGuard&) = delete;
+  InterruptGuard& operator=(const InterruptGuard&) = delete;
+  static bool requested();
+
+ private:
+  void (*previous_)(int);
+};
+
+// Call inside a catch block: prints the exception being handled the way
+// every command does (naming `origin` where the message does not) and
+// returns its exit code: BadInput for bad scenes, recipes, templates and
+// names, Interrupted for an aborted recording, `otherwise` for the rest.
+int reportError(const std::string& origin, ExitCode otherwise);
+
 }  // namespace fc::app

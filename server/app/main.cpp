@@ -1,4 +1,10 @@
 #include "app/commands.h"
+#include "io/recipe.h"
+#include "io/scene.h"
+#include "io/template_database.h"
+#include "io/template_file.h"
+#include <atomic>
+#include <csignal>
 #include <unistd.h>
 #include <cstdio>
 #include <fstream>
@@ -21,6 +27,44 @@ std::string selfExecutable() {
   if (n <= 0) return "flowclip";
   buf[n] = 0;
   return buf;
+}
+
+namespace {
+std::atomic<bool> interruptFlag{false};
+extern "C" void onInterrupt(int) { interruptFlag = true; }
+}  // namespace
+
+InterruptGuard::InterruptGuard() {
+  interruptFlag = false;
+  previous_ = std::signal(SIGINT, onInterrupt);
+}
+InterruptGuard::~InterruptGuard() { std::signal(SIGINT, previous_); }
+bool InterruptGuard::requested() { return interruptFlag.load(); }
+
+int reportError(const std::string& origin, ExitCode otherwise) {
+  try {
+    throw;
+  } catch (const SceneError& e) {
+    // File-level errors already name the file (and line, column).
+    if (e.path.empty()) std::fprintf(stderr, "error: %s\n", e.what());
+    else std::fprintf(stderr, "error: %s: %s\n", origin.c_str(), e.what());
+    return BadInput;
+  } catch (const DatabaseError& e) {
+    std::fprintf(stderr, "error: %s\n", e.what());
+    return BadInput;
+  } catch (const TemplateError& e) {
+    std::fprintf(stderr, "error: %s\n", e.what());
+    return BadInput;
+  } catch (const RecordAborted& e) {
+    std::fprintf(stderr, "%s\n", e.what());
+    return Interrupted;
+  } catch (const std::invalid_argument& e) {
+    std::fprintf(stderr, "error: %s: %s\n", origin.c_str(), e.what());
+    return BadInput;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "error: %s\n", e.what());
+    return otherwise;
+  }
 }
 
 }  // namespace fc::app

@@ -6,8 +6,6 @@
 #include "sph/simulation.h"
 #include <nlohmann/json.hpp>
 #include <omp.h>
-#include <atomic>
-#include <csignal>
 #include <unistd.h>
 #include <chrono>
 #include <cmath>
@@ -20,11 +18,6 @@
 namespace fc::app {
 
 namespace {
-
-// Ctrl-C stops the run after the current frame; what was simulated is still
-// exported and summarised.
-std::atomic<bool> interrupted{false};
-extern "C" void onInterrupt(int) { interrupted = true; }
 
 struct RunOptions {
   std::string scene;
@@ -122,9 +115,10 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
   int status = Ok;
   std::string failure;
   const bool tty = isatty(fileno(stderr));
-  interrupted = false;
-  auto previousHandler = std::signal(SIGINT, onInterrupt);
-  for (int f = 0; f < frames && !interrupted; ++f) {
+  // Ctrl-C stops the run after the current frame; what was simulated is
+  // still exported and summarised.
+  std::optional<InterruptGuard> interrupt(std::in_place);
+  for (int f = 0; f < frames && !InterruptGuard::requested(); ++f) {
     const FrameStats s = sim.advanceFrame();
     particleSteps += double(s.particles) * s.substeps;
     substeps += size_t(s.substeps);
@@ -149,7 +143,8 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
       std::fflush(stderr);
     }
   }
-  std::signal(SIGINT, previousHandler);
+  const bool interrupted = InterruptGuard::requested();
+  interrupt.reset();
   if (!opt.quiet && tty) std::fprintf(stderr, "\n");
   if (interrupted) {
     std::fprintf(stderr, "interrupted after %zu frames: keeping what was simulated\n", framesJson.size());
@@ -219,17 +214,8 @@ void addRunCommand(CLI::App& app) {
     try {
       const nlohmann::json j = loadSceneJson(opt->scene);
       code = sceneDimension(j) == 2 ? runScene<2>(*opt, j) : runScene<3>(*opt, j);
-    } catch (const SceneError& e) {
-      // File-level errors already name the file (and line, column).
-      if (e.path.empty()) std::fprintf(stderr, "error: %s\n", e.what());
-      else std::fprintf(stderr, "error: %s: %s\n", opt->scene.c_str(), e.what());
-      code = BadInput;
-    } catch (const std::invalid_argument& e) {
-      std::fprintf(stderr, "error: %s: %s\n", opt->scene.c_str(), e.what());
-      code = BadInput;
-    } catch (const std::exception& e) {
-      std::fprintf(stderr, "error: %s\n", e.what());
-      code = Failure;
+    } catch (...) {
+      code = reportError(opt->scene, Failure);
     }
     if (code != Ok) throw ExitCode(code);
   });

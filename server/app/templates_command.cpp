@@ -9,9 +9,7 @@
 #include <omp.h>
 #include <unistd.h>
 #include <algorithm>
-#include <atomic>
 #include <chrono>
-#include <csignal>
 #include <cstdio>
 #include <limits>
 #include <memory>
@@ -19,9 +17,6 @@
 namespace fc::app {
 
 namespace {
-
-std::atomic<bool> recordInterrupted{false};
-extern "C" void onRecordInterrupt(int) { recordInterrupted = true; }
 
 struct RecordCliOptions {
   std::string recipe;
@@ -47,32 +42,6 @@ std::string vecText(const std::vector<double>& v) {
   return s + "]";
 }
 
-// Reports an exception the way every command does; returns the exit code.
-int reportError(const std::string& origin) {
-  try {
-    throw;
-  } catch (const SceneError& e) {
-    if (e.path.empty()) std::fprintf(stderr, "error: %s\n", e.what());
-    else std::fprintf(stderr, "error: %s: %s\n", origin.c_str(), e.what());
-    return BadInput;
-  } catch (const DatabaseError& e) {
-    std::fprintf(stderr, "error: %s\n", e.what());
-    return BadInput;
-  } catch (const TemplateError& e) {
-    std::fprintf(stderr, "error: %s\n", e.what());
-    return BadInput;
-  } catch (const RecordAborted& e) {
-    std::fprintf(stderr, "%s\n", e.what());
-    return Interrupted;
-  } catch (const std::invalid_argument& e) {
-    std::fprintf(stderr, "error: %s: %s\n", origin.c_str(), e.what());
-    return BadInput;
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "error: %s\n", e.what());
-    return SimulationFailed;
-  }
-}
-
 int record(const RecordCliOptions& opt) {
   const Recipe recipe = loadRecipe(opt.recipe);
   RecordOptions ro;
@@ -93,22 +62,19 @@ int record(const RecordCliOptions& opt) {
                    p.stats.wallMs, eta, tty ? "   " : "\n");
       std::fflush(stderr);
     }
-    return !recordInterrupted.load();
+    return !InterruptGuard::requested();
   };
   if (!opt.quiet)
     std::fprintf(stderr, "recording '%s' (%dD) from %s, %d threads\n", recipe.capture.name.c_str(),
                  recipe.dimension, opt.recipe.c_str(), omp_get_max_threads());
-  recordInterrupted = false;
-  auto previous = std::signal(SIGINT, onRecordInterrupt);
   RecordResult res;
   try {
+    InterruptGuard interrupt;
     res = recordRecipe(recipe, ro);
   } catch (...) {
-    std::signal(SIGINT, previous);
     if (!opt.quiet && tty) std::fprintf(stderr, "\n");
     throw;
   }
-  std::signal(SIGINT, previous);
   if (!opt.quiet && tty) std::fprintf(stderr, "\n");
   const TemplateFileStats st = templateFileStats(res.path);
   std::fprintf(stderr,
@@ -209,7 +175,7 @@ void addTemplatesCommands(CLI::App& app) {
     try {
       code = record(*ro);
     } catch (...) {
-      code = reportError(ro->recipe);
+      code = reportError(ro->recipe, SimulationFailed);
     }
     if (code != Ok) throw ExitCode(code);
   });
@@ -224,7 +190,7 @@ void addTemplatesCommands(CLI::App& app) {
       try {
         code = fn(*to);
       } catch (...) {
-        code = reportError(to->name);
+        code = reportError(to->name, SimulationFailed);
       }
       if (code != Ok) throw ExitCode(code);
     };
