@@ -1,0 +1,197 @@
+#include "control/instance.h"
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+
+namespace fc {
+
+namespace {
+constexpr double kDegree = std::numbers::pi / 180;
+
+template <int D>
+using VecD = Eigen::Matrix<double, D, 1>;
+template <int D>
+using MatD = Eigen::Matrix<double, D, D>;
+
+Eigen::Quaterniond eulerXYZ(const std::array<double, 3>& deg) {
+  return Eigen::AngleAxisd(deg[0] * kDegree, Eigen::Vector3d::UnitX()) *
+         Eigen::AngleAxisd(deg[1] * kDegree, Eigen::Vector3d::UnitY()) *
+         Eigen::AngleAxisd(deg[2] * kDegree, Eigen::Vector3d::UnitZ());
+}
+
+template <int D>
+MatD<D> scaleReflect(const VecD<D>& scale, const std::array<bool, D>& reflect) {
+  VecD<D> s = scale;
+  for (int d = 0; d < D; ++d)
+    if (reflect[d]) s[d] = -s[d];
+  return s.asDiagonal();
+}
+
+template <int D>
+bool finite(const VecD<D>& v) {
+  return v.allFinite();
+}
+}  // namespace
+
+template <int D>
+void TransformTrack<D>::evaluate(double time, MatD<D>& linear, VecD<D>& translation) const {
+  if (keys.empty()) {
+    linear.setIdentity();
+    translation.setZero();
+    return;
+  }
+  // The segment [a, b] holding `time`, and the fraction u along it.
+  size_t b = 0;
+  while (b < keys.size() && keys[b].time <= time) ++b;
+  const size_t a = b == 0 ? 0 : b - 1;
+  if (b >= keys.size()) b = keys.size() - 1;
+  if (b < a) b = a;
+  const TransformKey<D>& ka = keys[a];
+  const TransformKey<D>& kb = keys[b];
+  double u = 0;
+  if (b != a && kb.time > ka.time) u = std::clamp((time - ka.time) / (kb.time - ka.time), 0.0, 1.0);
+  else if (time < ka.time) u = 0;  // before the first key: hold it
+  translation = (1 - u) * ka.translation + u * kb.translation;
+  const VecD<D> scale = (1 - u) * ka.scale + u * kb.scale;
+  // Reflection is discrete: the earlier key's until the later key is reached.
+  const std::array<bool, D>& reflect = u >= 1 ? kb.reflect : ka.reflect;
+  MatD<D> rotation;
+  if constexpr (D == 2) {
+    const double angle = ((1 - u) * ka.rotationDeg[0] + u * kb.rotationDeg[0]) * kDegree;
+    rotation << std::cos(angle), -std::sin(angle), std::sin(angle), std::cos(angle);
+  } else {
+    rotation = eulerXYZ(ka.rotationDeg).slerp(u, eulerXYZ(kb.rotationDeg)).toRotationMatrix();
+  }
+  linear = rotation * scaleReflect<D>(scale, reflect);
+}
+
+template <int D>
+Affine<D> TransformTrack<D>::templateToWorld(double time, const Vec<D>& centre) const {
+  MatD<D> m;
+  VecD<D> t;
+  evaluate(time, m, t);
+  Affine<D> a;
+  a.linear = m.template cast<Real>();
+  a.translation = (t - m * centre.template cast<double>()).template cast<Real>();
+  return a;
+}
+
+template <int D>
+Vec<D> TransformTrack<D>::pointVelocity(double time, const Vec<D>& centre, const Vec<D>& xWorld) const {
+  if (!animated()) return Vec<D>::Zero();
+  // The carried point in template space, then its world position at t ± δ.
+  MatD<D> m0, mm, mp;
+  VecD<D> t0, tm, tp;
+  evaluate(time, m0, t0);
+  (void)centre;  // the carried point's offset from c is all that matters
+  const VecD<D> y = m0.inverse() * (xWorld.template cast<double>() - t0);  // x_template − c
+  const double delta = 1e-4;
+  evaluate(time - delta, mm, tm);
+  evaluate(time + delta, mp, tp);
+  return ((mp * y + tp - (mm * y + tm)) / (2 * delta)).template cast<Real>();
+}
+
+template <int D>
+std::string TransformTrack<D>::validate() const {
+  for (size_t k = 0; k < keys.size(); ++k) {
+    const auto& key = keys[k];
+    const std::string at = "[" + std::to_string(k) + "].";
+    if (!std::isfinite(key.time)) return at + "time: must be a finite number";
+    if (k > 0 && !(key.time > keys[k - 1].time))
+      return at + "time: keys must be in strictly increasing time (" + std::to_string(key.time) +
+             " s does not follow " + std::to_string(keys[k - 1].time) + " s)";
+    if (!finite<D>(key.translation)) return at + "translation: must be finite";
+    for (double r : key.rotationDeg)
+      if (!std::isfinite(r)) return at + "rotation: must be finite";
+    for (int d = 0; d < D; ++d)
+      if (!(key.scale[d] > 0) || !std::isfinite(key.scale[d]))
+        return at + "scale[" + std::to_string(d) + "]: must be a positive finite number (use reflect to mirror)";
+  }
+  return {};
+}
+
+bool TimeMap::active(double sceneTime, double templateDuration) const {
+  const double eps = 1e-9;
+  return sceneTime >= start - eps && sceneTime <= start + sceneDuration(templateDuration) + eps;
+}
+
+double TimeMap::templateTime(double sceneTime, double templateDuration) const {
+  const double e = end(templateDuration);
+  const double u = std::clamp((sceneTime - start) * speed, 0.0, e - cropBegin);
+  return reverse ? e - u : cropBegin + u;
+}
+
+size_t TimeMap::frameAt(double sceneTime, double frameRate, size_t frameCount) const {
+  if (frameCount == 0) return 0;
+  const double duration = double(frameCount - 1) / frameRate;
+  const double eps = 1e-6;
+  const double first = std::ceil(cropBegin * frameRate - eps);
+  const double last = std::floor(end(duration) * frameRate + eps);
+  double f = std::round(templateTime(sceneTime, duration) * frameRate);
+  f = std::clamp(f, first, std::max(first, last));
+  return size_t(std::clamp(f, 0.0, double(frameCount - 1)));
+}
+
+std::string TimeMap::validate(double templateDuration) const {
+  if (!std::isfinite(start)) return "start: must be a finite number";
+  if (!(speed > 0) || !std::isfinite(speed)) return "speed: must be a positive finite number";
+  if (!std::isfinite(cropBegin) || cropBegin < 0) return "crop_begin: must be a finite number >= 0";
+  if (!std::isfinite(cropEnd)) return "crop_end: must be a finite number";
+  const double e = end(templateDuration);
+  const double eps = 1e-9;
+  if (templateDuration >= 0 && cropBegin > templateDuration + eps)
+    return "crop_begin: " + std::to_string(cropBegin) + " s is past the template's end (" +
+           std::to_string(templateDuration) + " s)";
+  if (cropEnd >= 0 && templateDuration >= 0 && cropEnd > templateDuration + eps)
+    return "crop_end: " + std::to_string(cropEnd) + " s is past the template's end (" +
+           std::to_string(templateDuration) + " s)";
+  if (!(e > cropBegin)) return "crop_end: must be greater than crop_begin";
+  return {};
+}
+
+const ParamSpecs& instanceParamSpecs(int dimension) {
+  // Weights: paper §4 defaults. Units: see control/control.h (the forces'
+  // normalisation makes them independent of the liquid's resolution).
+  static const ParamSpecs specs2 = {
+      {"attraction_weight", "", 0, 100, 0.2, "w_a: attraction towards uncovered control particles (eq. 2)"},
+      {"velocity_weight", "", 0, 100, 0.03, "w_v: pull towards the control particles' velocity (eq. 4)"},
+      {"repulsion_weight", "", 0, 100, 0.1, "w_r: push back from the repulsion layer (eq. 5)"},
+      {"repulsion", "", 0, 1, 1, "use the template's repulsion layer", ParamType::Boolean},
+      {"temporary_particles", "", 0, 1, 1, "seed and remove temporary particles (Algorithms 1, 2)",
+       ParamType::Boolean},
+      {"seed_threshold", "rho0", 0, 10, 0.35, "eta: seed where control density exceeds liquid density by this"},
+      {"removal_threshold", "rho0", 0, 10, 0.35, "tau: remove where non-temporary density exceeds this"},
+      {"seed_distance", "h", 0.1, 2, 0.5, "l: candidates at d_tp = l h from their particle"},
+      {"falloff_width", "m", 0, 100, 0.05, "band around the instance box where control fades"},
+      {"falloff_decay", "", 0, 10, 1, "gamma: weights fade as t^gamma across the band"},
+  };
+  static const ParamSpecs specs3 = [] {
+    ParamSpecs s = specs2;
+    for (auto& p : s) {
+      if (p.name == "attraction_weight") p.def = 0.06;
+      if (p.name == "velocity_weight") p.def = 0.01;
+      if (p.name == "repulsion_weight") p.def = 0.04;
+    }
+    return s;
+  }();
+  return dimension == 3 ? specs3 : specs2;
+}
+
+const ParamSpecs& controlSettingsSpecs() {
+  static const ParamSpecs specs = {
+      {"forces_every_substep", "", 0, 1, 0,
+       "recompute control forces at every substep instead of once per frame (paper)", ParamType::Boolean},
+      {"temporary_grace_frames", "frames", 0, 1e6, 60,
+       "frames a temporary particle may stay outside every instance before it is removed regardless of density",
+       ParamType::Integer},
+      {"fidelity_cell", "r", 0.5, 10, 2,
+       "cell size of the fidelity occupancy grid, in template particle radii (2: one particle spacing)"},
+  };
+  return specs;
+}
+
+template struct TransformTrack<2>;
+template struct TransformTrack<3>;
+
+}  // namespace fc
