@@ -1,5 +1,7 @@
 #include "io/scene.h"
 
+#include "io/template_database.h"
+
 #include "sph/pipeline.h"
 #include "sph/sampling.h"
 #include "sph/settings.h"
@@ -279,6 +281,18 @@ std::vector<Phase> parsePhases(const json* j) {
   return phases;
 }
 
+// The index of the phase a "phase" key names.
+int findPhase(const json& j, const std::string& path, const std::vector<Phase>& phases) {
+  const std::string name = getString(j, path);
+  auto it = std::find_if(phases.begin(), phases.end(), [&](const Phase& ph) { return ph.name == name; });
+  if (it == phases.end()) {
+    std::vector<std::string> names;
+    for (const auto& ph : phases) names.push_back(ph.name);
+    fail(path, "unknown phase '" + name + "'; the scene's phases are: " + joinNames(names));
+  }
+  return int(it - phases.begin());
+}
+
 template <int D>
 std::vector<FluidBlock<D>> parseFluidBlocks(const json& root, const std::vector<Phase>& phases) {
   const std::string path = "fluid_blocks";
@@ -291,16 +305,7 @@ std::vector<FluidBlock<D>> parseFluidBlocks(const json& root, const std::vector<
     checkKeys(o, p, {"min", "max", "phase", "velocity"});
     FluidBlock<D> b;
     b.box = parseBox<D>(o, p);
-    if (const json* m = member(o, "phase")) {
-      const std::string name = getString(*m, key(p, "phase"));
-      auto it = std::find_if(phases.begin(), phases.end(), [&](const Phase& ph) { return ph.name == name; });
-      if (it == phases.end()) {
-        std::vector<std::string> names;
-        for (const auto& ph : phases) names.push_back(ph.name);
-        fail(key(p, "phase"), "unknown phase '" + name + "'; the scene's phases are: " + joinNames(names));
-      }
-      b.phase = int(it - phases.begin());
-    }
+    if (const json* m = member(o, "phase")) b.phase = findPhase(*m, key(p, "phase"), phases);
     if (const json* m = member(o, "velocity")) b.velocity = getVec<D>(*m, key(p, "velocity"));
     blocks.push_back(b);
   }
@@ -398,6 +403,201 @@ std::vector<NamedParams> parseEffects(const json* j) {
     namePaths.push_back(namePath);
   }
   return effects;
+}
+
+// ------------------------------------------------ control and instances ---
+template <int D>
+using VecDouble = Eigen::Matrix<double, D, 1>;
+
+// Instance keys other than the instanceParamSpecs(D) parameters.
+const std::vector<std::string> kInstanceKeys = {"name",       "template", "phase", "transform", "start",
+                                                "crop_begin", "crop_end", "speed", "reverse"};
+
+// A vector of doubles (transforms are stored in double, not Real).
+template <int D>
+VecDouble<D> getVecDouble(const json& j, const std::string& path) {
+  expectType(j.is_array(), j, path, D == 2 ? "an array of 2 numbers" : "an array of 3 numbers");
+  if (j.size() != size_t(D))
+    fail(path, "expected " + std::to_string(D) + " components (the scene is " + std::to_string(D) + "D), got " +
+                   std::to_string(j.size()));
+  VecDouble<D> v;
+  for (int d = 0; d < D; ++d) v[d] = getNumber(j[size_t(d)], at(path, size_t(d)));
+  return v;
+}
+
+bool getBool(const json& j, const std::string& path) {
+  expectType(j.is_boolean(), j, path, "true or false");
+  return j.get<bool>();
+}
+
+template <int D>
+TransformKey<D> parseTransformKey(const json& j, const std::string& p) {
+  const json& o = expectObject(j, p);
+  checkKeys(o, p, {"time", "translation", "rotation", "scale", "reflect"});
+  TransformKey<D> k;
+  if (const json* m = member(o, "time")) k.time = getNumber(*m, key(p, "time"));
+  k.translation = getVecDouble<D>(required(o, p, "translation", "m, where the template region's centre goes"),
+                                  key(p, "translation"));
+  if (const json* m = member(o, "rotation")) {
+    const std::string rp = key(p, "rotation");
+    if constexpr (D == 2) {
+      expectType(m->is_number(), *m, rp, "a number (degrees, counter-clockwise)");
+      k.rotationDeg[0] = getNumber(*m, rp);
+    } else {
+      const VecDouble<3> r = getVecDouble<3>(*m, rp);
+      for (int d = 0; d < 3; ++d) k.rotationDeg[size_t(d)] = r[d];
+    }
+  }
+  if (const json* m = member(o, "scale")) {
+    const std::string sp = key(p, "scale");
+    const char* rule = " must be > 0 (use reflect to mirror)";
+    if (m->is_number()) {
+      const double v = getNumber(*m, sp);
+      if (!(v > 0)) fail(sp, fmt(v) + rule);
+      k.scale.setConstant(v);
+    } else {
+      expectType(m->is_array(), *m, sp,
+                 D == 2 ? "a number (uniform scale) or an array of 2 numbers"
+                        : "a number (uniform scale) or an array of 3 numbers");
+      k.scale = getVecDouble<D>(*m, sp);
+      for (int d = 0; d < D; ++d)
+        if (!(k.scale[d] > 0)) fail(at(sp, size_t(d)), fmt(k.scale[d]) + rule);
+    }
+  }
+  if (const json* m = member(o, "reflect")) {
+    const std::string rp = key(p, "reflect");
+    expectType(m->is_array(), *m, rp, D == 2 ? "an array of 2 booleans" : "an array of 3 booleans");
+    if (m->size() != size_t(D))
+      fail(rp, "expected " + std::to_string(D) + " components (the scene is " + std::to_string(D) + "D), got " +
+                   std::to_string(m->size()));
+    for (int d = 0; d < D; ++d) k.reflect[size_t(d)] = getBool((*m)[size_t(d)], at(rp, size_t(d)));
+  }
+  return k;
+}
+
+template <int D>
+TransformTrack<D> parseTransform(const json& j, const std::string& path) {
+  expectArray(j, path);
+  TransformTrack<D> track;
+  for (size_t k = 0; k < j.size(); ++k) track.keys.push_back(parseTransformKey<D>(j[k], at(path, k)));
+  // Ordering (and anything parsing let through): "[k].field: what".
+  const std::string err = track.validate();
+  if (!err.empty()) {
+    const size_t sep = err.find(": ");
+    if (sep == std::string::npos) fail(path, err);
+    fail(path + err.substr(0, sep), err.substr(sep + 2));
+  }
+  return track;
+}
+
+// One instance; its name is left empty when the object has none (the caller
+// assigns the default).
+template <int D>
+InstanceSpec<D> parseInstance(const json& j, const std::string& p, const std::vector<Phase>& phases) {
+  const json& o = expectObject(j, p);
+  InstanceSpec<D> s;
+  // Parameters first: an unknown key fails here, listing every accepted one.
+  s.params = parseParams(o, p, instanceParamSpecs(D), kInstanceKeys, "an instance");
+  if (const json* m = member(o, "name")) {
+    s.name = getString(*m, key(p, "name"));
+    if (s.name.empty()) fail(key(p, "name"), "must not be empty (omit it for a name derived from the template)");
+  }
+  const std::string tp = key(p, "template");
+  s.templateName = getString(required(o, p, "template", "name of a template in the template database"), tp);
+  try {
+    checkTemplateName(s.templateName);
+  } catch (const DatabaseError& e) {
+    fail(tp, e.what());
+  }
+  if (const json* m = member(o, "phase")) s.phase = findPhase(*m, key(p, "phase"), phases);
+  if (const json* m = member(o, "transform")) s.transform = parseTransform<D>(*m, key(p, "transform"));
+
+  TimeMap& t = s.time;
+  if (const json* m = member(o, "start")) t.start = getNumber(*m, key(p, "start"));
+  if (const json* m = member(o, "crop_begin")) {
+    t.cropBegin = getNumber(*m, key(p, "crop_begin"));
+    if (t.cropBegin < 0) fail(key(p, "crop_begin"), fmt(t.cropBegin) + " s must be >= 0 (template time)");
+  }
+  if (const json* m = member(o, "crop_end")) {
+    const std::string ep = key(p, "crop_end");
+    t.cropEnd = getNumber(*m, ep);
+    if (t.cropEnd < 0) fail(ep, fmt(t.cropEnd) + " s must be >= 0 (omit crop_end to play to the template's end)");
+    if (!(t.cropEnd > t.cropBegin))
+      fail(ep, fmt(t.cropEnd) + " s must be greater than crop_begin = " + fmt(t.cropBegin) + " s");
+  }
+  if (const json* m = member(o, "speed")) {
+    t.speed = getNumber(*m, key(p, "speed"));
+    if (!(t.speed > 0)) fail(key(p, "speed"), fmt(t.speed) + " must be > 0 (use reverse to play backwards)");
+  }
+  if (const json* m = member(o, "reverse")) t.reverse = getBool(*m, key(p, "reverse"));
+  return s;
+}
+
+template <int D>
+std::vector<InstanceSpec<D>> parseInstances(const json* j, const std::vector<Phase>& phases) {
+  std::vector<InstanceSpec<D>> out;
+  if (!j) return out;
+  const std::string path = "instances";
+  expectArray(*j, path);
+  std::set<std::string> taken;
+  for (size_t i = 0; i < j->size(); ++i) {
+    const std::string p = at(path, i);
+    out.push_back(parseInstance<D>((*j)[i], p, phases));
+    const std::string& name = out.back().name;
+    if (name.empty()) continue;
+    if (!taken.insert(name).second) {
+      size_t k = 0;
+      while (out[k].name != name) ++k;
+      fail(key(p, "name"), "duplicate instance name '" + name + "' (also " + key(at(path, k), "name") + ")");
+    }
+  }
+  // Unnamed instances: the template's name, or "<template>-<k>" (k = 2, 3,
+  // ...) when that is taken, never clashing with an explicit name.
+  for (auto& s : out) {
+    if (!s.name.empty()) continue;
+    std::string name = s.templateName;
+    for (int k = 2; taken.count(name); ++k) name = s.templateName + "-" + std::to_string(k);
+    s.name = name;
+    taken.insert(name);
+  }
+  return out;
+}
+
+template <int D>
+json vecDoubleToJson(const VecDouble<D>& v) {
+  json a = json::array();
+  for (int d = 0; d < D; ++d) a.push_back(v[d]);
+  return a;
+}
+
+template <int D>
+json instanceToJson(const InstanceSpec<D>& s, const std::vector<Phase>& phases) {
+  json o = paramsToJson(s.params, &instanceParamSpecs(D));
+  o["name"] = s.name;
+  o["template"] = s.templateName;
+  o["phase"] = phases.at(size_t(s.phase)).name;
+  json keys = json::array();
+  for (const TransformKey<D>& k : s.transform.keys) {
+    json reflect = json::array();
+    for (bool r : k.reflect) reflect.push_back(r);
+    json rotation;
+    if constexpr (D == 2)
+      rotation = k.rotationDeg[0];
+    else
+      rotation = json::array({k.rotationDeg[0], k.rotationDeg[1], k.rotationDeg[2]});
+    keys.push_back({{"time", k.time},
+                    {"translation", vecDoubleToJson<D>(k.translation)},
+                    {"rotation", rotation},
+                    {"scale", vecDoubleToJson<D>(k.scale)},
+                    {"reflect", reflect}});
+  }
+  o["transform"] = keys;
+  o["start"] = s.time.start;
+  o["crop_begin"] = s.time.cropBegin;
+  if (s.time.cropEnd >= 0) o["crop_end"] = s.time.cropEnd;
+  o["speed"] = s.time.speed;
+  o["reverse"] = s.time.reverse;
+  return o;
 }
 
 // ---------------------------------------------------- cross-section checks ---
@@ -589,7 +789,9 @@ SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
     fail("dimension", "the scene is " + std::to_string(sceneDimension(root)) + "D but was loaded as " +
                           std::to_string(D) + "D");
   checkKeys(root, "", {"name", "dimension", "particle_radius", "domain", "gravity", "duration", "max_particles",
-                       "phases", "fluid_blocks", "obstacles", "solver", "settings", "effects"});
+                       "phases", "fluid_blocks", "obstacles", "solver", "settings", "effects", "control",
+                       "instances"});
+  // "control" and "instances" are read by parseSceneControl.
 
   SimulationSetup<D> s;
   if (const json* m = member(root, "name")) {
@@ -703,9 +905,36 @@ json sceneToJson(const SimulationSetup<D>& s) {
   return j;
 }
 
+template <int D>
+SceneControl<D> parseSceneControl(const json& root, const std::vector<Phase>& phases) {
+  if (!root.is_object()) fail("", std::string("a scene must be a JSON object, got ") + root.type_name());
+  if (member(root, "dimension") && sceneDimension(root) != D)
+    fail("dimension", "the scene is " + std::to_string(sceneDimension(root)) + "D but was loaded as " +
+                          std::to_string(D) + "D");
+  if (phases.empty()) throw std::invalid_argument("parseSceneControl: the scene has no phases");
+  SceneControl<D> c;
+  if (const json* m = member(root, "control"))
+    c.settings = parseParams(expectObject(*m, "control"), "control", controlSettingsSpecs(), {}, "control");
+  else
+    c.settings = ParamValues(controlSettingsSpecs());
+  c.instances = parseInstances<D>(member(root, "instances"), phases);
+  return c;
+}
+
+template <int D>
+json sceneControlToJson(const SceneControl<D>& c, const std::vector<Phase>& phases) {
+  json instances = json::array();
+  for (const auto& s : c.instances) instances.push_back(instanceToJson<D>(s, phases));
+  return {{"control", paramsToJson(c.settings, &controlSettingsSpecs())}, {"instances", instances}};
+}
+
 template SimulationSetup<2> parseScene<2>(const json&, double);
 template SimulationSetup<3> parseScene<3>(const json&, double);
 template json sceneToJson<2>(const SimulationSetup<2>&);
 template json sceneToJson<3>(const SimulationSetup<3>&);
+template SceneControl<2> parseSceneControl<2>(const json&, const std::vector<Phase>&);
+template SceneControl<3> parseSceneControl<3>(const json&, const std::vector<Phase>&);
+template json sceneControlToJson<2>(const SceneControl<2>&, const std::vector<Phase>&);
+template json sceneControlToJson<3>(const SceneControl<3>&, const std::vector<Phase>&);
 
 }  // namespace fc

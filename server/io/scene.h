@@ -1,10 +1,12 @@
 #pragma once
 // Scene files: JSON <-> SimulationSetup, with validation that names the key
 // path of every error. The format is documented in scenes/README.md.
+#include "control/instance.h"
 #include "sph/setup.h"
 #include <nlohmann/json.hpp>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace fc {
 
@@ -43,5 +45,27 @@ SimulationSetup<D> parseScene(const nlohmann::json& scene, double particleRadius
 // result documents the full setup and parses back to an identical one.
 template <int D>
 nlohmann::json sceneToJson(const SimulationSetup<D>& setup);
+
+// The control part of a scene (paper §3.5): the "control" settings object and
+// the "instances" array (format in scenes/README.md). parseScene accepts both
+// keys without reading them; parseSceneControl validates them, naming the key
+// path of every error (`instances[1].transform[0].scale[0]`). Templates are
+// not looked up here (see io/instance_binding.h): an instance's time map is
+// checked against its template's duration only at bind time.
+template <int D>
+struct SceneControl {
+  std::vector<InstanceSpec<D>> instances;  // every name set and unique
+  ParamValues settings;                    // controlSettingsSpecs(), every value present
+};
+
+// `phases` are the scene's (SimulationSetup::phases): instances name theirs.
+template <int D>
+SceneControl<D> parseSceneControl(const nlohmann::json& scene, const std::vector<Phase>& phases);
+
+// {"control": {...}, "instances": [...]} with every key written (defaults
+// included; crop_end only when set), which parseSceneControl reads back to an
+// identical SceneControl. Merge it into a scene written by sceneToJson.
+template <int D>
+nlohmann::json sceneControlToJson(const SceneControl<D>& control, const std::vector<Phase>& phases);
 
 }  // namespace fc
