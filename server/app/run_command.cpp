@@ -2,6 +2,7 @@
 // optional HDF5 export of every frame and a JSON stats file.
 #include "app/commands.h"
 #include "io/frame_export.h"
+#include "io/instance_binding.h"
 #include "io/scene.h"
 #include "sph/simulation.h"
 #include <nlohmann/json.hpp>
@@ -28,11 +29,12 @@ struct RunOptions {
   int threads = 0;
   double particleRadius = 0;
   std::string solver;
+  std::string templates = "templates";
   bool quiet = false;
 };
 
-nlohmann::json frameJson(const FrameStats& s) {
-  return {{"frame", s.frame},
+nlohmann::json frameJson(const FrameStats& s, bool controlled) {
+  nlohmann::json j = {{"frame", s.frame},
           {"time", s.time},
           {"wall_ms", s.wallMs},
           {"substeps", s.substeps},
@@ -56,6 +58,28 @@ nlohmann::json frameJson(const FrameStats& s) {
           {"non_pressure_ms", s.nonPressureMs},
           {"pressure_ms", s.pressureMs},
           {"avg_neighbors", s.avgNeighbors}};
+  if (!controlled) return j;  // a scene without instances pays nothing, in the stats too
+  // The paper's Table 1 columns, per frame.
+  j["liquid_particles"] = s.particles - s.temporaryParticles;
+  j["temporary_particles"] = s.temporaryParticles;
+  j["control_particles"] = s.controlParticles;
+  j["repulsion_particles"] = s.repulsionParticles;
+  j["controlled_particles"] = s.controlledParticles;
+  j["seeded_particles"] = s.seededParticles;
+  j["removed_particles"] = s.removedParticles;
+  j["control_ms"] = s.controlMs;
+  j["simulation_ms"] = s.wallMs - s.controlMs;
+  nlohmann::json inst = nlohmann::json::array();
+  for (const auto& i : s.instances)
+    inst.push_back({{"name", i.name},
+                    {"active", i.active},
+                    {"template_frame", i.templateFrame},
+                    {"fidelity", i.fidelity},
+                    {"controlled_particles", i.controlled},
+                    {"control_particles", i.controlParticles},
+                    {"repulsion_particles", i.repulsionParticles}});
+  j["instances"] = inst;
+  return j;
 }
 
 // Writes to a temporary name, then renames: a reader never sees half a file.
@@ -79,7 +103,12 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
     setup.solver.name = opt.solver;
     setup.solver.values = ParamValues();  // that solver's defaults
   }
+  const SceneControl<D> control = parseSceneControl<D>(sceneJson, setup.phases);
   Simulation<D> sim(setup);
+  TemplateDatabase database(opt.templates);
+  const auto tBind = std::chrono::steady_clock::now();
+  const size_t instances = attachControl<D>(sim, control, database);
+  const double bindS = std::chrono::duration<double>(std::chrono::steady_clock::now() - tBind).count();
   const double frameDt = sim.frameDuration();
   int frames = 0;
   if (opt.frames) frames = *opt.frames;
@@ -107,11 +136,15 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
     std::fprintf(stderr, "%s: %dD, %zu liquid + %zu boundary particles, solver %s, %d threads, Real=%s\n",
                  setup.name.c_str(), D, sim.fluid.size(), sim.boundary.size(),
                  setup.solver.name.empty() ? "dfsph" : setup.solver.name.c_str(), omp_get_max_threads(), realName());
+  if (!opt.quiet && instances)
+    std::fprintf(stderr, "%zu template instances, templates loaded with their repulsion layers in %.2f s\n", instances,
+                 bindS);
 
   nlohmann::json framesJson = nlohmann::json::array();
   const auto t0 = std::chrono::steady_clock::now();
   double particleSteps = 0;
   size_t substeps = 0, unconverged = 0, escaped = 0, contacts = 0;
+  double controlMs = 0;
   int status = Ok;
   std::string failure;
   const bool tty = isatty(fileno(stderr));
@@ -125,6 +158,7 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
     unconverged += s.converged ? 0 : 1;
     escaped += s.escapedParticles;
     contacts += s.wallContacts;
+    controlMs += s.controlMs;
     if (!s.finite) {
       // A non-finite frame is never published: stop before exporting it.
       status = SimulationFailed;
@@ -132,14 +166,19 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
                 std::to_string(s.time) + " s); simulation stopped";
       break;
     }
-    framesJson.push_back(frameJson(s));
+    framesJson.push_back(frameJson(s, instances > 0));
     if (exporter) exporter->writeFrame(s.frame, s.time, sim.fluid);
     if (!opt.quiet && (tty || f + 1 == frames || (f + 1) % std::max(1, frames / 20) == 0)) {
       const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
       const double eta = wall / (f + 1) * (frames - f - 1);
-      std::fprintf(stderr, "%sframe %d/%d  t=%.3f s  %d substeps  iter %d/%d  err %.3f%%  %.1f ms/frame  ETA %.0f s%s",
+      const std::string ctrl =
+          instances ? "  control " + std::to_string(int(std::lround(s.controlMs))) + " ms, " +
+                          std::to_string(s.temporaryParticles) + " temporary"
+                    : std::string();
+      std::fprintf(stderr,
+                   "%sframe %d/%d  t=%.3f s  %d substeps  iter %d/%d  err %.3f%%  %.1f ms/frame%s  ETA %.0f s%s",
                    tty ? "\r" : "", f + 1, frames, s.time, s.substeps, s.divergenceIterations, s.densityIterations,
-                   s.avgDensityErrorPct, s.wallMs, eta, tty ? "   " : "\n");
+                   s.avgDensityErrorPct, s.wallMs, ctrl.c_str(), eta, tty ? "   " : "\n");
       std::fflush(stderr);
     }
   }
@@ -176,6 +215,13 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
       {"peak_rss_mb", peakRssMb()},
       {"pipeline", sim.pipelineStages()},
       {"status", status == Ok ? "ok" : status == Interrupted ? "interrupted" : "failed"}};
+  if (instances) {
+    summary["instances"] = instances;
+    summary["control_ms_per_frame"] = framesJson.empty() ? 0.0 : controlMs / double(framesJson.size());
+    // Control's share next to the simulation's, as the paper's Table 1.
+    summary["control_overhead_pct"] = wallS * 1000 > controlMs ? 100.0 * controlMs / (wallS * 1000 - controlMs) : 0.0;
+    summary["template_bind_s"] = bindS;
+  }
   if (!failure.empty()) summary["error"] = failure;
   if (!opt.statsPath.empty()) writeJsonAtomically(opt.statsPath, {{"frames", framesJson}, {"summary", summary}});
   if (!opt.quiet) {
@@ -207,6 +253,7 @@ void addRunCommand(CLI::App& app) {
   run->add_option("--particle-radius", opt->particleRadius, "override the scene's particle radius (resolution), m")
       ->check(CLI::PositiveNumber);
   run->add_option("--solver", opt->solver, "override the scene's pressure solver (its default parameters)");
+  run->add_option("--templates", opt->templates, "template database directory (default: templates)");
   run->add_flag("--quiet", opt->quiet, "no progress line or summary");
   run->callback([opt] {
     if (opt->threads > 0) omp_set_num_threads(opt->threads);

@@ -32,6 +32,37 @@ template <int D>
 bool finite(const VecD<D>& v) {
   return v.allFinite();
 }
+
+// The transform at fraction u of the segment from key a to key b, with the
+// reflection of key `reflectKey`.
+template <int D>
+void compose(const TransformKey<D>& ka, const TransformKey<D>& kb, double u, const TransformKey<D>& reflectKey,
+             MatD<D>& linear, VecD<D>& translation) {
+  translation = (1 - u) * ka.translation + u * kb.translation;
+  const VecD<D> scale = (1 - u) * ka.scale + u * kb.scale;
+  MatD<D> rotation;
+  if constexpr (D == 2) {
+    const double angle = ((1 - u) * ka.rotationDeg[0] + u * kb.rotationDeg[0]) * kDegree;
+    rotation << std::cos(angle), -std::sin(angle), std::sin(angle), std::cos(angle);
+  } else {
+    rotation = eulerXYZ(ka.rotationDeg).slerp(u, eulerXYZ(kb.rotationDeg)).toRotationMatrix();
+  }
+  linear = rotation * scaleReflect<D>(scale, reflectKey.reflect);
+}
+
+// Keys a <= b around `time` and the fraction u in [0, 1] between them; at a
+// key time, the segment that starts there.
+template <int D>
+void locate(const std::vector<TransformKey<D>>& keys, double time, size_t& a, size_t& b, double& u) {
+  b = 0;
+  while (b < keys.size() && keys[b].time <= time) ++b;
+  a = b == 0 ? 0 : b - 1;
+  if (b >= keys.size()) b = keys.size() - 1;
+  if (b < a) b = a;
+  u = 0;
+  if (b != a && keys[b].time > keys[a].time)
+    u = std::clamp((time - keys[a].time) / (keys[b].time - keys[a].time), 0.0, 1.0);
+}
 }  // namespace
 
 template <int D>
@@ -41,31 +72,36 @@ void TransformTrack<D>::evaluate(double time, MatD<D>& linear, VecD<D>& translat
     translation.setZero();
     return;
   }
-  // The segment [a, b] holding `time`, and the fraction u along it.
-  size_t b = 0;
-  while (b < keys.size() && keys[b].time <= time) ++b;
-  const size_t a = b == 0 ? 0 : b - 1;
-  if (b >= keys.size()) b = keys.size() - 1;
-  if (b < a) b = a;
-  const TransformKey<D>& ka = keys[a];
-  const TransformKey<D>& kb = keys[b];
-  double u = 0;
-  if (b != a && kb.time > ka.time) u = std::clamp((time - ka.time) / (kb.time - ka.time), 0.0, 1.0);
-  else if (time < ka.time) u = 0;  // before the first key: hold it
-  translation = (1 - u) * ka.translation + u * kb.translation;
-  const VecD<D> scale = (1 - u) * ka.scale + u * kb.scale;
+  size_t a, b;
+  double u;
+  locate(keys, time, a, b, u);
   // Reflection is discrete: the earlier key's until the later key is reached.
-  const std::array<bool, D>& reflect = u >= 1 ? kb.reflect : ka.reflect;
-  MatD<D> rotation;
-  if constexpr (D == 2) {
-    const double angle = ((1 - u) * ka.rotationDeg[0] + u * kb.rotationDeg[0]) * kDegree;
-    rotation << std::cos(angle), -std::sin(angle), std::sin(angle), std::cos(angle);
-  } else {
-    rotation = eulerXYZ(ka.rotationDeg).slerp(u, eulerXYZ(kb.rotationDeg)).toRotationMatrix();
-  }
-  linear = rotation * scaleReflect<D>(scale, reflect);
+  compose(keys[a], keys[b], u, u >= 1 ? keys[b] : keys[a], linear, translation);
 }
 
+template <int D>
+void TransformTrack<D>::velocityMap(double time, MatD<D>& gradient, VecD<D>& offset) const {
+  gradient.setZero();
+  offset.setZero();
+  if (keys.size() < 2 || time < keys.front().time || time >= keys.back().time) return;
+  size_t a, b;
+  double u;
+  locate(keys, time, a, b, u);
+  if (a == b) return;
+  // Differentiate inside the segment (one-sided at its start), with its
+  // reflection held: the switch at the next key is not a motion.
+  const double span = keys[b].time - keys[a].time;
+  const double du = std::min(1e-4 / span, 0.5);
+  const double u0 = std::min(u, 1 - du);
+  MatD<D> m0, m1;
+  VecD<D> t0, t1;
+  compose(keys[a], keys[b], u0, keys[a], m0, t0);
+  compose(keys[a], keys[b], u0 + du, keys[a], m1, t1);
+  const double dt = du * span;
+  // x(τ) = M(τ) y + t(τ) with y = M⁻¹ (x − t): v = Ṁ M⁻¹ (x − t) + ṫ.
+  gradient = (m1 - m0) / dt * m0.inverse();
+  offset = (t1 - t0) / dt - gradient * t0;
+}
 template <int D>
 Affine<D> TransformTrack<D>::templateToWorld(double time, const Vec<D>& centre) const {
   MatD<D> m;
@@ -79,17 +115,11 @@ Affine<D> TransformTrack<D>::templateToWorld(double time, const Vec<D>& centre) 
 
 template <int D>
 Vec<D> TransformTrack<D>::pointVelocity(double time, const Vec<D>& centre, const Vec<D>& xWorld) const {
-  if (!animated()) return Vec<D>::Zero();
-  // The carried point in template space, then its world position at t ± δ.
-  MatD<D> m0, mm, mp;
-  VecD<D> t0, tm, tp;
-  evaluate(time, m0, t0);
-  (void)centre;  // the carried point's offset from c is all that matters
-  const VecD<D> y = m0.inverse() * (xWorld.template cast<double>() - t0);  // x_template − c
-  const double delta = 1e-4;
-  evaluate(time - delta, mm, tm);
-  evaluate(time + delta, mp, tp);
-  return ((mp * y + tp - (mm * y + tm)) / (2 * delta)).template cast<Real>();
+  (void)centre;  // the velocity of a carried point depends on where it is, not on c
+  MatD<D> g;
+  VecD<D> o;
+  velocityMap(time, g, o);
+  return (g * xWorld.template cast<double>() + o).template cast<Real>();
 }
 
 template <int D>

@@ -47,8 +47,13 @@ struct TransformTrack {
   void evaluate(double time, Eigen::Matrix<double, D, D>& linear, Eigen::Matrix<double, D, 1>& translation) const;
   // The template-space → world map at `time`, for template region centre c.
   Affine<D> templateToWorld(double time, const Vec<D>& centre) const;
+  // World velocity of the points the instance carries: v(x) = G x + g at
+  // world position x (zero outside the keys and for a single key). Taken
+  // inside the segment holding `time` (the one starting there at a key), so
+  // a reflection switching at a key is not mistaken for motion.
+  void velocityMap(double time, Eigen::Matrix<double, D, D>& gradient, Eigen::Matrix<double, D, 1>& offset) const;
   // World velocity at scene time `time` of the point that the instance
-  // carries through world position x (zero for a track that does not move).
+  // carries through world position x (velocityMap applied to x).
   Vec<D> pointVelocity(double time, const Vec<D>& centre, const Vec<D>& xWorld) const;
   bool animated() const { return keys.size() > 1; }
   // Empty string when valid, otherwise what is wrong, starting with the key

@@ -186,6 +186,27 @@ void NeighborhoodSearch<D>::buildLists(const std::vector<Vec<D>>& x, const std::
 }
 
 template <int D>
+void NeighborhoodSearch<D>::dynamicInBox(const AABB<D>& box, std::vector<uint32_t>& out) const {
+  out.clear();
+  if (dynStart_.empty() || box.empty()) return;
+  const VecI<D> lo = cellCoord(box.min), hi = cellCoord(box.max);
+  VecI<D> c = lo;
+  while (true) {
+    // One row along x is one contiguous range of the sorted points.
+    const size_t a = linearCell(c);
+    const size_t b = a + size_t(hi[0] - lo[0]) + 1;
+    for (uint32_t k = dynStart_[a]; k < dynStart_[b]; ++k) {
+      bool inside = true;
+      for (int d = 0; d < D; ++d) inside = inside && dynSorted_[d][k] >= box.min[d] && dynSorted_[d][k] <= box.max[d];
+      if (inside) out.push_back(dynSortedIdx_[k]);
+    }
+    int d = 1;
+    while (d < D && ++c[d] > hi[d]) c[d] = lo[d], ++d;
+    if (d >= D) break;
+  }
+}
+
+template <int D>
 void NeighborhoodSearch<D>::setStaticPoints(const std::vector<Vec<D>>& points) {
   countingSort(points, statStart_, staticPos_, staticIdx_, statCellOf_);
 }

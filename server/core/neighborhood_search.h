@@ -61,6 +61,10 @@ class NeighborhoodSearch {
     forEachNear(p, r, statStart_, staticPos_, staticIdx_, f);
   }
 
+  // Indices of the dynamic points (as of the last update) inside `box`, in
+  // cell order: a scan of the box's cells, not of every point.
+  void dynamicInBox(const AABB<D>& box, std::vector<uint32_t>& out) const;
+
   VecI<D> cellCoord(const Vec<D>& p) const;
   size_t linearCell(const VecI<D>& c) const {
     size_t l = size_t(c[D - 1]);

@@ -1,4 +1,5 @@
 #include "io/instance_binding.h"
+#include "control/control.h"
 
 #include "io/template_file.h"
 
@@ -83,6 +84,17 @@ std::vector<BoundInstance<D>> bindInstances(const std::vector<InstanceSpec<D>>& 
   return out;
 }
 
+template <int D>
+size_t attachControl(Simulation<D>& sim, const SceneControl<D>& control, TemplateDatabase& database) {
+  if (control.instances.empty()) return 0;
+  auto bound = bindInstances<D>(control.instances, database);
+  const size_t n = bound.size();
+  sim.addEffect(std::make_unique<Control<D>>(std::move(bound), control.settings), "control");
+  return n;
+}
+
+template size_t attachControl<2>(Simulation<2>&, const SceneControl<2>&, TemplateDatabase&);
+template size_t attachControl<3>(Simulation<3>&, const SceneControl<3>&, TemplateDatabase&);
 template std::vector<BoundInstance<2>> bindInstances<2>(const std::vector<InstanceSpec<2>>&, TemplateDatabase&);
 template std::vector<BoundInstance<3>> bindInstances<3>(const std::vector<InstanceSpec<3>>&, TemplateDatabase&);
 

@@ -3,6 +3,7 @@
 // instance model needs a loaded template for.
 #include "control/instance.h"
 #include "io/scene.h"
+#include "sph/simulation.h"
 #include "io/template_database.h"
 
 #include <vector>
@@ -30,5 +31,12 @@ namespace fc {
 //                            parseSceneControl).
 template <int D>
 std::vector<BoundInstance<D>> bindInstances(const std::vector<InstanceSpec<D>>& specs, TemplateDatabase& database);
+
+// Binds the scene's instances and appends the control stage to the
+// simulation. A scene without instances gets no stage at all (nothing is
+// loaded, nothing runs). Returns the number of instances. Throws as
+// bindInstances.
+template <int D>
+size_t attachControl(Simulation<D>& sim, const SceneControl<D>& control, TemplateDatabase& database);
 
 }  // namespace fc

@@ -43,6 +43,17 @@ struct FluidParticles {
     kind.push_back(uint8_t(k));
     id.push_back(uint32_t(id.size()));
   }
+  void truncate(size_t n) {
+    x.resize(n);
+    v.resize(n);
+    a.resize(n);
+    mass.resize(n);
+    density.resize(n);
+    pressure.resize(n);
+    phase.resize(n);
+    kind.resize(n);
+    id.resize(n);
+  }
   // Scratch arrays kept between reorders, so that reordering allocates
   // nothing once they have grown.
   struct Scratch {

@@ -14,6 +14,7 @@
 namespace fc {
 
 template <int D> class Simulation;
+struct FrameStats;
 
 struct SolverReport {
   int iterations = 0;
@@ -44,7 +45,7 @@ class PressureSolver {
 };
 
 // Stages an effect takes part in; the pipeline only calls what is declared.
-enum EffectStage : unsigned { AddAccelerations = 1, CorrectVelocities = 2 };
+enum EffectStage : unsigned { AddAccelerations = 1, CorrectVelocities = 2, FrameBoundary = 4 };
 
 template <int D>
 class Effect {
@@ -54,6 +55,10 @@ class Effect {
   virtual void init(Simulation<D>&) {}
   virtual void addAccelerations(Simulation<D>&) {}
   virtual void correctVelocities(Simulation<D>&, Real /*dt*/) {}
+  // FrameBoundary: before the first substep of a frame (the only place where
+  // particles may be added or removed) and after its last one.
+  virtual void beginFrame(Simulation<D>&, FrameStats&) {}
+  virtual void endFrame(Simulation<D>&, FrameStats&) {}
   // Largest time step this effect stays stable with (s).
   virtual Real maxTimeStep(const Simulation<D>&) const { return Real(1e30); }
   virtual void reorder(const std::vector<uint32_t>&) {}

@@ -139,6 +139,7 @@ Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
     Effect<D>* eff = effects_.back().get();
     if (eff->stages() & AddAccelerations) accelerationStages_.push_back(eff);
     if (eff->stages() & CorrectVelocities) velocityStages_.push_back(eff);
+    if (eff->stages() & FrameBoundary) frameStages_.push_back(eff);
     stageNames_.push_back("effect:" + e.name);
   }
 
@@ -149,6 +150,7 @@ Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
   if (fluid.size() > setup_.maxParticles)
     throw std::invalid_argument("scene has " + std::to_string(fluid.size()) + " particles, more than max_particles " +
                                 std::to_string(setup_.maxParticles));
+  nextId_ = uint32_t(fluid.size());
   pressure_->resize(fluid.size());
   for (auto& e : effects_) e->resize(fluid.size());
   pressure_->init(*this);
@@ -158,6 +160,66 @@ Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
 
 template <int D>
 Simulation<D>::~Simulation() = default;
+
+template <int D>
+void Simulation<D>::addEffect(std::unique_ptr<Effect<D>> effect, const std::string& name) {
+  Effect<D>* eff = effect.get();
+  effects_.push_back(std::move(effect));
+  if (eff->stages() & AddAccelerations) accelerationStages_.push_back(eff);
+  if (eff->stages() & CorrectVelocities) velocityStages_.push_back(eff);
+  if (eff->stages() & FrameBoundary) frameStages_.push_back(eff);
+  stageNames_.push_back(name);
+  eff->resize(fluid.size());
+  eff->init(*this);
+}
+
+template <int D>
+void Simulation<D>::refreshNeighbors() {
+  search.update(fluid.x);
+  computeDensities();
+  neighborsFresh_ = true;
+}
+
+template <int D>
+void Simulation<D>::appendParticles(const std::vector<NewParticle<D>>& add) {
+  if (add.empty()) return;
+  if (fluid.size() + add.size() > setup_.maxParticles)
+    throw std::runtime_error("adding " + std::to_string(add.size()) + " particles would exceed max_particles " +
+                             std::to_string(setup_.maxParticles));
+  for (const auto& p : add) {
+    fluid.add(p.x, p.v, p.mass, p.phase, p.kind);
+    fluid.id.back() = nextId_++;
+  }
+  pressure_->resize(fluid.size());
+  for (auto& e : effects_) e->resize(fluid.size());
+  neighborsFresh_ = false;
+}
+
+template <int D>
+void Simulation<D>::removeParticles(const std::vector<uint32_t>& indices) {
+  if (indices.empty()) return;
+  const size_t n = fluid.size();
+  // Kept particles first, in order, then the removed ones; then truncate.
+  perm_.clear();
+  perm_.reserve(n);
+  size_t r = 0;
+  for (uint32_t i = 0; i < n; ++i) {
+    if (r < indices.size() && indices[r] == i) {
+      ++r;
+      continue;
+    }
+    perm_.push_back(i);
+  }
+  const size_t kept = perm_.size();
+  for (uint32_t i : indices) perm_.push_back(i);
+  fluid.reorder(perm_, reorderScratch_);
+  pressure_->reorder(perm_);
+  for (auto& e : effects_) e->reorder(perm_);
+  fluid.truncate(kept);
+  pressure_->resize(kept);
+  for (auto& e : effects_) e->resize(kept);
+  neighborsFresh_ = false;
+}
 
 template <int D>
 void Simulation<D>::buildBoundary() {
@@ -351,8 +413,9 @@ FrameStats Simulation<D>::advanceFrame() {
   FrameStats fs;
   const double frameEnd = double(frame_ + 1) * frameDuration();
   const int reorderInterval = int(setup_.settings.get("reorder_interval"));
-  const long n = long(fluid.size());
   fs.minDt = 1e30;
+  for (Effect<D>* e : frameStages_) e->beginFrame(*this, fs);
+  const long n = long(fluid.size());
 
   while (time_ < frameEnd - 1e-9) {
     auto lap = Clock::now();
@@ -365,10 +428,12 @@ FrameStats Simulation<D>::advanceFrame() {
     if (reorderInterval > 0 && stepsSinceReorder_ >= size_t(reorderInterval)) {
       reorderParticles();
       stepsSinceReorder_ = 0;
+      neighborsFresh_ = false;
     }
-    search.update(fluid.x);
+    if (!neighborsFresh_) search.update(fluid.x);
     fs.neighborMs += took();
-    computeDensities();
+    if (!neighborsFresh_) computeDensities();
+    neighborsFresh_ = false;
     pressure_->prepare(*this);
     fs.densityMs += took();
 
@@ -418,12 +483,14 @@ FrameStats Simulation<D>::advanceFrame() {
     ++stepsSinceReorder_;
   }
   ++frame_;
+  for (Effect<D>* e : frameStages_) e->endFrame(*this, fs);
 
   double vmax2 = 0, energy = 0;
   bool finite = true;
-  size_t outside = 0;
-#pragma omp parallel for schedule(static) reduction(max : vmax2) reduction(+ : energy, outside) reduction(&& : finite)
+  size_t outside = 0, temporary = 0;
+#pragma omp parallel for schedule(static) reduction(max : vmax2) reduction(+ : energy, outside, temporary) reduction(&& : finite)
   for (long i = 0; i < n; ++i) {
+    temporary += fluid.kind[i] == uint8_t(ParticleKind::Temporary) ? 1 : 0;
     bool out = !setup_.domain.contains(fluid.x[i]);
     for (const auto& o : setup_.obstacles) out = out || o.signedDistance(fluid.x[i]) < 0;
     outside += out ? 1 : 0;
@@ -434,6 +501,7 @@ FrameStats Simulation<D>::advanceFrame() {
   }
   fs.finite = finite;
   fs.escapedParticles = outside;
+  fs.temporaryParticles = temporary;
   fs.maxSpeed = std::sqrt(vmax2);
   fs.kineticEnergy = energy;
   fs.frame = frame_;

@@ -13,6 +13,17 @@
 
 namespace fc {
 
+// What a template instance did in one frame (filled by control/).
+struct InstanceFrameStats {
+  std::string name;
+  bool active = false;
+  int templateFrame = -1;        // template frame played (-1: inactive)
+  double fidelity = -1;          // occupancy IoU with the template frame at the frame's start (-1: not measured)
+  size_t controlled = 0;         // liquid particles it applied forces to
+  size_t controlParticles = 0;   // its template frame's particles
+  size_t repulsionParticles = 0; // its repulsion layer's particles (0 when repulsion is off)
+};
+
 struct FrameStats {
   int frame = 0;                 // index of the frame just completed (1-based)
   double time = 0;               // simulated time at its end, s
@@ -43,6 +54,24 @@ struct FrameStats {
   double pressureMs = 0;         //   the density (pressure) solve
   double avgNeighbors = 0;
   bool finite = true;            // every position and velocity finite
+  // Control (zero without instances; counts as of the frame's end):
+  size_t temporaryParticles = 0; // liquid particles of kind Temporary (included in `particles`)
+  size_t controlParticles = 0;   // Σ over active instances
+  size_t repulsionParticles = 0;
+  size_t controlledParticles = 0;
+  size_t seededParticles = 0;    // temporary particles created this frame
+  size_t removedParticles = 0;   // temporary particles removed this frame
+  double controlMs = 0;          // of wallMs, spent in control (forces, temporary particles, fidelity)
+  std::vector<InstanceFrameStats> instances;
+};
+
+// A particle to insert (temporary particles).
+template <int D>
+struct NewParticle {
+  Vec<D> x, v;
+  Real mass;
+  uint8_t phase;
+  ParticleKind kind;
 };
 
 template <int D>
@@ -53,6 +82,17 @@ class Simulation {
   ~Simulation();
 
   FrameStats advanceFrame();
+
+  // A stage built outside sph/ (control), appended to the effects.
+  void addEffect(std::unique_ptr<Effect<D>> effect, const std::string& name);
+  // Neighbours and densities (with pair gradients) for the current positions,
+  // outside a substep; the next substep reuses them if nothing moved.
+  void refreshNeighbors();
+  // Between frames only (FrameBoundary stages): every per-particle array of
+  // the simulation, its solver and its effects follows. Removal keeps the
+  // remaining particles in order; `indices` sorted ascending, unique.
+  void appendParticles(const std::vector<NewParticle<D>>& add);
+  void removeParticles(const std::vector<uint32_t>& indices);
 
   const SimulationSetup<D>& setup() const { return setup_; }
   Real particleRadius() const { return radius_; }
@@ -102,7 +142,9 @@ class Simulation {
   Vec<D> gravity_;
   std::unique_ptr<PressureSolver<D>> pressure_;
   std::vector<std::unique_ptr<Effect<D>>> effects_;
-  std::vector<Effect<D>*> accelerationStages_, velocityStages_;
+  std::vector<Effect<D>*> accelerationStages_, velocityStages_, frameStages_;
+  bool neighborsFresh_ = false;
+  uint32_t nextId_ = 0;
   std::vector<std::string> stageNames_;
   double time_ = 0;
   int frame_ = 0;

@@ -62,14 +62,25 @@ fc_cli_expect(cli_bad_scene_missing_file 2 "does_not_exist.json" run ${FC_BAD_SC
 fc_cli_expect(cli_bad_particle_radius_override 2 "fluid_blocks:"
   run ${FC_BAD_SCENES}/../../../scenes/bench/dambreak2d_r010.json --particle-radius 0.0001 --frames 1)
 
-# Every shipped scene loads and builds its simulation (no step is taken).
+# Every shipped scene loads, binds its template instances and builds its
+# simulation (no step is taken). The templates come from a fixture that
+# records every recipe into the build tree.
+set(FC_TEST_TEMPLATES ${CMAKE_BINARY_DIR}/test-templates)
+add_test(NAME cli_record_test_templates
+  COMMAND ${CMAKE_COMMAND} -DFLOWCLIP=$<TARGET_FILE:flowclip> -DRECIPES=${FC_CLI_TESTS_DIR}/../../templates/recipes
+          -DOUT=${FC_TEST_TEMPLATES} -P ${FC_CLI_TESTS_DIR}/record_test_templates.cmake)
+set_tests_properties(cli_record_test_templates PROPERTIES LABELS cli TIMEOUT 600 FIXTURES_SETUP test_templates)
 file(GLOB FC_SHIPPED_SCENES CONFIGURE_DEPENDS ${FC_CLI_TESTS_DIR}/../../scenes/*.json ${FC_CLI_TESTS_DIR}/../../scenes/bench/*.json)
 foreach(scene IN LISTS FC_SHIPPED_SCENES)
   get_filename_component(stem ${scene} NAME_WE)
   get_filename_component(dir ${scene} DIRECTORY)
   get_filename_component(dir ${dir} NAME)
-  fc_cli_expect(cli_scene_loads_${dir}_${stem} 0 "" run ${scene} --frames 0 --quiet)
+  fc_cli_expect(cli_scene_loads_${dir}_${stem} 0 "" run ${scene} --frames 0 --quiet --templates ${FC_TEST_TEMPLATES})
+  set_tests_properties(cli_scene_loads_${dir}_${stem} PROPERTIES FIXTURES_REQUIRED test_templates)
 endforeach()
+# A scene naming a template the database lacks: status 2, the path named.
+fc_cli_expect(cli_scene_missing_template 2 "instances[0].template: no template 'drop2d'"
+  run ${FC_CLI_TESTS_DIR}/../../scenes/drop2d.json --frames 1 --templates ${FC_BAD_SCENES})
 
 # Templates: bad recipes and names exit with status 2 and say what is wrong;
 # nothing is written (the output directory is the bad recipes' own folder,

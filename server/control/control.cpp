@@ -1,0 +1,416 @@
+#include "control/control.h"
+#include <omp.h>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+namespace fc {
+
+namespace {
+using Clock = std::chrono::steady_clock;
+// Below this many items a light loop (a few flops per item) runs on one
+// thread: forking the team costs more than the work.
+constexpr long kParallelMin = 4096;
+double msSince(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+// World AABB of an affine image of a box.
+template <int D>
+AABB<D> imageBox(const Affine<D>& map, const AABB<D>& box) {
+  AABB<D> out;
+  out.min.setConstant(std::numeric_limits<Real>::max());
+  out.max.setConstant(-std::numeric_limits<Real>::max());
+  for (int corner = 0; corner < (1 << D); ++corner) {
+    Vec<D> p;
+    for (int d = 0; d < D; ++d) p[d] = (corner >> d) & 1 ? box.max[d] : box.min[d];
+    const Vec<D> q = map.point(p);
+    out.min = out.min.cwiseMin(q);
+    out.max = out.max.cwiseMax(q);
+  }
+  return out;
+}
+}  // namespace
+
+template <int D>
+Control<D>::Control(std::vector<BoundInstance<D>> instances, const ParamValues& settings)
+    : instances_(std::move(instances)), settings_(controlSettingsSpecs()) {
+  for (const auto& [k, v] : settings.all()) settings_.set(k, v);
+  for (size_t i = 0; i < instances_.size(); ++i) {
+    const auto& b = instances_[i];
+    if (!b.accel || !b.accel->source) throw std::invalid_argument("instance " + std::to_string(i) + " is not bound");
+    if (b.spec.transform.keys.empty())
+      throw std::invalid_argument("instance '" + b.spec.name + "' has no transform key");
+    if (!(b.accel->supportRadius > 0))
+      throw std::invalid_argument("instance '" + b.spec.name + "': template without support radius");
+  }
+  state_.resize(instances_.size());
+}
+
+template <int D>
+void Control<D>::prepare(size_t i, double time) {
+  const BoundInstance<D>& inst = instances_[i];
+  const Template<D>& tpl = inst.templ();
+  State& s = state_[i];
+  s.frame = inst.spec.time.frameAt(time, tpl.header.frameRate, tpl.frameCount());
+  const TransformTrack<D>& track = inst.spec.transform;
+  const Vec<D> c = inst.centre();
+  s.toWorld = track.templateToWorld(time, c);
+  s.toTemplate = s.toWorld.inverse();
+  s.volumeScale = std::abs(s.toWorld.determinant());
+  const Real hT = inst.accel->supportRadius;
+  s.kernel.setRadius(hT);
+  // A world length w spans w / ‖L e_d‖ template units along template axis d.
+  const Real width = Real(inst.spec.params.get("falloff_width"));
+  AABB<D> region = tpl.region();
+  for (int d = 0; d < D; ++d) {
+    const Real stretch = s.toWorld.linear.col(d).norm();
+    s.falloff[d] = width / stretch;
+    const Real grow = std::max(s.falloff[d], hT);
+    s.gatherBox.min[d] = region.min[d] - grow;
+    s.gatherBox.max[d] = region.max[d] + grow;
+  }
+  s.worldBox = imageBox<D>(s.toWorld, s.gatherBox);
+  s.velocityFactor = Real(inst.spec.time.velocityFactor());
+  // A keyframed instance carries its liquid: world velocity G x + g of the
+  // carried point at x (central difference of the track, in double).
+  s.velocityGradient.setZero();
+  s.velocityOffset.setZero();
+  if (track.animated()) {
+    Eigen::Matrix<double, D, D> g;
+    Eigen::Matrix<double, D, 1> o;
+    track.velocityMap(time, g, o);
+    s.velocityGradient = g.template cast<Real>();
+    s.velocityOffset = o.template cast<Real>();
+  }
+}
+
+template <int D>
+void Control<D>::selectActive(double time) {
+  for (size_t i = 0; i < instances_.size(); ++i) {
+    const Template<D>& tpl = instances_[i].templ();
+    State& s = state_[i];
+    s.on = tpl.frameCount() > 0 && instances_[i].spec.time.active(time, tpl.duration());
+    if (s.on) prepare(i, time);
+    else {
+      s.fidelity = -1;
+      s.liquid.clear();
+    }
+  }
+}
+
+template <int D>
+Real Control<D>::bandCoordinate(size_t i, const Vec<D>& y) const {
+  const State& s = state_[i];
+  const AABB<D> region = instances_[i].templ().region();
+  Real frac2 = 0;
+  for (int d = 0; d < D; ++d) {
+    const Real out = std::max({region.min[d] - y[d], y[d] - region.max[d], Real(0)});
+    if (out <= 0) continue;
+    if (!(s.falloff[d] > 0)) return 0;
+    const Real f = out / s.falloff[d];
+    frac2 += f * f;
+  }
+  return frac2 >= 1 ? Real(0) : Real(1) - std::sqrt(frac2);
+}
+
+template <int D>
+bool Control<D>::insideBox(size_t i, const Vec<D>& y) const {
+  return instances_[i].templ().region().contains(y);
+}
+
+template <int D>
+bool Control<D>::insideAnyInstance(const Vec<D>& xWorld) const {
+  for (size_t i = 0; i < instances_.size(); ++i) {
+    if (!state_[i].on) continue;
+    if (bandCoordinate(i, state_[i].toTemplate.point(xWorld)) > 0) return true;
+  }
+  return false;
+}
+
+// Control only visits the liquid inside an instance's box and band: a grid
+// query over the world AABB of that region.
+template <int D>
+void Control<D>::gather(size_t i, const Simulation<D>& sim) {
+  State& s = state_[i];
+  const int phase = instances_[i].spec.phase;
+  const Real gamma = Real(instances_[i].spec.params.get("falloff_decay"));
+  std::vector<uint32_t> candidates;
+  sim.search.dynamicInBox(s.worldBox, candidates);
+  s.liquid.clear();
+  s.y.clear();
+  s.fade.clear();
+  for (uint32_t p : candidates) {
+    if (sim.fluid.phase[p] != phase) continue;
+    const Vec<D> y = s.toTemplate.point(sim.fluid.x[p]);
+    if (!s.gatherBox.contains(y)) continue;
+    const Real t = bandCoordinate(i, y);
+    s.liquid.push_back(p);
+    s.y.push_back(y);
+    s.fade.push_back(t > 0 ? std::pow(t, gamma) : Real(0));
+  }
+}
+
+// α_j = 1 − min(Σ_i (m_i/ρ_i) W(x_j − x_i, h), 1): equation (3) in [SPDM20],
+// with the liquid's volumes mapped into template space.
+template <int D>
+void Control<D>::computeCoverage(size_t i, const Simulation<D>& sim) {
+  State& s = state_[i];
+  const TemplateFrameGrids<D>& grids = instances_[i].accel->frame(s.frame);
+  const auto& xc = grids.controlPositions();
+  const long nc = long(xc.size());
+  s.alpha.assign(size_t(nc), Real(1));
+  if (s.liquid.empty() || nc == 0) return;
+  const Real hT = s.kernel.radius();
+  localGrid_.setGrid(s.gatherBox, hT);
+  localGrid_.setStaticPoints(s.y);
+  const Real invScale = Real(1) / s.volumeScale;
+  const auto& liquid = s.liquid;
+  const auto& kernel = s.kernel;
+#pragma omp parallel for schedule(static)
+  for (long j = 0; j < nc; ++j) {
+    Real sum = 0;
+    localGrid_.forEachStaticNear(xc[j], hT, [&](uint32_t k, const Vec<D>& yk) {
+      const uint32_t p = liquid[k];
+      sum += sim.fluid.mass[p] / sim.fluid.density[p] * kernel.W(Vec<D>(xc[j] - yk));
+    });
+    s.alpha[j] = Real(1) - std::min(sum * invScale, Real(1));
+  }
+}
+
+template <int D>
+void Control<D>::addInstanceForces(size_t i, Simulation<D>& sim, Real applyFor) {
+  State& s = state_[i];
+  const BoundInstance<D>& inst = instances_[i];
+  const TemplateFrameGrids<D>& grids = inst.accel->frame(s.frame);
+  const auto& xc = grids.controlPositions();
+  const auto& vc = grids.controlVelocities();
+  const auto& mc = grids.controlMasses();
+  const Real invRho0 = Real(1) / Real(inst.templ().header.restDensity);
+  const long nc = long(xc.size());
+  // v_j as the liquid should follow it: played at `speed`, negated when
+  // reversed (paper §3.5), plus the instance's own motion, in template space.
+  s.controlVelocity.resize(size_t(nc));
+  const Mat<D> linv = s.toTemplate.linear;
+  const bool moving = inst.spec.transform.animated();
+#pragma omp parallel for schedule(static) if (nc >= kParallelMin)
+  for (long j = 0; j < nc; ++j) {
+    Vec<D> v = s.velocityFactor * vc[j];
+    if (moving) v += linv * (s.velocityGradient * s.toWorld.point(xc[j]) + s.velocityOffset);
+    s.controlVelocity[j] = v;
+  }
+  const ParamValues& p = inst.spec.params;
+  const Real wa = Real(p.get("attraction_weight")) * kAccelerationScale;
+  const Real wv = Real(p.get("velocity_weight")) * kRateScale;
+  const Real wr = p.get("repulsion") != 0 ? Real(p.get("repulsion_weight")) * kAccelerationScale : Real(0);
+  const Real maxRate = applyFor > 0 ? Real(1) / applyFor : std::numeric_limits<Real>::max();
+  const Real hT = s.kernel.radius();
+  // Eq. (2)'s direction (x_j − x)/d is undefined when a liquid particle sits
+  // on a control particle (lattices coincide often): below h/16 the pull
+  // fades linearly to zero instead of pointing at rounding noise.
+  const Real dMin = hT / 16;
+  const Mat<D> l = s.toWorld.linear;
+  const auto& kernel = s.kernel;
+  const auto& repN = grids.repulsionNormals();
+  const auto& repSrc = grids.repulsionSources();
+  const long n = long(s.liquid.size());
+#pragma omp parallel for schedule(dynamic, 16)
+  for (long k = 0; k < n; ++k) {
+    if (!(s.fade[k] > 0)) continue;
+    const uint32_t idx = s.liquid[k];
+    const Vec<D> y = s.y[k];
+    const Vec<D> u = linv * sim.fluid.v[idx];
+    Vec<D> attraction = Vec<D>::Zero(), velocity = Vec<D>::Zero(), repulsion = Vec<D>::Zero();
+    Real rate = 0;
+    grids.forEachControlNear(y, hT, [&](uint32_t j, const Vec<D>& xj) {
+      const Vec<D> r = xj - y;
+      const Real d = r.norm();
+      const Real w = mc[j] * invRho0 * kernel.W2(d * d);
+      // Equation (2) in [SPDM20]: towards uncovered control particles.
+      attraction += (s.alpha[j] * w / std::max(d, dMin)) * r;
+      // Equation (4) in [SPDM20]: towards their velocity, where covered.
+      const Real covered = (Real(1) - s.alpha[j]) * w;
+      velocity += covered * (s.controlVelocity[j] - u);
+      rate += covered;
+    });
+    if (wr > 0) {
+      // Equation (5) in [SPDM20]; the stored normals point outwards.
+      grids.forEachRepulsionNear(y, hT, [&](uint32_t kk, const Vec<D>& xk) {
+        repulsion -= (mc[repSrc[kk]] * invRho0 * kernel.W2((xk - y).squaredNorm())) * repN[kk];
+      });
+    }
+    // Explicit relaxation overshoots once rate · Δt > 1: cap it there.
+    const Real vRate = wv * rate;
+    const Real vScale = vRate > maxRate ? maxRate / vRate : Real(1);
+    const Vec<D> a = wa * attraction + (wv * vScale) * velocity + wr * repulsion;
+    controlAcc_[idx] += s.fade[k] * (l * a);
+  }
+  for (long k = 0; k < n; ++k) {
+    const uint32_t idx = s.liquid[k];
+    if (s.fade[k] > 0 && !touched_[idx]) {
+      touched_[idx] = 1;
+      controlled_.push_back(idx);
+    }
+  }
+}
+
+// Occupancy IoU between the template frame and the controlled liquid inside
+// the instance box, on a grid of cells about one particle spacing wide, in
+// template space. Not in the paper: a measure of reproduction for the
+// accuracy study.
+template <int D>
+double Control<D>::measureFidelity(size_t i) {
+  const State& s = state_[i];
+  const BoundInstance<D>& inst = instances_[i];
+  const AABB<D> region = inst.templ().region();
+  const TemplateFrameGrids<D>& grids = inst.accel->frame(s.frame);
+  Real radius = Real(inst.templ().header.particleRadius);
+  if (!(radius > 0)) radius = s.kernel.radius() / 4;
+  const Real cell = Real(settings_.get("fidelity_cell")) * radius;
+  VecI<D> dims;
+  size_t cells = 1;
+  for (int d = 0; d < D; ++d) {
+    dims[d] = std::max(1, int(std::ceil((region.max[d] - region.min[d]) / cell)));
+    cells *= size_t(dims[d]);
+  }
+  if (cells > (size_t(1) << 28)) return -1;
+  occupancy_.assign(cells, 0);
+  auto cellOf = [&](const Vec<D>& y) {
+    size_t l = 0;
+    for (int d = D - 1; d >= 0; --d) {
+      const int c = std::clamp(int((y[d] - region.min[d]) / cell), 0, dims[d] - 1);
+      l = l * size_t(dims[d]) + size_t(c);
+    }
+    return l;
+  };
+  for (const auto& x : grids.controlPositions())
+    if (region.contains(x)) occupancy_[cellOf(x)] |= 1;
+  for (size_t k = 0; k < s.y.size(); ++k)
+    if (region.contains(s.y[k])) occupancy_[cellOf(s.y[k])] |= 2;
+  size_t both = 0, any = 0;
+  for (uint8_t o : occupancy_) {
+    both += o == 3;
+    any += o != 0;
+  }
+  return any ? double(both) / double(any) : -1.0;
+}
+
+template <int D>
+void Control<D>::computeForces(Simulation<D>& sim, Real applyFor) {
+  for (uint32_t p : controlled_) {
+    controlAcc_[p].setZero();
+    touched_[p] = 0;
+  }
+  controlled_.clear();
+  for (size_t i = 0; i < instances_.size(); ++i) {
+    if (!state_[i].on) continue;
+    gather(i, sim);
+    computeCoverage(i, sim);
+    addInstanceForces(i, sim, applyFor);
+    if (measureFidelity_) state_[i].fidelity = measureFidelity(i);
+  }
+  measureFidelity_ = false;
+}
+
+template <int D>
+void Control<D>::beginFrame(Simulation<D>& sim, FrameStats& fs) {
+  const auto t0 = Clock::now();
+  seeded_ = removed_ = 0;
+  selectActive(sim.time());
+  forcesDue_ = true;
+  measureFidelity_ = true;
+  refreshExcludedMs_ = 0;
+  updateTemporaryParticles(sim, fs);
+  controlMs_ = msSince(t0) - refreshExcludedMs_;
+}
+
+template <int D>
+void Control<D>::addAccelerations(Simulation<D>& sim) {
+  const bool everySubstep = settings_.get("forces_every_substep") != 0;
+  if (forcesDue_ || everySubstep) {
+    const auto t0 = Clock::now();
+    if (everySubstep && !forcesDue_) selectActive(sim.time());
+    const Real applyFor = everySubstep ? Real(sim.setup().settings.get("dt_max")) : Real(sim.frameDuration());
+    computeForces(sim, applyFor);
+    forcesDue_ = false;
+    controlMs_ += msSince(t0);
+  }
+  const long m = long(controlled_.size());
+#pragma omp parallel for schedule(static) if (m >= kParallelMin)
+  for (long k = 0; k < m; ++k) sim.fluid.a[controlled_[k]] += controlAcc_[controlled_[k]];
+}
+
+template <int D>
+void Control<D>::endFrame(Simulation<D>&, FrameStats& fs) {
+  fs.instances.resize(instances_.size());
+  for (size_t i = 0; i < instances_.size(); ++i) {
+    const State& s = state_[i];
+    InstanceFrameStats& is = fs.instances[i];
+    is.name = instances_[i].spec.name;
+    is.active = s.on;
+    is.templateFrame = s.on ? int(s.frame) : -1;
+    is.fidelity = s.on ? s.fidelity : -1;
+    is.controlled = 0;
+    is.controlParticles = is.repulsionParticles = 0;
+    if (!s.on) continue;
+    for (Real f : s.fade) is.controlled += f > 0;
+    const auto& grids = instances_[i].accel->frame(s.frame);
+    is.controlParticles = grids.controlCount();
+    if (instances_[i].spec.params.get("repulsion") != 0) is.repulsionParticles = grids.repulsionCount();
+    fs.controlParticles += is.controlParticles;
+    fs.repulsionParticles += is.repulsionParticles;
+  }
+  fs.controlledParticles = controlled_.size();
+  fs.seededParticles = seeded_;
+  fs.removedParticles = removed_;
+  fs.controlMs = controlMs_;
+}
+
+template <int D>
+void Control<D>::reorder(const std::vector<uint32_t>& perm) {
+  auto& acc = accScratch_;
+  auto& outside = outsideScratch_;
+  auto& touched = touchedScratch_;
+  acc.resize(perm.size());
+  outside.resize(perm.size());
+  touched.resize(perm.size());
+  inverse_.resize(perm.size());
+  for (size_t k = 0; k < perm.size(); ++k) {
+    acc[k] = controlAcc_[perm[k]];
+    outside[k] = framesOutside_[perm[k]];
+    touched[k] = touched_[perm[k]];
+    inverse_[perm[k]] = uint32_t(k);
+  }
+  controlAcc_.swap(acc);
+  framesOutside_.swap(outside);
+  touched_.swap(touched);
+  for (uint32_t& p : controlled_) p = inverse_[p];
+  for (State& s : state_)
+    for (uint32_t& p : s.liquid) p = inverse_[p];
+}
+
+template <int D>
+void Control<D>::resize(size_t n) {
+  controlAcc_.resize(n, Vec<D>::Zero());
+  framesOutside_.resize(n, 0);
+  touched_.resize(n, 0);
+  // Particles past n are gone: drop them from the lists.
+  std::erase_if(controlled_, [n](uint32_t p) { return p >= n; });
+  for (State& s : state_) {
+    size_t w = 0;
+    for (size_t k = 0; k < s.liquid.size(); ++k) {
+      if (s.liquid[k] >= n) continue;
+      s.liquid[w] = s.liquid[k];
+      s.y[w] = s.y[k];
+      s.fade[w] = s.fade[k];
+      ++w;
+    }
+    s.liquid.resize(w);
+    s.y.resize(w);
+    s.fade.resize(w);
+  }
+}
+
+FC_INSTANTIATE_DIMS(Control)
+
+}  // namespace fc

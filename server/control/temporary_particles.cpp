@@ -1,0 +1,200 @@
+// Temporary particles (paper §3.4): seeded where a template holds more liquid
+// than the simulation (Algorithm 1), removed once they have left every
+// instance and sit in enough original liquid (Algorithm 2).
+#include "control/control.h"
+#include <omp.h>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <unordered_map>
+
+namespace fc {
+
+namespace {
+// Greedy thinning: keeps a point unless a kept one lies within `dist`
+// (in the order given, so the result is deterministic).
+template <int D>
+class SpacingFilter {
+ public:
+  explicit SpacingFilter(Real dist) : dist_(dist), inv_(Real(1) / dist) {}
+  bool tryKeep(const Vec<D>& x) {
+    const VecI<D> c = cellOf(x);
+    VecI<D> o = VecI<D>::Constant(-1);
+    while (true) {
+      auto it = cells_.find(key(VecI<D>(c + o)));
+      if (it != cells_.end())
+        for (const Vec<D>& q : it->second)
+          if ((q - x).squaredNorm() < dist_ * dist_) return false;
+      int d = 0;
+      while (d < D && ++o[d] > 1) o[d++] = -1;
+      if (d == D) break;
+    }
+    cells_[key(c)].push_back(x);
+    return true;
+  }
+
+ private:
+  VecI<D> cellOf(const Vec<D>& x) const {
+    VecI<D> c;
+    for (int d = 0; d < D; ++d) c[d] = int(std::floor(x[d] * inv_));
+    return c;
+  }
+  static uint64_t key(const VecI<D>& c) {
+    uint64_t k = 0;
+    for (int d = 0; d < D; ++d) k = k * 2097152u + uint64_t(int64_t(c[d]) + 1048576) % 2097152u;
+    return k;
+  }
+  Real dist_, inv_;
+  std::unordered_map<uint64_t, std::vector<Vec<D>>> cells_;
+};
+
+}  // namespace
+
+template <int D>
+void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
+  bool seeding = false;
+  Real tau = std::numeric_limits<Real>::max(), l = std::numeric_limits<Real>::max();
+  for (size_t i = 0; i < instances_.size(); ++i) {
+    const ParamValues& p = instances_[i].spec.params;
+    // A particle outside every instance belongs to none: removal uses the
+    // most eager instance's threshold and spacing.
+    tau = std::min(tau, Real(p.get("removal_threshold")));
+    l = std::min(l, Real(p.get("seed_distance")));
+    seeding = seeding || (state_[i].on && p.get("temporary_particles") != 0);
+  }
+  if (!seeding && temporaries_ == 0) return;
+  const auto tRefresh = std::chrono::steady_clock::now();
+  sim.refreshNeighbors();
+  const double refreshMs =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - tRefresh).count();
+
+  const auto& f = sim.fluid;
+  const Real hL = sim.supportRadius();
+  const Real radius = sim.particleRadius();
+  const CubicSpline<D>& W = sim.kernel;
+  const long n = long(f.size());
+
+  // ---- Algorithm 2 in [SPDM20]: removing temporary particles ----
+  std::vector<uint32_t> remove;
+  if (temporaries_ > 0) {
+    const uint32_t grace = uint32_t(settings_.get("temporary_grace_frames"));
+    const Real dtp = l * hL;
+    SpacingFilter<D> spacing(dtp);
+    for (long i = 0; i < n; ++i) {
+      if (f.kind[i] != uint8_t(ParticleKind::Temporary)) continue;
+      if (insideAnyInstance(f.x[i])) {  // no removal inside a box or its falloff band
+        framesOutside_[i] = 0;
+        continue;
+      }
+      ++framesOutside_[i];
+      // Past the grace period it goes whatever its surroundings (bounded
+      // lifetime: the liquid's mass always returns to the scene's).
+      bool go = framesOutside_[i] > grace;
+      if (!go) {
+        Real rho = 0;  // density of the original (non-temporary) liquid
+        sim.search.forEachDynamicNear(f.x[i], hL, [&](uint32_t j, const Vec<D>& xj) {
+          if (f.kind[j] != uint8_t(ParticleKind::Temporary)) rho += f.mass[j] * W.W(Vec<D>(f.x[i] - xj));
+        });
+        go = rho > tau * sim.restDensity(size_t(i)) && spacing.tryKeep(f.x[i]);
+      }
+      if (go) remove.push_back(uint32_t(i));
+    }
+  }
+
+  // ---- Algorithm 1 in [SPDM20]: seeding temporary particles ----
+  std::vector<NewParticle<D>> add;
+  if (seeding) {
+    const auto& dom = sim.setup().domain;
+    const auto& obstacles = sim.setup().obstacles;
+    std::vector<uint8_t> emitted(size_t(n), 0);
+    const uint32_t* off = sim.pairOffsets();
+    for (size_t s = 0; s < instances_.size(); ++s) {
+      State& st = state_[s];
+      const ParamValues& p = instances_[s].spec.params;
+      if (!st.on || p.get("temporary_particles") == 0) continue;
+      gather(s, sim);
+      const Real eta = Real(p.get("seed_threshold"));
+      const Real dtp = Real(p.get("seed_distance")) * hL;
+      const Real eps = Real(0.05) * dtp;
+      const Template<D>& tpl = instances_[s].templ();
+      const Real rho0T = Real(tpl.header.restDensity);
+      const TemplateFrameGrids<D>& grids = instances_[s].accel->frame(st.frame);
+      const auto& mc = grids.controlMasses();
+      const Real hT = st.kernel.radius();
+      const long m = long(st.liquid.size());
+      std::vector<std::vector<std::pair<uint32_t, NewParticle<D>>>> local(static_cast<size_t>(omp_get_max_threads()));
+#pragma omp parallel for schedule(dynamic, 16)
+      for (long k = 0; k < m; ++k) {
+        const uint32_t i = st.liquid[k];
+        if (emitted[i] || !insideBox(s, st.y[k])) continue;  // the falloff band seeds nothing
+        // ∇ρ_i from the substep's pair gradients and the boundary's.
+        Vec<D> g = sim.restDensity(i) * sim.boundaryGradW[i];
+        for (uint32_t q = off[i]; q < off[i + 1]; ++q) g += sim.massGradWAt(q);
+        const Real gn = g.norm();
+        if (!(gn > Real(1e-6) * sim.restDensity(i) / hL)) continue;
+        const Vec<D> xtp = f.x[i] - (dtp / gn) * g;
+        const Vec<D> ytp = st.toTemplate.point(xtp);
+        if (!insideBox(s, ytp)) continue;
+        // Cheapest test first: the template must hold liquid there at all
+        // (ρ_cp − ρ > η ρ0 needs ρ_cp > η ρ0, as ρ >= 0).
+        const Real rho0 = sim.restDensity(i);
+        Real rhoC = 0;  // control density, as a fraction of the template's rest density
+        grids.forEachControlNear(ytp, hT, [&](uint32_t j, const Vec<D>& xj) {
+          rhoC += mc[j] * st.kernel.W(Vec<D>(ytp - xj));
+        });
+        rhoC *= rho0 / rho0T;
+        if (!(rhoC > eta * rho0)) continue;
+        // Not into or next to a solid.
+        if (!dom.grown(-radius).contains(xtp)) continue;
+        bool nearSolid = false;
+        for (const auto& o : obstacles) nearSolid = nearSolid || o.signedDistance(xtp) < radius;
+        if (nearSolid) continue;
+        bool crowded = false;
+        Real rho = 0;
+        sim.search.forEachDynamicNear(xtp, hL, [&](uint32_t j, const Vec<D>& xj) {
+          const Vec<D> r = xtp - xj;
+          if (r.squaredNorm() < (dtp - eps) * (dtp - eps)) crowded = true;
+          rho += f.mass[j] * W.W(r);
+        });
+        if (crowded) continue;
+        Real vb = 0;
+        sim.search.forEachStaticNear(xtp, hL, [&](uint32_t b, const Vec<D>& xb) {
+          vb += sim.boundary.volume[b] * W.W(Vec<D>(xtp - xb));
+        });
+        rho += rho0 * vb;
+        if (rhoC - rho > eta * rho0)
+          local[size_t(omp_get_thread_num())].push_back(
+              {i, NewParticle<D>{xtp, f.v[i], f.mass[i], f.phase[i], ParticleKind::Temporary}});
+      }
+      std::vector<std::pair<uint32_t, NewParticle<D>>> all;
+      for (auto& v : local) all.insert(all.end(), v.begin(), v.end());
+      std::sort(all.begin(), all.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+      // Candidates too close to another candidate go (Algorithm 1, step 3);
+      // so do those too close to one kept for an earlier instance.
+      SpacingFilter<D> spacing(dtp);
+      for (const auto& c : add) spacing.tryKeep(c.x);
+      for (const auto& [src, c] : all) {
+        if (!spacing.tryKeep(c.x)) continue;
+        emitted[src] = 1;
+        add.push_back(c);
+      }
+    }
+  }
+
+  sim.removeParticles(remove);
+  // Never past max_particles: seeding pauses instead of failing the frame.
+  const size_t room = sim.setup().maxParticles > sim.fluid.size() ? sim.setup().maxParticles - sim.fluid.size() : 0;
+  if (add.size() > room) add.resize(room);
+  sim.appendParticles(add);
+  removed_ = remove.size();
+  seeded_ = add.size();
+  // The first substep reuses the refreshed neighbours unless particles
+  // changed: only then was the refresh extra work, control's.
+  if (remove.empty() && add.empty()) refreshExcludedMs_ += refreshMs;
+  temporaries_ = temporaries_ - removed_ + seeded_;
+}
+
+template void Control<2>::updateTemporaryParticles(Simulation<2>&, FrameStats&);
+template void Control<3>::updateTemporaryParticles(Simulation<3>&, FrameStats&);
+
+}  // namespace fc
