@@ -215,8 +215,8 @@ const ParamSpecs& controlSettingsSpecs() {
       {"temporary_grace_frames", "frames", 0, 1e6, 60,
        "frames a temporary particle may stay outside every instance before it is removed regardless of density",
        ParamType::Integer},
-      {"fidelity_cell", "r", 0.5, 10, 2,
-       "cell size of the fidelity occupancy grid, in template particle radii (2: one particle spacing)"},
+      {"fidelity_cell", "r", 0.5, 10, 4,
+       "cell size of the fidelity occupancy grid, in template particle radii (4: two particle spacings)"},
   };
   return specs;
 }

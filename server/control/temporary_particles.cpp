@@ -79,7 +79,7 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
   if (temporaries_ > 0) {
     const uint32_t grace = uint32_t(settings_.get("temporary_grace_frames"));
     const Real dtp = l * hL;
-    SpacingFilter<D> spacing(dtp);
+    SpacingFilter<D> spacing(Real(0.95) * dtp);
     for (long i = 0; i < n; ++i) {
       if (f.kind[i] != uint8_t(ParticleKind::Temporary)) continue;
       if (insideAnyInstance(f.x[i])) {  // no removal inside a box or its falloff band
@@ -171,7 +171,7 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
       std::sort(all.begin(), all.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
       // Candidates too close to another candidate go (Algorithm 1, step 3);
       // so do those too close to one kept for an earlier instance.
-      SpacingFilter<D> spacing(dtp);
+      SpacingFilter<D> spacing(dtp - eps);  // lattice neighbours sit at exactly d_tp
       for (const auto& c : add) spacing.tryKeep(c.x);
       for (const auto& [src, c] : all) {
         if (!spacing.tryKeep(c.x)) continue;

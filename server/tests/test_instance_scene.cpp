@@ -145,7 +145,7 @@ TEST(InstanceSceneParse, ControlSettings) {
   const auto c = parseSceneControl<2>(j, twoPhases());
   EXPECT_EQ(c.settings.get("forces_every_substep"), 1);
   EXPECT_EQ(c.settings.get("temporary_grace_frames"), 12);
-  EXPECT_EQ(c.settings.get("fidelity_cell"), 2);  // default kept
+  EXPECT_EQ(c.settings.get("fidelity_cell"), 4);  // default kept
 }
 
 TEST(InstanceSceneParse, Defaults2D) {
