@@ -319,9 +319,8 @@ void Control<D>::beginFrame(Simulation<D>& sim, FrameStats& fs) {
   selectActive(sim.time());
   forcesDue_ = true;
   measureFidelity_ = true;
-  refreshExcludedMs_ = 0;
   updateTemporaryParticles(sim, fs);
-  controlMs_ = msSince(t0) - refreshExcludedMs_;
+  controlMs_ = msSince(t0);
 }
 
 template <int D>

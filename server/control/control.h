@@ -123,7 +123,6 @@ class Control : public Effect<D> {
   std::vector<uint8_t> touchedScratch_;
   bool forcesDue_ = true;
   double controlMs_ = 0;              // this frame
-  double refreshExcludedMs_ = 0;      // neighbour refresh the step reused (not control's cost)
   size_t seeded_ = 0, removed_ = 0;   // this frame
   size_t temporaries_ = 0;            // temporary particles alive
   bool measureFidelity_ = true;       // at the frame's first force evaluation

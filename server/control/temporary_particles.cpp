@@ -4,7 +4,6 @@
 #include "control/control.h"
 #include <omp.h>
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <unordered_map>
 
@@ -63,10 +62,13 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
     seeding = seeding || (state_[i].on && p.get("temporary_particles") != 0);
   }
   if (!seeding && temporaries_ == 0) return;
-  const auto tRefresh = std::chrono::steady_clock::now();
-  sim.refreshNeighbors();
-  const double refreshMs =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - tRefresh).count();
+  // The last substep's neighbour grid and pair gradients serve, with
+  // today's positions re-read for every distance: particles moved at most a
+  // CFL fraction of a spacing since, so every particle within d_tp (or h, up
+  // to the kernel's last fraction) is still found in the 3×3 cells scanned.
+  // Refreshing them here would cost a neighbour search per frame whenever
+  // particles come or go.
+  if (sim.totalSubsteps() == 0) sim.refreshNeighbors();
 
   const auto& f = sim.fluid;
   const Real hL = sim.supportRadius();
@@ -92,8 +94,8 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
       bool go = framesOutside_[i] > grace;
       if (!go) {
         Real rho = 0;  // density of the original (non-temporary) liquid
-        sim.search.forEachDynamicNear(f.x[i], hL, [&](uint32_t j, const Vec<D>& xj) {
-          if (f.kind[j] != uint8_t(ParticleKind::Temporary)) rho += f.mass[j] * W.W(Vec<D>(f.x[i] - xj));
+        sim.search.forEachDynamicNear(f.x[i], hL, [&](uint32_t j, const Vec<D>&) {
+          if (f.kind[j] != uint8_t(ParticleKind::Temporary)) rho += f.mass[j] * W.W(Vec<D>(f.x[i] - f.x[j]));
         });
         go = rho > tau * sim.restDensity(size_t(i)) && spacing.tryKeep(f.x[i]);
       }
@@ -130,8 +132,12 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
         // ∇ρ_i from the substep's pair gradients and the boundary's.
         Vec<D> g = sim.restDensity(i) * sim.boundaryGradW[i];
         for (uint32_t q = off[i]; q < off[i + 1]; ++q) g += sim.massGradWAt(q);
+        // Inside the liquid ∇ρ is rounding noise, and a candidate there would
+        // sit where the liquid is at rest density (failing ρ_cp − ρ > η ρ0)
+        // and next to a particle: skip before the costlier tests. At a free
+        // surface ‖∇ρ‖ is of order ρ0/h, fifty times this threshold.
         const Real gn = g.norm();
-        if (!(gn > Real(1e-6) * sim.restDensity(i) / hL)) continue;
+        if (!(gn > Real(0.02) * sim.restDensity(i) / hL)) continue;
         const Vec<D> xtp = f.x[i] - (dtp / gn) * g;
         const Vec<D> ytp = st.toTemplate.point(xtp);
         if (!insideBox(s, ytp)) continue;
@@ -151,8 +157,8 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
         if (nearSolid) continue;
         bool crowded = false;
         Real rho = 0;
-        sim.search.forEachDynamicNear(xtp, hL, [&](uint32_t j, const Vec<D>& xj) {
-          const Vec<D> r = xtp - xj;
+        sim.search.forEachDynamicNear(xtp, hL, [&](uint32_t j, const Vec<D>&) {
+          const Vec<D> r = xtp - f.x[j];
           if (r.squaredNorm() < (dtp - eps) * (dtp - eps)) crowded = true;
           rho += f.mass[j] * W.W(r);
         });
@@ -188,9 +194,7 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
   sim.appendParticles(add);
   removed_ = remove.size();
   seeded_ = add.size();
-  // The first substep reuses the refreshed neighbours unless particles
-  // changed: only then was the refresh extra work, control's.
-  if (remove.empty() && add.empty()) refreshExcludedMs_ += refreshMs;
+
   temporaries_ = temporaries_ - removed_ + seeded_;
 }
 
