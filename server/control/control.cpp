@@ -135,7 +135,7 @@ void Control<D>::gather(size_t i, const Simulation<D>& sim) {
   State& s = state_[i];
   const int phase = instances_[i].spec.phase;
   const Real gamma = Real(instances_[i].spec.params.get("falloff_decay"));
-  std::vector<uint32_t> candidates;
+  std::vector<uint32_t>& candidates = candidates_;
   sim.search.dynamicInBox(s.worldBox, candidates);
   s.liquid.clear();
   s.y.clear();

@@ -112,6 +112,7 @@ class Control : public Effect<D> {
   ParamValues settings_;
   std::vector<State> state_;          // one per instance
   std::vector<uint8_t> occupancy_;    // fidelity scratch
+  std::vector<uint32_t> candidates_;  // gather scratch (kept: no allocation in a step)
   NeighborhoodSearch<D> localGrid_;   // gathered liquid in template space (for α)
   std::vector<Vec<D>> controlAcc_;    // per liquid particle
   std::vector<uint32_t> controlled_;  // particles with a non-zero controlAcc_
