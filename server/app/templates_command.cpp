@@ -1,6 +1,6 @@
 // `flowclip record RECIPE.json`: simulate a recipe and store the captured
-// template in the database. `flowclip templates list|inspect|remove`: the
-// database.
+// templates (one per capture) in the database. `flowclip templates
+// list|inspect|remove`: the database.
 #include "app/commands.h"
 #include "io/recipe.h"
 #include "io/template_database.h"
@@ -64,9 +64,12 @@ int record(const RecordCliOptions& opt) {
     }
     return !InterruptGuard::requested();
   };
-  if (!opt.quiet)
-    std::fprintf(stderr, "recording '%s' (%dD) from %s, %d threads\n", recipe.capture.name.c_str(),
-                 recipe.dimension, opt.recipe.c_str(), omp_get_max_threads());
+  if (!opt.quiet) {
+    std::string names;
+    for (const CaptureSpec& c : recipe.captures) names += (names.empty() ? "'" : ", '") + c.name + "'";
+    std::fprintf(stderr, "recording %s (%dD) from %s, %d threads\n", names.c_str(), recipe.dimension,
+                 opt.recipe.c_str(), omp_get_max_threads());
+  }
   RecordResult res;
   try {
     InterruptGuard interrupt;
@@ -76,13 +79,15 @@ int record(const RecordCliOptions& opt) {
     throw;
   }
   if (!opt.quiet && tty) std::fprintf(stderr, "\n");
-  const TemplateFileStats st = templateFileStats(res.path);
-  std::fprintf(stderr,
-               "wrote %s: %zu frames, %zu particle-frames (%.0f per frame), %llu bytes (%.2f B per particle-frame); "
-               "simulated in %.2f s, written in %.2f s\n",
-               res.path.c_str(), res.frames, res.particleFrames,
-               res.frames ? double(res.particleFrames) / double(res.frames) : 0.0,
-               (unsigned long long)st.bytesOnDisk, st.bytesPerParticleFrame, res.wallSeconds, res.writeSeconds);
+  for (const RecordedTemplate& t : res.templates) {
+    const TemplateFileStats st = templateFileStats(t.path);
+    std::fprintf(stderr,
+                 "wrote %s: %zu frames, %zu particle-frames (%.0f per frame), %llu bytes (%.2f B per "
+                 "particle-frame); simulated in %.2f s, written in %.2f s\n",
+                 t.path.c_str(), t.frames, t.particleFrames,
+                 t.frames ? double(t.particleFrames) / double(t.frames) : 0.0, (unsigned long long)st.bytesOnDisk,
+                 st.bytesPerParticleFrame, res.wallSeconds, t.writeSeconds);
+  }
   return Ok;
 }
 
@@ -161,8 +166,8 @@ int inspect(const TemplatesCliOptions& opt) {
 
 void addTemplatesCommands(CLI::App& app) {
   auto ro = std::make_shared<RecordCliOptions>();
-  CLI::App* rec = app.add_subcommand("record", "simulate a recipe and store the captured animation template");
-  rec->add_option("recipe", ro->recipe, "recipe file (a scene plus a \"capture\" object, JSON)")->required();
+  CLI::App* rec = app.add_subcommand("record", "simulate a recipe and store the captured animation template(s)");
+  rec->add_option("recipe", ro->recipe, "recipe file (a scene plus a \"capture\" object or array, JSON)")->required();
   rec->add_option("--templates", ro->templatesDir, "template directory (default: templates)");
   rec->add_flag("--force", ro->force, "overwrite an existing template of the same name");
   rec->add_option("--threads", ro->threads, "OpenMP threads (default: all cores)")->check(CLI::PositiveNumber);

@@ -1,6 +1,8 @@
 // Recorder (io/recipe.h) and template database (io/template_database.h):
 // record a tiny recipe in-process, load it back through the database, shared
-// loading, name validation, remove, missing templates, no silent overwrite.
+// loading, name validation, remove, missing templates, no silent overwrite;
+// recipes with an array of captures (several templates from one simulation,
+// written all or nothing).
 #include "io/recipe.h"
 #include "io/template_database.h"
 #include "io/template_file.h"
@@ -42,14 +44,29 @@ nlohmann::json tinyRecipe(const std::string& name = "tiny", int frames = 12) {
                                     {{"op", "replace"}, {"path", "/capture/frames"}, {"value", frames}}}));
 }
 
-RecordResult recordTiny(const std::string& dir, const std::string& name = "tiny", bool force = false,
-                        bool keep = false) {
+// Records the one-capture tiny recipe: its single template.
+RecordedTemplate recordTiny(const std::string& dir, const std::string& name = "tiny", bool force = false,
+                            bool keep = false) {
   const nlohmann::json j = tinyRecipe(name);
   RecordOptions o;
   o.templatesDir = dir;
   o.force = force;
   o.keepTemplate = keep;
-  return recordRecipe(parseRecipe(j, j.dump(1)), o);
+  RecordResult r = recordRecipe(parseRecipe(j, j.dump(1)), o);
+  EXPECT_EQ(r.templates.size(), 1u);
+  return std::move(r.templates.at(0));
+}
+
+// The tiny recipe with "capture" replaced by an array of captures.
+nlohmann::json tinyArrayRecipe(const nlohmann::json& captures) {
+  nlohmann::json j = tinyRecipe();
+  j["capture"] = captures;
+  return j;
+}
+
+nlohmann::json captureOf(const std::string& name, std::vector<double> lo, std::vector<double> hi, int frames,
+                         double start = 0) {
+  return {{"name", name}, {"region", {{"min", lo}, {"max", hi}}}, {"frames", frames}, {"start", start}};
 }
 
 std::string sceneErrorPath(const nlohmann::json& j) {
@@ -66,7 +83,7 @@ std::string sceneErrorPath(const nlohmann::json& j) {
 TEST(TemplateDatabase, RecordThenLoadRoundTrip) {
   TempDir tmp;
   const std::string dir = tmp.file("db");
-  const RecordResult res = recordTiny(dir, "tiny", false, true);
+  const RecordedTemplate res = recordTiny(dir, "tiny", false, true);
   ASSERT_TRUE(res.tpl2.has_value());
   const Template<2>& rec = *res.tpl2;
   EXPECT_EQ(res.path, (fs::path(dir) / "tiny.h5").string());
@@ -164,7 +181,8 @@ TEST(TemplateDatabase, SecondsAndStartSetFrameCount) {
     return true;
   };
   const RecordResult r = recordRecipe(parseRecipe(j), o);
-  EXPECT_EQ(r.frames, 7u);
+  ASSERT_EQ(r.templates.size(), 1u);
+  EXPECT_EQ(r.templates[0].frames, 7u);
   EXPECT_EQ(calls, 7);
   EXPECT_EQ(lastSim, 3 + 6);  // 0.05 s = 3 frames before template frame 0
 }
@@ -333,7 +351,7 @@ TEST(TemplateDatabase, RecordingOntoExistingNameNeedsForce) {
   // Nothing else left behind (no temporary file).
   EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator()), 1);
   // With force it is replaced.
-  const RecordResult r = recordTiny(dir, "tiny", true);
+  const RecordedTemplate r = recordTiny(dir, "tiny", true);
   EXPECT_EQ(r.frames, 12u);
   EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator()), 1);
 }
@@ -385,13 +403,248 @@ TEST(Recipe, ValidationNamesKeyPaths) {
 TEST(Recipe, ShippedRecipesParse) {
   const fs::path dir = fs::path(FLOWCLIP_SOURCE_DIR) / "templates" / "recipes";
   std::vector<std::string> names;
-  for (const auto& e : fs::directory_iterator(dir))
-    if (e.path().extension() == ".json") {
-      const Recipe r = loadRecipe(e.path().string());
-      EXPECT_EQ(r.capture.name, e.path().stem().string());
-      EXPECT_FALSE(r.text.empty());
-      names.push_back(r.capture.name);
+  for (const auto& e : fs::directory_iterator(dir)) {
+    if (e.path().extension() != ".json") continue;
+    const Recipe r = loadRecipe(e.path().string());
+    ASSERT_FALSE(r.captures.empty()) << e.path();
+    // A one-template recipe is named after its template.
+    if (r.captures.size() == 1) {
+      EXPECT_EQ(r.captures[0].name, e.path().stem().string());
     }
+    EXPECT_FALSE(r.text.empty());
+    for (const auto& c : r.captures) names.push_back(c.name);
+  }
   std::sort(names.begin(), names.end());
-  EXPECT_EQ(names, (std::vector<std::string>{"column2d", "drop2d", "jet2d", "letters3d"}));
+  EXPECT_EQ(names, (std::vector<std::string>{"column2d", "drop2d", "jet2d", "letter_A", "letter_C", "letter_S"}));
+}
+
+// Array form: key paths carry the capture's index.
+TEST(Recipe, CaptureArrayValidationNamesKeyPaths) {
+  const nlohmann::json a = captureOf("a", {0, 0}, {0.3, 0.25}, 4);
+  const nlohmann::json b = captureOf("b", {0.2, 0}, {0.6, 0.6}, 4);
+  const nlohmann::json c = captureOf("c", {0, 0}, {0.6, 0.1}, 4);
+  EXPECT_EQ(sceneErrorPath(tinyArrayRecipe({a, b, c})), "<no error>");
+  EXPECT_EQ(sceneErrorPath(tinyArrayRecipe({a})), "<no error>");
+
+  // Duplicate names: the later capture's name is the error.
+  nlohmann::json dup = b;
+  dup["name"] = "a";
+  EXPECT_EQ(sceneErrorPath(tinyArrayRecipe({a, dup})), "capture[1].name");
+  EXPECT_EQ(sceneErrorPath(tinyArrayRecipe({a, b, dup})), "capture[2].name");
+  try {
+    parseRecipe(tinyArrayRecipe({a, dup}));
+    FAIL();
+  } catch (const SceneError& e) {
+    EXPECT_NE(std::string(e.what()).find("duplicate template name 'a'"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("capture[0].name"), std::string::npos) << e.what();
+  }
+
+  nlohmann::json bad = c;
+  bad["region"]["min"] = {0, "x"};
+  EXPECT_EQ(sceneErrorPath(tinyArrayRecipe({a, b, bad})), "capture[2].region.min[1]");
+  bad = c;
+  bad["region"]["max"][0] = -1;
+  EXPECT_EQ(sceneErrorPath(tinyArrayRecipe({a, bad})), "capture[1].region.max[0]");
+  bad = a;
+  bad["colour"] = 1;
+  EXPECT_EQ(sceneErrorPath(tinyArrayRecipe({bad, b})), "capture[0].colour");
+  bad = b;
+  bad.erase("frames");
+  EXPECT_EQ(sceneErrorPath(tinyArrayRecipe({a, bad})), "capture[1].frames");
+  bad = b;
+  bad["start"] = -1;
+  EXPECT_EQ(sceneErrorPath(tinyArrayRecipe({a, bad})), "capture[1].start");
+  bad = b;
+  bad["name"] = "../x";
+  EXPECT_EQ(sceneErrorPath(tinyArrayRecipe({a, bad})), "capture[1].name");
+  EXPECT_EQ(sceneErrorPath(tinyArrayRecipe({a, 3})), "capture[1]");
+  EXPECT_EQ(sceneErrorPath(tinyArrayRecipe(nlohmann::json::array())), "capture");
+}
+
+// Two captures of one simulation: each template's frames hold exactly the
+// liquid inside its region at its own frames. A third capture of the whole
+// domain records every particle of the same simulation: the reference.
+TEST(Recipe, CaptureArrayRecordsEachRegion) {
+  TempDir tmp;
+  const std::string dir = tmp.file("db");
+  // "left" cuts the block from frame 0; "late" starts 3 frames later
+  // (0.05 s at 60 fps) with 7 frames (seconds 0.1) in another box.
+  nlohmann::json late = captureOf("late", {0.1, 0}, {0.6, 0.2}, 1, 0.05);
+  late.erase("frames");
+  late["seconds"] = 0.1;
+  const nlohmann::json j = tinyArrayRecipe({captureOf("left", {0, 0}, {0.3, 0.25}, 12), late,
+                                            captureOf("all", {0, 0}, {0.6, 0.6}, 12)});
+  const Recipe recipe = parseRecipe(j, j.dump(1));
+  ASSERT_EQ(recipe.captures.size(), 3u);
+  RecordOptions o;
+  o.templatesDir = dir;
+  o.keepTemplate = true;
+  std::vector<size_t> captured;
+  int frames = 0;
+  o.progress = [&](const RecordProgress& p) {
+    captured.push_back(p.captured);
+    frames = p.frames;
+    EXPECT_EQ(p.frame, int(captured.size()));
+    return true;
+  };
+  const RecordResult res = recordRecipe(recipe, o);
+  ASSERT_EQ(res.templates.size(), 3u);
+  EXPECT_EQ(res.dimension, 2);
+  EXPECT_EQ(frames, 12);  // capture frames 0..11 (late: 3..9)
+  ASSERT_EQ(captured.size(), 12u);
+
+  const RecordedTemplate& left = res.templates[0];
+  const RecordedTemplate& lateT = res.templates[1];
+  const RecordedTemplate& all = res.templates[2];
+  EXPECT_EQ(left.name, "left");
+  EXPECT_EQ(lateT.name, "late");
+  EXPECT_EQ(left.path, (fs::path(dir) / "left.h5").string());
+  EXPECT_EQ(lateT.path, (fs::path(dir) / "late.h5").string());
+  ASSERT_EQ(left.frames, 12u);
+  ASSERT_EQ(lateT.frames, 7u);
+  ASSERT_EQ(all.frames, 12u);
+  ASSERT_TRUE(left.tpl2 && lateT.tpl2 && all.tpl2);
+
+  // The particles of `ref` inside `box`, in order.
+  auto inside = [](const TemplateFrame<2>& ref, const AABB<2>& box) {
+    std::vector<Vec<2>> x;
+    for (const auto& p : ref.x)
+      if (box.contains(p)) x.push_back(p);
+    return x;
+  };
+  const AABB<2> leftBox = left.tpl2->region(), lateBox = lateT.tpl2->region();
+  size_t leftSome = 0, lateSome = 0;
+  for (size_t f = 0; f < 12; ++f) {
+    const TemplateFrame<2>& ref = all.tpl2->frames[f];
+    ASSERT_EQ(ref.size(), 32u) << "frame " << f;  // the whole liquid
+    const auto want = inside(ref, leftBox);
+    const auto& got = left.tpl2->frames[f];
+    ASSERT_EQ(got.size(), want.size()) << "frame " << f;
+    for (size_t i = 0; i < want.size(); ++i) EXPECT_EQ(got.x[i], want[i]) << "frame " << f;
+    EXPECT_LT(got.size(), 32u);
+    leftSome += !got.x.empty();
+    size_t sum = ref.size() + got.size();
+    if (f >= 3 && f <= 9) {
+      const auto wantLate = inside(ref, lateBox);
+      const auto& gotLate = lateT.tpl2->frames[f - 3];
+      ASSERT_EQ(gotLate.size(), wantLate.size()) << "frame " << f;
+      for (size_t i = 0; i < wantLate.size(); ++i) EXPECT_EQ(gotLate.x[i], wantLate[i]) << "frame " << f;
+      EXPECT_LT(gotLate.size(), 32u);
+      lateSome += !gotLate.x.empty();
+      sum += gotLate.size();
+    }
+    EXPECT_EQ(captured[f], sum) << "frame " << f;
+  }
+  EXPECT_GT(leftSome, 0u);
+  EXPECT_GT(lateSome, 0u);
+
+  // On disk: three templates with their own names, regions and frames, the
+  // same recipe text.
+  TemplateDatabase db(dir);
+  const auto entries = db.list();
+  ASSERT_EQ(entries.size(), 3u);
+  for (const RecordedTemplate* t : {&left, &lateT, &all}) {
+    auto lt = db.load<2>(t->name);
+    const Template<2>& got = lt->templ();
+    EXPECT_EQ(got.header.name, t->name);
+    EXPECT_EQ(got.header.regionMin, t->tpl2->header.regionMin);
+    EXPECT_EQ(got.header.regionMax, t->tpl2->header.regionMax);
+    EXPECT_EQ(got.header.recipe, j.dump(1));
+    ASSERT_EQ(got.frames.size(), t->frames);
+    for (size_t f = 0; f < t->frames; ++f) {
+      EXPECT_EQ(got.frames[f].size(), t->capturedPerFrame[f]);
+      for (const auto& x : got.frames[f].x)
+        for (int d = 0; d < 2; ++d) {
+          EXPECT_GE(double(x[d]), got.header.regionMin[d] - 0.01 * got.header.particleRadius - 1e-6);
+          EXPECT_LE(double(x[d]), got.header.regionMax[d] + 0.01 * got.header.particleRadius + 1e-6);
+        }
+    }
+  }
+  EXPECT_EQ(tmp.entries(), std::vector<std::string>{"db"});
+  std::vector<std::string> files;
+  for (const auto& e : fs::directory_iterator(dir)) files.push_back(e.path().filename().string());
+  std::sort(files.begin(), files.end());
+  EXPECT_EQ(files, (std::vector<std::string>{"all.h5", "late.h5", "left.h5"}));  // no temporary left
+}
+
+namespace {
+std::vector<std::string> filesIn(const std::string& dir) {
+  std::vector<std::string> files;
+  for (const auto& e : fs::directory_iterator(dir)) files.push_back(e.path().filename().string());
+  std::sort(files.begin(), files.end());
+  return files;
+}
+}  // namespace
+
+// All or nothing: an existing template stops the recording before it starts;
+// an interruption or a failure while moving the files into place leaves no
+// new file and restores what --force replaced.
+TEST(Recipe, CaptureArrayWritesAllOrNothing) {
+  TempDir tmp;
+  const std::string dir = tmp.file("db");
+  fs::create_directories(dir);
+  const nlohmann::json j =
+      tinyArrayRecipe({captureOf("a", {0, 0}, {0.3, 0.25}, 6), captureOf("b", {0, 0}, {0.6, 0.6}, 6)});
+  const Recipe recipe = parseRecipe(j);
+  RecordOptions o;
+  o.templatesDir = dir;
+
+  // "b" exists: nothing simulated, nothing written, "b" untouched.
+  std::ofstream(tmp.file("db/b.h5")) << "old b";
+  int calls = 0;
+  o.progress = [&](const RecordProgress&) { return ++calls > 0; };
+  try {
+    recordRecipe(recipe, o);
+    FAIL() << "overwrote without force";
+  } catch (const DatabaseError& e) {
+    EXPECT_NE(std::string(e.what()).find("template 'b' already exists"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(calls, 0);
+  EXPECT_EQ(filesIn(dir), std::vector<std::string>{"b.h5"});
+  EXPECT_EQ(readFile(tmp.file("db/b.h5")), "old b");
+
+  // "b" appears while recording: no file written, the newcomer untouched.
+  fs::remove(tmp.file("db/b.h5"));
+  o.progress = [&](const RecordProgress& p) {
+    if (p.frame == 2) std::ofstream(tmp.file("db/b.h5")) << "new b";
+    return true;
+  };
+  EXPECT_THROW(recordRecipe(recipe, o), DatabaseError);
+  EXPECT_EQ(filesIn(dir), std::vector<std::string>{"b.h5"});
+  EXPECT_EQ(readFile(tmp.file("db/b.h5")), "new b");
+  fs::remove(tmp.file("db/b.h5"));
+
+  // Interrupted: nothing written.
+  o.progress = [](const RecordProgress& p) { return p.frame < 3; };
+  EXPECT_THROW(recordRecipe(recipe, o), RecordAborted);
+  EXPECT_TRUE(filesIn(dir).empty());
+
+  // With --force, "a" exists and "b" cannot be replaced (a directory holds
+  // its name): the recording fails, "a" is put back, nothing else is left.
+  o.progress = nullptr;
+  o.force = true;
+  std::ofstream(tmp.file("db/a.h5")) << "old a";
+  fs::create_directories(tmp.file("db/b.h5"));
+  std::ofstream(tmp.file("db/b.h5/x")) << "x";
+  EXPECT_THROW(recordRecipe(recipe, o), std::exception);
+  EXPECT_EQ(filesIn(dir), (std::vector<std::string>{"a.h5", "b.h5"}));
+  EXPECT_EQ(readFile(tmp.file("db/a.h5")), "old a");
+  EXPECT_TRUE(fs::is_directory(tmp.file("db/b.h5")));
+  // The same without an "a" before: no "a" after.
+  fs::remove(tmp.file("db/a.h5"));
+  EXPECT_THROW(recordRecipe(recipe, o), std::exception);
+  EXPECT_EQ(filesIn(dir), std::vector<std::string>{"b.h5"});
+
+  // Once "b" is free, both are written, and --force replaces both.
+  fs::remove_all(tmp.file("db/b.h5"));
+  std::ofstream(tmp.file("db/a.h5")) << "old a";
+  const RecordResult r = recordRecipe(recipe, o);
+  ASSERT_EQ(r.templates.size(), 2u);
+  EXPECT_EQ(filesIn(dir), (std::vector<std::string>{"a.h5", "b.h5"}));
+  TemplateDatabase db(dir);
+  EXPECT_EQ(db.load<2>("a")->templ().frames.size(), 6u);
+  EXPECT_EQ(db.load<2>("b")->templ().frames.size(), 6u);
+  o.force = false;
+  EXPECT_THROW(recordRecipe(recipe, o), DatabaseError);
+  EXPECT_EQ(filesIn(dir), (std::vector<std::string>{"a.h5", "b.h5"}));
 }
