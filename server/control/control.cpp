@@ -30,21 +30,40 @@ AABB<D> imageBox(const Affine<D>& map, const AABB<D>& box) {
   }
   return out;
 }
-}  // namespace
 
 template <int D>
-Control<D>::Control(std::vector<BoundInstance<D>> instances, const ParamValues& settings)
-    : instances_(std::move(instances)), settings_(controlSettingsSpecs()) {
-  for (const auto& [k, v] : settings.all()) settings_.set(k, v);
-  for (size_t i = 0; i < instances_.size(); ++i) {
-    const auto& b = instances_[i];
+void checkBound(const std::vector<BoundInstance<D>>& instances) {
+  for (size_t i = 0; i < instances.size(); ++i) {
+    const auto& b = instances[i];
     if (!b.accel || !b.accel->source) throw std::invalid_argument("instance " + std::to_string(i) + " is not bound");
     if (b.spec.transform.keys.empty())
       throw std::invalid_argument("instance '" + b.spec.name + "' has no transform key");
     if (!(b.accel->supportRadius > 0))
       throw std::invalid_argument("instance '" + b.spec.name + "': template without support radius");
   }
+}
+}  // namespace
+
+template <int D>
+Control<D>::Control(std::vector<BoundInstance<D>> instances, const ParamValues& settings)
+    : instances_(std::move(instances)), settings_(controlSettingsSpecs()) {
+  for (const auto& [k, v] : settings.all()) settings_.set(k, v);
+  checkBound(instances_);
   state_.resize(instances_.size());
+}
+
+template <int D>
+void Control<D>::setInstances(std::vector<BoundInstance<D>> instances) {
+  checkBound(instances);
+  instances_ = std::move(instances);
+  state_.assign(instances_.size(), State{});
+  forcesDue_ = true;
+  measureFidelity_ = true;
+}
+
+template <int D>
+void Control<D>::init(Simulation<D>& sim) {
+  temporaries_ = size_t(std::count(sim.fluid.kind.begin(), sim.fluid.kind.end(), uint8_t(ParticleKind::Temporary)));
 }
 
 template <int D>
@@ -316,7 +335,7 @@ template <int D>
 void Control<D>::beginFrame(Simulation<D>& sim, FrameStats& fs) {
   const auto t0 = Clock::now();
   seeded_ = removed_ = 0;
-  selectActive(sim.time());
+  selectActive(sim.time() + timeOffset_);
   forcesDue_ = true;
   measureFidelity_ = true;
   updateTemporaryParticles(sim, fs);
@@ -328,7 +347,7 @@ void Control<D>::addAccelerations(Simulation<D>& sim) {
   const bool everySubstep = settings_.get("forces_every_substep") != 0;
   if (forcesDue_ || everySubstep) {
     const auto t0 = Clock::now();
-    if (everySubstep && !forcesDue_) selectActive(sim.time());
+    if (everySubstep && !forcesDue_) selectActive(sim.time() + timeOffset_);
     const Real applyFor = everySubstep ? Real(sim.setup().settings.get("dt_max")) : Real(sim.frameDuration());
     computeForces(sim, applyFor);
     forcesDue_ = false;

@@ -57,6 +57,18 @@ class Control : public Effect<D> {
 
   const std::vector<BoundInstance<D>>& instances() const { return instances_; }
 
+  // ---- sessions (service/session.h): edits between frames ----
+  // Replaces the instances (bound, as for the constructor) at a frame
+  // boundary; every instance's per-frame state restarts. Temporary particles
+  // already in the liquid stay and are removed by the usual rules.
+  void setInstances(std::vector<BoundInstance<D>> instances);
+  // Scene time = sim.time() + offset: a session that rebuilt its simulation
+  // mid-run (a settings change) keeps its scene clock.
+  void setTimeOffset(double seconds) { timeOffset_ = seconds; }
+  // Counts the temporary particles the simulation already holds (a stage
+  // added to a running simulation takes over their removal).
+  void init(Simulation<D>& sim) override;
+
   // ---- exposed for tests and tools ----
   // Selects the instances active at scene time `time` and their template
   // frames and transforms (as beginFrame does).
@@ -127,6 +139,7 @@ class Control : public Effect<D> {
   size_t seeded_ = 0, removed_ = 0;   // this frame
   size_t temporaries_ = 0;            // temporary particles alive
   bool measureFidelity_ = true;       // at the frame's first force evaluation
+  double timeOffset_ = 0;             // scene time − sim.time()
 };
 
 }  // namespace fc

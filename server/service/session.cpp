@@ -1,0 +1,1021 @@
+// One simulation session: see session.h.
+#include "service/session.h"
+
+#include "control/control.h"
+#include "io/instance_binding.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <condition_variable>
+#include <deque>
+#include <map>
+#include <mutex>
+#include <numeric>
+#include <thread>
+
+namespace fc::service {
+
+using nlohmann::json;
+
+// ---------------------------------------------------------------- snapshots ---
+
+namespace {
+// libstdc++ keeps strings of up to 15 characters inside the object.
+size_t heapBytes(const std::string& s) { return s.capacity() > 15 ? s.capacity() + 1 : 0; }
+// make_shared's control block next to the object.
+constexpr size_t kSharedOverhead = 16;
+}  // namespace
+
+size_t FrameSnapshot::bytes() const {
+  size_t b = sizeof(FrameSnapshot) + kSharedOverhead;
+  b += positions.capacity() * sizeof(uint16_t) + kind.capacity() + phase.capacity();
+  b += stats.instances.capacity() * sizeof(InstanceFrameStats);
+  for (const auto& i : stats.instances) b += heapBytes(i.name);
+  b += instances.capacity() * sizeof(InstanceSnapshot);
+  for (const auto& i : instances) b += heapBytes(i.name) + heapBytes(i.templateName);
+  return b;
+}
+
+size_t FrameSnapshot::estimateBytes(int dimension, size_t particles, size_t instances) {
+  return sizeof(FrameSnapshot) + kSharedOverhead + particles * (size_t(dimension) * sizeof(uint16_t) + 2) +
+         instances * (sizeof(InstanceFrameStats) + sizeof(InstanceSnapshot));
+}
+
+json frameStatsToJson(const FrameStats& s, bool controlled) {
+  json j = {{"frame", s.frame},
+            {"time", s.time},
+            {"wall_ms", s.wallMs},
+            {"substeps", s.substeps},
+            {"divergence_iterations", s.divergenceIterations},
+            {"density_iterations", s.densityIterations},
+            {"avg_density_error_pct", s.avgDensityErrorPct},
+            {"max_density_error_pct", s.maxDensityErrorPct},
+            {"converged", s.converged},
+            {"particles", s.particles},
+            {"boundary_particles", s.boundaryParticles},
+            {"escaped_particles", s.escapedParticles},
+            {"wall_contacts", s.wallContacts},
+            {"max_speed", s.maxSpeed},
+            {"kinetic_energy", s.kineticEnergy},
+            {"min_dt", s.minDt},
+            {"max_dt", s.maxDt},
+            {"neighbor_ms", s.neighborMs},
+            {"density_ms", s.densityMs},
+            {"divergence_ms", s.divergenceMs},
+            {"non_pressure_ms", s.nonPressureMs},
+            {"pressure_ms", s.pressureMs},
+            {"avg_neighbors", s.avgNeighbors},
+            {"finite", s.finite}};
+  if (!controlled) return j;
+  j["liquid_particles"] = s.particles - s.temporaryParticles;
+  j["temporary_particles"] = s.temporaryParticles;
+  j["control_particles"] = s.controlParticles;
+  j["repulsion_particles"] = s.repulsionParticles;
+  j["controlled_particles"] = s.controlledParticles;
+  j["seeded_particles"] = s.seededParticles;
+  j["removed_particles"] = s.removedParticles;
+  j["control_ms"] = s.controlMs;
+  json inst = json::array();
+  for (const auto& i : s.instances)
+    inst.push_back({{"name", i.name},
+                    {"active", i.active},
+                    {"template_frame", i.templateFrame},
+                    {"fidelity", i.fidelity},
+                    {"controlled_particles", i.controlled},
+                    {"control_particles", i.controlParticles},
+                    {"repulsion_particles", i.repulsionParticles}});
+  j["instances"] = inst;
+  return j;
+}
+
+// -------------------------------------------------------------------- edits ---
+
+const char* editKindName(EditKind kind) {
+  switch (kind) {
+    case EditKind::AddInstance: return "add_instance";
+    case EditKind::UpdateInstance: return "update_instance";
+    case EditKind::RemoveInstance: return "remove_instance";
+    case EditKind::Settings: return "settings";
+  }
+  return "?";
+}
+
+const char* statusName(SessionStatus status) {
+  switch (status) {
+    case SessionStatus::Paused: return "paused";
+    case SessionStatus::Playing: return "playing";
+    case SessionStatus::Stepping: return "stepping";
+    case SessionStatus::Error: return "error";
+  }
+  return "?";
+}
+
+namespace {
+const std::vector<std::string> kSettingsKeys = {"settings", "solver", "control"};
+
+std::string joined(const std::vector<std::string>& v) {
+  std::string s;
+  for (const auto& x : v) s += (s.empty() ? "" : ", ") + x;
+  return s;
+}
+
+void onlyKeys(const json& j, const std::vector<std::string>& allowed, const std::string& type) {
+  for (const auto& [k, v] : j.items())
+    if (std::find(allowed.begin(), allowed.end(), k) == allowed.end())
+      throw SceneError(k, "unknown key for a " + type + " edit (accepted: " + joined(allowed) + ")");
+}
+
+const json& requiredMember(const json& j, const std::string& key, json::value_t type, const std::string& what) {
+  auto it = j.find(key);
+  if (it == j.end()) throw SceneError(key, "required: " + what);
+  if (it->type() != type)
+    throw SceneError(key, std::string("must be ") + (type == json::value_t::object ? "an object" : "a string") +
+                              ", got " + it->type_name());
+  return *it;
+}
+}  // namespace
+
+Edit Edit::fromJson(const json& j) {
+  if (!j.is_object()) throw SceneError("", std::string("an edit must be a JSON object, got ") + j.type_name());
+  const std::string kinds = "add_instance, update_instance, remove_instance or settings";
+  const std::string type = requiredMember(j, "type", json::value_t::string, kinds).get<std::string>();
+  Edit e;
+  if (type == "add_instance") {
+    onlyKeys(j, {"type", "instance"}, type);
+    e.kind = EditKind::AddInstance;
+    e.payload = requiredMember(j, "instance", json::value_t::object, "the instance object");
+  } else if (type == "update_instance") {
+    onlyKeys(j, {"type", "name", "patch"}, type);
+    e.kind = EditKind::UpdateInstance;
+    e.instance = requiredMember(j, "name", json::value_t::string, "the instance's name").get<std::string>();
+    e.payload = requiredMember(j, "patch", json::value_t::object, "a JSON merge patch of the instance");
+  } else if (type == "remove_instance") {
+    onlyKeys(j, {"type", "name"}, type);
+    e.kind = EditKind::RemoveInstance;
+    e.instance = requiredMember(j, "name", json::value_t::string, "the instance's name").get<std::string>();
+  } else if (type == "settings") {
+    onlyKeys(j, {"type", "settings", "solver", "control"}, type);
+    e.kind = EditKind::Settings;
+    e.payload = json::object();
+    for (const auto& k : kSettingsKeys)
+      if (j.contains(k)) e.payload[k] = requiredMember(j, k, json::value_t::object, "");
+    if (e.payload.empty()) throw SceneError("", "a settings edit needs at least one of " + joined(kSettingsKeys));
+  } else {
+    throw SceneError("type", "unknown edit type '" + type + "' (expected " + kinds + ")");
+  }
+  return e;
+}
+
+json EditResult::toJson() const {
+  json j = {{"id", id}, {"type", editKindName(kind)}, {"accepted", accepted}};
+  if (!instance.empty()) j["instance"] = instance;
+  if (accepted)
+    j["frame"] = frame;
+  else
+    j["error"] = {{"path", path}, {"message", message}};
+  return j;
+}
+
+// ------------------------------------------------------------------ session ---
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+constexpr size_t kKeptResults = 1024;
+
+struct Op {
+  bool reset = false;
+  uint64_t id = 0;
+  Edit edit;
+  std::shared_ptr<std::promise<EditResult>> promise;
+};
+
+template <int D>
+json canonicalScene(const SimulationSetup<D>& setup, const SceneControl<D>& control) {
+  json j = sceneToJson<D>(setup);
+  const json c = sceneControlToJson<D>(control, setup.phases);
+  for (auto it = c.begin(); it != c.end(); ++it) j[it.key()] = *it;
+  return j;
+}
+
+// The simulation's constructor reports what parseScene cannot check (it
+// checks nearly everything) as std::invalid_argument.
+template <int D>
+std::unique_ptr<Simulation<D>> makeSimulation(const SimulationSetup<D>& setup) {
+  try {
+    return std::make_unique<Simulation<D>>(setup);
+  } catch (const std::invalid_argument& e) {
+    throw SceneError("", e.what());
+  }
+}
+
+template <int D>
+class SessionImpl final : public Session {
+ public:
+  SessionImpl(std::string id, std::string name, const json& scene, TemplateDatabase& database,
+              const SessionOptions& options)
+      : id_(std::move(id)), db_(database), options_(options) {
+    setup_ = parseScene<D>(scene);
+    control_ = parseSceneControl<D>(scene, setup_.phases);
+    if (!control_.instances.empty()) bound_ = bindInstances<D>(control_.instances, db_);
+    buildSimulation();
+    name_ = name.empty() ? setup_.name : std::move(name);
+    scene_ = canonicalScene<D>(setup_, control_);
+    speed_ = options_.playbackSpeed >= 0 && std::isfinite(options_.playbackSpeed) ? options_.playbackSpeed : 0;
+    std::lock_guard lk(mutex_);
+    sceneShared_ = scene_;
+    recordInitialFrame();
+    thread_ = std::thread([this] { run(); });
+  }
+
+  ~SessionImpl() override {
+    {
+      std::lock_guard lk(mutex_);
+      stop_ = true;
+    }
+    cv_.notify_all();
+    if (thread_.joinable()) thread_.join();
+  }
+
+  const std::string& id() const override { return id_; }
+  const std::string& name() const override { return name_; }
+  int dimension() const override { return D; }
+
+  // ---- transport ----
+
+  void play() override {
+    bool wasReplay = false, changed = false;
+    {
+      std::lock_guard lk(mutex_);
+      if (status_ == SessionStatus::Error) throw SessionError(errorText() + "; reset the session first");
+      wasReplay = replay_ != nullptr;
+      replay_ = nullptr;
+      changed = status_ != SessionStatus::Playing || wasReplay;
+      status_ = SessionStatus::Playing;
+      stepsLeft_ = 0;
+      ++signal_;
+    }
+    wake();
+    if (wasReplay) notifyFrame();
+    if (changed) notifyState();
+  }
+
+  void pause() override {
+    bool changed = false;
+    {
+      std::lock_guard lk(mutex_);
+      if (status_ == SessionStatus::Playing || status_ == SessionStatus::Stepping) {
+        status_ = SessionStatus::Paused;
+        stepsLeft_ = 0;
+        changed = true;
+      }
+      ++signal_;
+    }
+    wake();
+    if (changed) notifyState();
+  }
+
+  void step(int frames) override {
+    if (frames <= 0) throw SessionError("step: the number of frames must be positive, got " + std::to_string(frames));
+    bool wasReplay = false;
+    {
+      std::lock_guard lk(mutex_);
+      if (status_ == SessionStatus::Error) throw SessionError(errorText() + "; reset the session first");
+      wasReplay = replay_ != nullptr;
+      replay_ = nullptr;
+      stepsLeft_ = status_ == SessionStatus::Stepping ? stepsLeft_ + frames : frames;
+      status_ = SessionStatus::Stepping;
+      ++signal_;
+    }
+    wake();
+    if (wasReplay) notifyFrame();
+    notifyState();
+  }
+
+  void reset() override {
+    {
+      std::lock_guard lk(mutex_);
+      Op op;
+      op.reset = true;
+      ops_.push_back(std::move(op));
+      ++signal_;
+    }
+    wake();
+  }
+
+  void setPlaybackSpeed(double fps) override {
+    if (!(fps >= 0) || !std::isfinite(fps))
+      throw SessionError("playback speed must be a finite number of frames per second >= 0 (0: as fast as possible)");
+    {
+      std::lock_guard lk(mutex_);
+      speed_ = fps;
+      ++signal_;
+    }
+    wake();
+    notifyState();
+  }
+
+  FramePtr seek(int frame) override {
+    FramePtr f;
+    {
+      std::lock_guard lk(mutex_);
+      f = findFrame(frame);
+      if (!f) {
+        std::string kept = history_.empty() ? std::string("the history is empty")
+                                            : "frames " + std::to_string(history_.front()->frame) + " to " +
+                                                  std::to_string(history_.back()->frame) + " are kept";
+        throw std::out_of_range("frame " + std::to_string(frame) + " is not in the history (" + kept + ")");
+      }
+      if (status_ != SessionStatus::Error) status_ = SessionStatus::Paused;
+      stepsLeft_ = 0;
+      replay_ = f;
+      ++signal_;
+    }
+    wake();
+    notifyFrame();
+    notifyState();
+    return f;
+  }
+
+  // ---- edits ----
+
+  EditTicket submit(Edit edit) override {
+    EditTicket t;
+    {
+      std::lock_guard lk(mutex_);
+      Op op;
+      op.id = t.id = ++lastEditId_;
+      op.edit = std::move(edit);
+      op.promise = std::make_shared<std::promise<EditResult>>();
+      t.result = op.promise->get_future().share();
+      if (stop_) {
+        op.promise->set_value(closedResult(op));
+      } else {
+        ops_.push_back(std::move(op));
+        ++pendingEdits_;
+        ++signal_;
+      }
+    }
+    wake();
+    return t;
+  }
+
+  std::optional<EditResult> editResult(uint64_t id) const override {
+    std::lock_guard lk(mutex_);
+    auto it = results_.find(id);
+    if (it == results_.end()) return std::nullopt;
+    return it->second;
+  }
+
+  // ---- frames ----
+
+  FramePtr latestFrame() const override {
+    std::lock_guard lk(mutex_);
+    return replay_ ? replay_ : live_;
+  }
+
+  FramePtr frame(int frame) const override {
+    std::lock_guard lk(mutex_);
+    return findFrame(frame);
+  }
+
+  std::vector<FramePtr> history() const override {
+    std::lock_guard lk(mutex_);
+    return {history_.begin(), history_.end()};
+  }
+
+  json sceneJson() const override {
+    std::lock_guard lk(mutex_);
+    return sceneShared_;
+  }
+
+  SessionStatus status() const override {
+    std::lock_guard lk(mutex_);
+    return status_;
+  }
+
+  int currentFrame() const override {
+    std::lock_guard lk(mutex_);
+    return live_->frame;
+  }
+
+  json state() const override {
+    std::lock_guard lk(mutex_);
+    return stateLocked();
+  }
+
+  // ---- listeners ----
+
+  uint64_t subscribe(SessionListener listener) override {
+    std::lock_guard lk(listenerMutex_);
+    listeners_[++lastListenerId_] = std::make_shared<SessionListener>(std::move(listener));
+    return lastListenerId_;
+  }
+
+  void unsubscribe(uint64_t id) override {
+    std::lock_guard lk(listenerMutex_);
+    listeners_.erase(id);
+  }
+
+  bool waitIdle(std::chrono::milliseconds timeout) const override {
+    std::unique_lock lk(mutex_);
+    return idleCv_.wait_for(lk, timeout, [&] { return idleLocked(); });
+  }
+
+  bool waitForFrame(int frame, std::chrono::milliseconds timeout) const override {
+    std::unique_lock lk(mutex_);
+    idleCv_.wait_for(lk, timeout, [&] { return live_->frame >= frame || idleLocked() || stop_; });
+    return live_->frame >= frame;
+  }
+
+ private:
+  // ======== the session's thread (and the constructor, before it starts) ========
+
+  // A fresh simulation of setup_ with bound_ at scene time 0; unchanged on failure.
+  void buildSimulation() {
+    auto sim = makeSimulation<D>(setup_);
+    const double timeBase = timeBase_;
+    Control<D>* stage = controlStage_;
+    timeBase_ = 0;
+    controlStage_ = nullptr;
+    try {
+      if (!bound_.empty()) attachControlStage(*sim, control_.settings);
+    } catch (...) {
+      timeBase_ = timeBase;
+      controlStage_ = stage;
+      throw;
+    }
+    sim_ = std::move(sim);
+    frameBase_ = 0;
+  }
+
+  // A control stage over bound_ on `sim` (whose clock starts at timeBase_).
+  Control<D>* attachControlStage(Simulation<D>& sim, const ParamValues& settings) {
+    auto c = std::make_unique<Control<D>>(bound_, settings);
+    c->setTimeOffset(timeBase_);
+    Control<D>* stage = c.get();
+    sim.addEffect(std::move(c), "control");
+    return controlStage_ = stage;
+  }
+
+  int nextFrame() const { return frameBase_ + sim_->frame() + 1; }
+
+  FramePtr makeSnapshot(const FrameStats& fs) const {
+    auto s = std::make_shared<FrameSnapshot>();
+    s->dimension = D;
+    s->frame = fs.frame;
+    s->time = fs.time;
+    for (int d = 0; d < D; ++d) {
+      s->domainMin[size_t(d)] = double(setup_.domain.min[d]);
+      s->domainMax[size_t(d)] = double(setup_.domain.max[d]);
+    }
+    const auto& f = sim_->fluid;
+    const long n = long(f.size());
+    s->positions.resize(size_t(n) * D);
+    std::array<double, D> lo, scale;
+    for (int d = 0; d < D; ++d) {
+      lo[size_t(d)] = s->domainMin[size_t(d)];
+      scale[size_t(d)] = FrameSnapshot::kQuantizationLevels / (s->domainMax[size_t(d)] - s->domainMin[size_t(d)]);
+    }
+    uint16_t* q = s->positions.data();
+#pragma omp parallel for schedule(static) if (n >= 16384)
+    for (long i = 0; i < n; ++i)
+      for (int d = 0; d < D; ++d) {
+        const double v = (double(f.x[size_t(i)][d]) - lo[size_t(d)]) * scale[size_t(d)];
+        q[size_t(i) * D + size_t(d)] = uint16_t(std::lround(std::clamp(v, 0.0, FrameSnapshot::kQuantizationLevels)));
+      }
+    s->kind = f.kind;
+    s->phase = f.phase;
+    s->stats = fs;
+    s->instances.reserve(bound_.size());
+    const bool fromStats = fs.instances.size() == bound_.size();
+    for (size_t i = 0; i < bound_.size(); ++i) {
+      const BoundInstance<D>& b = bound_[i];
+      const Template<D>& tpl = b.templ();
+      InstanceSnapshot is;
+      is.name = b.spec.name;
+      is.templateName = b.spec.templateName;
+      is.phase = b.spec.phase;
+      if (fromStats) {
+        is.active = fs.instances[i].active;
+        is.templateFrame = fs.instances[i].templateFrame;
+        is.fidelity = fs.instances[i].fidelity;
+      } else {
+        is.active = b.spec.time.active(fs.time, tpl.duration());
+        is.templateFrame = is.active ? int(b.spec.time.frameAt(fs.time, tpl.header.frameRate, tpl.frameCount())) : -1;
+      }
+      Eigen::Matrix<double, D, D> m;
+      Eigen::Matrix<double, D, 1> t;
+      b.spec.transform.evaluate(fs.time, m, t);
+      const Eigen::Matrix<double, D, 1> c = b.centre().template cast<double>();
+      t -= m * c;
+      for (int k = 0; k < 4; ++k) is.toWorld[size_t(k * 5)] = 1;
+      for (int col = 0; col < D; ++col) {
+        for (int row = 0; row < D; ++row) is.toWorld[size_t(col * 4 + row)] = m(row, col);
+        is.toWorld[size_t(12 + col)] = t[col];
+      }
+      const AABB<D> region = tpl.region();
+      for (int d = 0; d < D; ++d) {
+        is.regionMin[size_t(d)] = double(region.min[d]);
+        is.regionMax[size_t(d)] = double(region.max[d]);
+      }
+      is.falloffWidth = b.spec.params.get("falloff_width");
+      s->instances.push_back(std::move(is));
+    }
+    s->byteSize = s->bytes();
+    return s;
+  }
+
+  FrameStats initialStats() const {
+    FrameStats fs;
+    fs.frame = frameBase_ + sim_->frame();
+    fs.time = timeBase_ + sim_->time();
+    fs.particles = sim_->fluid.size();
+    fs.boundaryParticles = sim_->boundary.size();
+    fs.temporaryParticles =
+        size_t(std::count(sim_->fluid.kind.begin(), sim_->fluid.kind.end(), uint8_t(ParticleKind::Temporary)));
+    return fs;
+  }
+
+  // Rough memory of the simulation: particle arrays, solver and neighbour lists.
+  size_t simulationBytes() const {
+    const size_t n = sim_->fluid.size();
+    const size_t perFluid = 4 * sizeof(Vec<D>) + 5 * sizeof(Real) + 2 + 2 * sizeof(uint32_t) + sizeof(uint16_t);
+    const size_t pairs = sim_->search.dynamicNeighbors().pairs();
+    return n * perFluid + sim_->boundary.size() * (2 * sizeof(Vec<D>) + sizeof(Real)) +
+           pairs * (sizeof(uint32_t) + D * sizeof(Real));
+  }
+
+  // With mutex_ held: the counters state() reads.
+  void publishCountsLocked() {
+    liquid_ = sim_->fluid.size();
+    temporary_ =
+        size_t(std::count(sim_->fluid.kind.begin(), sim_->fluid.kind.end(), uint8_t(ParticleKind::Temporary)));
+    boundary_ = sim_->boundary.size();
+    instances_ = bound_.size();
+    hasControl_ = controlStage_ != nullptr;
+    simBytes_ = simulationBytes();
+  }
+
+  // With mutex_ held: history cleared, frame 0 (or the current state) recorded and shown.
+  void recordInitialFrame() {
+    history_.clear();
+    historyBytes_ = 0;
+    dropped_ = 0;
+    replay_ = nullptr;
+    FramePtr f = makeSnapshot(initialStats());
+    live_ = f;
+    recordLocked(f);
+    publishCountsLocked();
+  }
+
+  void recordLocked(const FramePtr& f) {
+    history_.push_back(f);
+    historyBytes_ += f->byteSize;
+    while (historyBytes_ > options_.historyCapBytes && !history_.empty()) {
+      historyBytes_ -= history_.front()->byteSize;
+      history_.pop_front();
+      ++dropped_;
+    }
+  }
+
+  void run() {
+    if (options_.threads > 0) omp_set_num_threads(options_.threads);
+    std::unique_lock lk(mutex_);
+    while (!stop_) {
+      if (!ops_.empty()) {
+        Op op = std::move(ops_.front());
+        ops_.pop_front();
+        busy_ = true;
+        lk.unlock();
+        if (op.reset)
+          doReset();
+        else
+          doEdit(op);
+        lk.lock();
+        busy_ = false;
+        idleCv_.notify_all();
+        continue;
+      }
+      const bool advancing = status_ == SessionStatus::Playing || status_ == SessionStatus::Stepping;
+      if (!advancing) {
+        idleCv_.notify_all();
+        cv_.wait(lk, [&] {
+          return stop_ || !ops_.empty() || status_ == SessionStatus::Playing || status_ == SessionStatus::Stepping;
+        });
+        continue;
+      }
+      if (status_ == SessionStatus::Playing && speed_ > 0) {
+        const auto due = lastStart_ + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1 / speed_));
+        if (Clock::now() < due) {
+          const uint64_t sig = signal_;
+          cv_.wait_until(lk, due, [&] { return stop_ || signal_ != sig || !ops_.empty(); });
+          continue;
+        }
+      }
+      lastStart_ = Clock::now();
+      computing_ = true;
+      lk.unlock();
+      computeFrame(lk);
+    }
+    // Closing: what is still queued is answered, never applied.
+    std::deque<Op> left;
+    left.swap(ops_);
+    lk.unlock();
+    for (Op& op : left)
+      if (!op.reset) op.promise->set_value(closedResult(op));
+  }
+
+  // Called with mutex_ released; returns with it held.
+  void computeFrame(std::unique_lock<std::mutex>& lk) {
+    FrameStats fs = sim_->advanceFrame();
+    fs.frame += frameBase_;
+    fs.time += timeBase_;
+    FramePtr snap;
+    if (fs.finite) snap = makeSnapshot(fs);
+    lk.lock();
+    computing_ = false;
+    bool frameChanged = false, stateChanged = false;
+    if (!fs.finite) {
+      // Never published: the last good frame stays the newest.
+      status_ = SessionStatus::Error;
+      stepsLeft_ = 0;
+      errorFrame_ = fs.frame;
+      char t[32];
+      std::snprintf(t, sizeof t, "%.6g", fs.time);
+      errorMessage_ = "non-finite position or velocity at frame " + std::to_string(fs.frame) + " (t = " + t +
+                      " s); the simulation is paused";
+      stateChanged = true;
+    } else {
+      live_ = snap;
+      recordLocked(snap);
+      publishCountsLocked();
+      frameChanged = replay_ == nullptr;
+      if (status_ == SessionStatus::Stepping && --stepsLeft_ <= 0) {
+        status_ = SessionStatus::Paused;
+        stepsLeft_ = 0;
+        stateChanged = true;
+      }
+    }
+    if (!frameChanged && !stateChanged) {
+      idleCv_.notify_all();
+      return;
+    }
+    notifying_ = true;  // idle only once the listeners have heard of it
+    lk.unlock();
+    if (frameChanged) notifyFrame();
+    if (stateChanged) notifyState();
+    lk.lock();
+    notifying_ = false;
+    idleCv_.notify_all();
+  }
+
+  void doReset() {
+    std::string failure;
+    try {
+      buildSimulation();
+    } catch (const std::exception& e) {
+      failure = e.what();
+    }
+    {
+      std::lock_guard lk(mutex_);
+      if (failure.empty()) {
+        recordInitialFrame();
+        status_ = SessionStatus::Paused;
+        errorMessage_.clear();
+        errorFrame_ = -1;
+      } else {
+        status_ = SessionStatus::Error;
+        errorMessage_ = "reset failed: " + failure;
+        errorFrame_ = live_->frame;
+      }
+      stepsLeft_ = 0;
+      replay_ = nullptr;
+    }
+    notifyFrame();
+    notifyState();
+  }
+
+  void doEdit(Op& op) {
+    EditResult r;
+    r.id = op.id;
+    r.kind = op.edit.kind;
+    r.instance = op.edit.instance;
+    try {
+      applyEdit(op.edit, r);
+      r.accepted = true;
+      r.frame = nextFrame();
+    } catch (const SceneError& e) {
+      r.path = e.path;
+      r.message = e.what();
+    } catch (const std::exception& e) {
+      r.message = e.what();
+    }
+    {
+      std::lock_guard lk(mutex_);
+      --pendingEdits_;
+      results_[r.id] = r;
+      while (results_.size() > kKeptResults) results_.erase(results_.begin());
+      if (r.accepted) {
+        sceneShared_ = scene_;
+        publishCountsLocked();
+      }
+    }
+    op.promise->set_value(r);
+    notify([&](const SessionListener& l) {
+      if (l.edit) l.edit(r);
+    });
+    if (r.accepted) notifyState();
+  }
+
+  size_t findInstance(const std::string& name) const {
+    std::vector<std::string> names;
+    for (size_t i = 0; i < control_.instances.size(); ++i) {
+      if (control_.instances[i].name == name) return i;
+      names.push_back(control_.instances[i].name);
+    }
+    throw SceneError("name", "no instance named '" + name + "' (the scene has " +
+                                 (names.empty() ? std::string("none") : joined(names)) + ")");
+  }
+
+  // Validates fully, then applies; throws (changing nothing) when invalid.
+  void applyEdit(const Edit& e, EditResult& r) {
+    if (e.kind == EditKind::Settings) {
+      applySettings(e.payload);
+      return;
+    }
+    json candidate = scene_;
+    json& list = candidate["instances"];
+    if (!list.is_array()) list = json::array();
+    size_t index = 0;
+    switch (e.kind) {
+      case EditKind::AddInstance:
+        if (!e.payload.is_object())
+          throw SceneError("instance", std::string("must be an instance object, got ") + e.payload.type_name());
+        index = list.size();
+        list.push_back(e.payload);
+        break;
+      case EditKind::UpdateInstance:
+        if (!e.payload.is_object())
+          throw SceneError("patch", std::string("must be a JSON merge patch object, got ") + e.payload.type_name());
+        index = findInstance(e.instance);
+        list[index].merge_patch(e.payload);
+        break;
+      case EditKind::RemoveInstance:
+        index = findInstance(e.instance);
+        list.erase(list.begin() + long(index));
+        break;
+      case EditKind::Settings:
+        break;
+    }
+    SceneControl<D> control = parseSceneControl<D>(candidate, setup_.phases);
+    if (e.kind != EditKind::RemoveInstance) r.instance = control.instances.at(index).name;
+    std::vector<BoundInstance<D>> bound;
+    if (!control.instances.empty()) bound = bindInstances<D>(control.instances, db_);
+    // Valid: apply. Adding the first instance adds the control stage; once
+    // there it stays (with no instances it only retires temporary particles).
+    if (controlStage_) {
+      controlStage_->setInstances(bound);
+      bound_ = std::move(bound);
+    } else if (!bound.empty()) {
+      std::swap(bound_, bound);
+      try {
+        attachControlStage(*sim_, control.settings);
+      } catch (...) {
+        std::swap(bound_, bound);
+        throw;
+      }
+    }
+    control_ = std::move(control);
+    scene_ = canonicalScene<D>(setup_, control_);
+  }
+
+  // A new simulation from the patched settings, carrying the current
+  // particles over; the scene clock and frame numbers continue.
+  void applySettings(const json& payload) {
+    if (!payload.is_object())
+      throw SceneError("", std::string("a settings edit must be an object, got ") + payload.type_name());
+    json candidate = scene_;
+    for (const auto& [k, v] : payload.items()) {
+      if (std::find(kSettingsKeys.begin(), kSettingsKeys.end(), k) == kSettingsKeys.end())
+        throw SceneError(k, "cannot be changed by a settings edit (it may change " + joined(kSettingsKeys) + ")");
+      if (!v.is_object())
+        throw SceneError(k, std::string("must be an object (a merge patch of the scene's \"") + k + "\"), got " +
+                                v.type_name());
+      json& target = candidate[k];
+      const auto m = v.find("method");
+      if (k == "solver" && m != v.end() && m->is_string() && target.is_object() && target.value("method", "") != *m) {
+        // Another method: its own parameters, not the old method's.
+        json solver = json::object();
+        for (const auto& [pk, pv] : v.items())
+          if (!pv.is_null()) solver[pk] = pv;
+        target = solver;
+      } else {
+        target.merge_patch(v);
+      }
+    }
+    SimulationSetup<D> setup = parseScene<D>(candidate);
+    SceneControl<D> control = parseSceneControl<D>(candidate, setup.phases);
+    std::unique_ptr<Simulation<D>> sim = makeSimulation<D>(setup);
+
+    // Carry the particles over (every kind, in order).
+    const auto& from = sim_->fluid;
+    std::vector<uint32_t> all(sim->fluid.size());
+    std::iota(all.begin(), all.end(), 0u);
+    sim->removeParticles(all);
+    std::vector<NewParticle<D>> add(from.size());
+    for (size_t i = 0; i < from.size(); ++i)
+      add[i] = {from.x[i], from.v[i], from.mass[i], from.phase[i], ParticleKind(from.kind[i])};
+    sim->appendParticles(add);
+
+    const int frameBase = frameBase_ + sim_->frame();
+    const double timeBase = timeBase_ + sim_->time();
+    const double oldTimeBase = timeBase_;
+    Control<D>* oldStage = controlStage_;
+    if (oldStage) {
+      timeBase_ = timeBase;
+      try {
+        attachControlStage(*sim, control.settings);
+      } catch (...) {
+        timeBase_ = oldTimeBase;
+        controlStage_ = oldStage;
+        throw;
+      }
+    }
+    sim_ = std::move(sim);
+    frameBase_ = frameBase;
+    timeBase_ = timeBase;
+    setup_ = std::move(setup);
+    control_ = std::move(control);
+    scene_ = canonicalScene<D>(setup_, control_);
+  }
+
+  // ======== shared state (mutex_ held) ========
+
+  bool idleLocked() const {
+    return !computing_ && !busy_ && !notifying_ && ops_.empty() &&
+           (status_ == SessionStatus::Paused || status_ == SessionStatus::Error);
+  }
+
+  FramePtr findFrame(int frame) const {
+    auto it = std::lower_bound(history_.begin(), history_.end(), frame,
+                               [](const FramePtr& f, int n) { return f->frame < n; });
+    return it != history_.end() && (*it)->frame == frame ? *it : nullptr;
+  }
+
+  std::string errorText() const {
+    return "session '" + id_ + "' is in the error state: " + errorMessage_;
+  }
+
+  EditResult closedResult(const Op& op) const {
+    EditResult r;
+    r.id = op.id;
+    r.kind = op.edit.kind;
+    r.instance = op.edit.instance;
+    r.message = "the session was closed before the edit was applied";
+    return r;
+  }
+
+  json stateLocked() const {
+    const FramePtr shown = replay_ ? replay_ : live_;
+    json history = {{"frames", history_.size()},
+                    {"bytes", historyBytes_},
+                    {"cap", options_.historyCapBytes},
+                    {"dropped", dropped_},
+                    {"first", history_.empty() ? json(nullptr) : json(history_.front()->frame)},
+                    {"last", history_.empty() ? json(nullptr) : json(history_.back()->frame)}};
+    const size_t frameBytes = live_->byteSize;
+    json j = {{"id", id_},
+              {"name", name_},
+              {"dimension", D},
+              {"status", statusName(status_)},
+              {"frame", live_->frame},
+              {"time", live_->time},
+              {"playback_speed", speed_},
+              {"shown", {{"live", replay_ == nullptr}, {"frame", shown->frame}}},
+              {"history", history},
+              {"stats", frameStatsToJson(live_->stats, hasControl_)},
+              {"particles", {{"liquid", liquid_ - temporary_}, {"temporary", temporary_}, {"boundary", boundary_}}},
+              {"instances", instances_},
+              {"pending_edits", pendingEdits_},
+              {"steps_left", stepsLeft_},
+              {"memory",
+               {{"history_bytes", historyBytes_},
+                {"frame_bytes", frameBytes},
+                {"history_bytes_per_1000_frames", frameBytes * 1000},
+                {"simulation_bytes", simBytes_},
+                {"total_bytes", historyBytes_ + simBytes_}}}};
+    if (status_ == SessionStatus::Error) j["error"] = {{"message", errorMessage_}, {"frame", errorFrame_}};
+    return j;
+  }
+
+  // ======== notification (no session lock held) ========
+
+  void wake() {
+    cv_.notify_all();
+    idleCv_.notify_all();
+  }
+
+  template <class F>
+  void notify(F&& call) {
+    std::lock_guard lk(listenerMutex_);
+    std::vector<std::shared_ptr<SessionListener>> ls;
+    ls.reserve(listeners_.size());
+    for (auto& [id, l] : listeners_) ls.push_back(l);
+    for (size_t k = 0; k < ls.size(); ++k) {
+      // Unsubscribed by an earlier listener of this round: skip.
+      bool still = false;
+      for (auto& [id, l] : listeners_) still = still || l == ls[k];
+      if (!still) continue;
+      try {
+        call(*ls[k]);
+      } catch (...) {
+        // A listener's failure is its own; the session goes on.
+      }
+    }
+  }
+
+  // The latest slot is read under the listener lock, so that the last
+  // notification always carries the current slot (calls may repeat a frame).
+  void notifyFrame() {
+    std::lock_guard lk(listenerMutex_);
+    if (listeners_.empty()) return;
+    const FramePtr f = latestFrame();
+    notify([&](const SessionListener& l) {
+      if (l.frame) l.frame(f);
+    });
+  }
+
+  void notifyState() {
+    std::lock_guard lk(listenerMutex_);
+    if (listeners_.empty()) return;
+    const json s = state();
+    notify([&](const SessionListener& l) {
+      if (l.state) l.state(s);
+    });
+  }
+
+  // ---- immutable ----
+  const std::string id_;
+  std::string name_;
+  TemplateDatabase& db_;
+  const SessionOptions options_;
+
+  // ---- owned by the session's thread ----
+  json scene_;
+  SimulationSetup<D> setup_;
+  SceneControl<D> control_;
+  std::vector<BoundInstance<D>> bound_;
+  std::unique_ptr<Simulation<D>> sim_;
+  Control<D>* controlStage_ = nullptr;
+  int frameBase_ = 0;      // scene frame of the simulation's frame 0
+  double timeBase_ = 0;    // scene time of the simulation's time 0
+  Clock::time_point lastStart_{};
+
+  // ---- shared, under mutex_ ----
+  mutable std::mutex mutex_;
+  std::condition_variable cv_;               // wakes the session's thread
+  mutable std::condition_variable idleCv_;   // wakes waitIdle / waitForFrame
+  bool stop_ = false;
+  SessionStatus status_ = SessionStatus::Paused;
+  int stepsLeft_ = 0;
+  double speed_ = 0;
+  uint64_t signal_ = 0;      // bumped by every command (ends a paced wait)
+  bool computing_ = false;   // a frame is in progress
+  bool busy_ = false;        // an edit or reset is being applied (and announced)
+  bool notifying_ = false;   // listeners are hearing of the last frame
+  std::deque<Op> ops_;
+  size_t pendingEdits_ = 0;
+  uint64_t lastEditId_ = 0;
+  std::map<uint64_t, EditResult> results_;
+  std::deque<FramePtr> history_;
+  size_t historyBytes_ = 0;
+  size_t dropped_ = 0;
+  FramePtr live_;            // newest simulated frame
+  FramePtr replay_;          // frame selected by seek (null: live)
+  json sceneShared_;
+  std::string errorMessage_;
+  int errorFrame_ = -1;
+  size_t liquid_ = 0, temporary_ = 0, boundary_ = 0, instances_ = 0, simBytes_ = 0;
+  bool hasControl_ = false;
+
+  // ---- listeners ----
+  std::recursive_mutex listenerMutex_;
+  std::map<uint64_t, std::shared_ptr<SessionListener>> listeners_;
+  uint64_t lastListenerId_ = 0;
+
+  std::thread thread_;
+};
+
+}  // namespace
+
+std::unique_ptr<Session> createSession(const std::string& id, const std::string& name, const json& scene,
+                                       TemplateDatabase& database, const SessionOptions& options) {
+  const int d = sceneDimension(scene);
+  if (d == 2) return std::make_unique<SessionImpl<2>>(id, name, scene, database, options);
+  return std::make_unique<SessionImpl<3>>(id, name, scene, database, options);
+}
+
+}  // namespace fc::service

@@ -1,0 +1,245 @@
+#pragma once
+// One simulation session (issue 5, "Sessions"): a scene simulated on its own
+// thread, driven from any thread by transport commands and edits, recording
+// every frame in a quantized replay history and publishing the newest frame
+// for streaming. No networking here: REST and WebSocket sit on top.
+//
+// Threads. Every public method may be called from any thread. The session's
+// own thread owns the simulation: it computes frames (OpenMP inside the
+// step), applies queued edits and resets at frame boundaries, records and
+// publishes frames. A paused session sits at a frame boundary, so edits sent
+// to it are applied at once (the frame they take effect in is the next one
+// computed).
+//
+// Listeners (subscribe) are called without any session lock held, serialised
+// with each other (one call at a time per session), from the session's thread
+// (frames, edit results, state changes it causes) or from the thread that
+// called a transport method (play, pause, step, seek, speed). They must
+// return quickly and never block: a streaming client keeps the FramePtr or
+// just notes that a frame is ready and reads latestFrame() when it can send
+// (a slow consumer simply gets the newest frame, there is no queue). A
+// listener may call any method of the session except destroying it.
+// After unsubscribe() returns, the listener is never called again.
+//
+// Frame numbers are the scene's: frame 0 is the initial state, frame n ends
+// at scene time n / frame_rate (while the frame rate is unchanged).
+#include "io/scene.h"
+#include "io/template_database.h"
+#include "sph/simulation.h"
+
+#include <nlohmann/json.hpp>
+
+#include <array>
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <future>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace fc::service {
+
+// What the stream shows of one template instance in a frame.
+struct InstanceSnapshot {
+  std::string name;
+  std::string templateName;
+  int phase = 0;                  // index into the scene's phases
+  bool active = false;            // playing during the frame
+  int templateFrame = -1;         // template frame played (-1: inactive)
+  double fidelity = -1;           // occupancy IoU (-1: not measured)
+  // Template space -> world at the frame's time: a homogeneous 4x4 matrix in
+  // column-major order (three.js Matrix4.elements); a 2D scene uses the
+  // top-left x/y block and leaves z as identity.
+  std::array<double, 16> toWorld{};
+  std::array<double, 3> regionMin{}, regionMax{};  // capture region, template space (z = 0 in 2D)
+  double falloffWidth = 0;        // m (world), the falloff band around the region
+};
+
+// One recorded frame, immutable once published (shared by the history, the
+// latest-frame slot and every consumer).
+struct FrameSnapshot {
+  static constexpr double kQuantizationLevels = 65535.0;
+
+  int dimension = 2;
+  int frame = 0;                  // scene frame number (0: initial state)
+  double time = 0;                // scene time at the frame's end, s
+  // Quantization box: the scene's domain (z = 0 in 2D). Axis d of particle i
+  // is positions[i * dimension + d] = round((x − min) / (max − min) · 65535),
+  // clamped to [0, 65535].
+  std::array<double, 3> domainMin{}, domainMax{};
+  std::vector<uint16_t> positions;  // liquid particles (all kinds), dimension values each
+  std::vector<uint8_t> kind;        // ParticleKind (Liquid, Temporary)
+  std::vector<uint8_t> phase;       // index into the scene's phases
+  FrameStats stats;                 // of the frame (frame 0: counts only)
+  std::vector<InstanceSnapshot> instances;
+  size_t byteSize = 0;              // bytes() at publication
+
+  size_t particles() const { return kind.size(); }
+  // Dequantized coordinate (m).
+  double position(size_t particle, int axis) const {
+    return domainMin[size_t(axis)] + double(positions[particle * size_t(dimension) + size_t(axis)]) /
+                                         kQuantizationLevels * (domainMax[size_t(axis)] - domainMin[size_t(axis)]);
+  }
+  // Memory held by this snapshot (what the history cap counts).
+  size_t bytes() const;
+  // What a frame of `particles` particles and `instances` instances holds in
+  // the history (instance names not counted): memory per 1000 frames is
+  // 1000 · estimateBytes(...).
+  static size_t estimateBytes(int dimension, size_t particles, size_t instances);
+};
+using FramePtr = std::shared_ptr<const FrameSnapshot>;
+
+// FrameStats as JSON (snake_case keys; the control keys and the per-instance
+// list only when the scene has a control stage, `controlled`).
+nlohmann::json frameStatsToJson(const FrameStats& stats, bool controlled);
+
+// ---- edits -----------------------------------------------------------------
+
+enum class EditKind { AddInstance, UpdateInstance, RemoveInstance, Settings };
+const char* editKindName(EditKind kind);  // "add_instance", "update_instance", "remove_instance", "settings"
+
+// An edit of the running scene. Payloads are the scene file's JSON:
+//   AddInstance     payload: an instance object (scenes/README.md, instances[i]).
+//   UpdateInstance  instance: its name; payload: a JSON merge patch (RFC 7396)
+//                   applied to the instance's full scene JSON (as sceneJson()
+//                   writes it; null removes a key, i.e. restores its default).
+//   RemoveInstance  instance: its name; no payload.
+//   Settings        payload: an object with any of "settings", "solver",
+//                   "control", each a merge patch on the scene's object of
+//                   that name. A "solver" patch naming another "method"
+//                   replaces the solver object (the other method's
+//                   parameters do not apply). The simulation is rebuilt
+//                   around the current particles (none lost; the scene clock
+//                   and frame numbers continue).
+struct Edit {
+  EditKind kind = EditKind::AddInstance;
+  std::string instance;
+  nlohmann::json payload;
+
+  // {"type": "add_instance", "instance": {...}}
+  // {"type": "update_instance", "name": "drop", "patch": {...}}
+  // {"type": "remove_instance", "name": "drop"}
+  // {"type": "settings", "settings": {...}, "solver": {...}, "control": {...}}
+  // Throws SceneError naming the key ("type", "name", "instance", "patch").
+  static Edit fromJson(const nlohmann::json& j);
+};
+
+struct EditResult {
+  uint64_t id = 0;
+  EditKind kind = EditKind::AddInstance;
+  bool accepted = false;
+  // Accepted: the first frame the edit affects (the frame computed next).
+  int frame = -1;
+  std::string instance;   // the instance concerned (an added one's resolved name)
+  std::string path;       // rejected: key path of the offending value in the scene ("instances[2].speed")
+  std::string message;    // rejected: what was wrong, starting with the path when there is one
+  // {"id", "type", "accepted", "frame" | "error": {"path", "message"}, "instance"}
+  nlohmann::json toJson() const;
+};
+
+struct EditTicket {
+  uint64_t id = 0;
+  std::shared_future<EditResult> result;
+};
+
+// ---- the session -------------------------------------------------------------
+
+enum class SessionStatus { Paused, Playing, Stepping, Error };
+const char* statusName(SessionStatus status);  // "paused", "playing", "stepping", "error"
+
+struct SessionOptions {
+  size_t historyCapBytes = size_t(512) << 20;  // replay history; oldest frames dropped beyond it
+  double playbackSpeed = 0;                     // frames per wall second while playing; 0: as fast as possible
+  int threads = 0;                              // OpenMP threads of this session's step (0: the default)
+};
+
+struct SessionListener {
+  std::function<void(const FramePtr&)> frame;            // the latest-frame slot changed (new frame or seek)
+  std::function<void(const EditResult&)> edit;           // an edit was accepted or rejected
+  std::function<void(const nlohmann::json&)> state;      // status or shown frame changed: state()
+};
+
+// Transport that cannot run (play or step in the error state, step(0)).
+struct SessionError : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+class Session {
+ public:
+  virtual ~Session() = default;  // stops the thread (after the frame in progress)
+
+  virtual const std::string& id() const = 0;
+  virtual const std::string& name() const = 0;
+  virtual int dimension() const = 0;
+
+  // Transport. play(): frames one after another at the playback speed.
+  // pause(): stops after the frame in progress. step(n): n more frames as
+  // fast as possible, then paused (n > 0). reset(): queued like an edit;
+  // rebuilds the simulation from the scene as edited so far, clears the
+  // history and any error, frame 0, paused. setPlaybackSpeed(fps): 0 = as
+  // fast as possible, else at most fps frames per wall second (>= 0). play
+  // and step throw SessionError in the error state (reset first).
+  virtual void play() = 0;
+  virtual void pause() = 0;
+  virtual void step(int frames) = 0;
+  virtual void reset() = 0;
+  virtual void setPlaybackSpeed(double framesPerSecond) = 0;
+  // Replay: pauses and shows the recorded frame (latestFrame() returns it,
+  // frame listeners get it) without touching the simulation, which goes on
+  // from its newest frame at the next play or step. Throws std::out_of_range
+  // if the frame is not in the history.
+  virtual FramePtr seek(int frame) = 0;
+
+  // Edits: queued, validated and applied by the session's thread at the next
+  // frame boundary, in order. A rejected edit changes nothing.
+  virtual EditTicket submit(Edit edit) = 0;
+  // The result of an edit, once known (the last 1024 are kept).
+  virtual std::optional<EditResult> editResult(uint64_t id) const = 0;
+
+  // The frame to show: the newest simulated frame, or the recorded frame a
+  // seek selected while replaying.
+  virtual FramePtr latestFrame() const = 0;
+  // A recorded frame (nullptr when not, or no longer, in the history).
+  virtual FramePtr frame(int frame) const = 0;
+  // The whole history, oldest first (shared snapshots, no copies).
+  virtual std::vector<FramePtr> history() const = 0;
+
+  // The scene with every accepted edit: sceneToJson + sceneControlToJson,
+  // every key written; parseScene/parseSceneControl read it back.
+  virtual nlohmann::json sceneJson() const = 0;
+  // {id, name, dimension, status, frame, time, playback_speed,
+  //  shown: {live, frame}, history: {first, last, frames, bytes, cap, dropped},
+  //  stats (last frame's), error: {message, frame} (error state only),
+  //  particles: {liquid, temporary, boundary}, instances, pending_edits,
+  //  steps_left, memory: {history_bytes, frame_bytes, history_bytes_per_1000_frames,
+  //  simulation_bytes, total_bytes}}
+  virtual nlohmann::json state() const = 0;
+  virtual SessionStatus status() const = 0;
+  // The newest simulated frame number (not the shown one).
+  virtual int currentFrame() const = 0;
+
+  virtual uint64_t subscribe(SessionListener listener) = 0;
+  virtual void unsubscribe(uint64_t id) = 0;
+
+  // Waits until the session is paused (or in error) with no edit or reset
+  // pending, no frame in progress and the listeners told of the last frame
+  // computed (its own calls; transport calls notify on the caller's thread).
+  // false on timeout.
+  virtual bool waitIdle(std::chrono::milliseconds timeout) const = 0;
+  // Waits until frame `frame` has been simulated, or the session stops
+  // advancing (paused with nothing pending, or error). true iff reached.
+  virtual bool waitForFrame(int frame, std::chrono::milliseconds timeout) const = 0;
+};
+
+// Validates the scene (parseScene, parseSceneControl, bindInstances against
+// `database`), builds the simulation, records frame 0 and starts the
+// session's thread, paused. Throws SceneError naming the key path of what is
+// wrong. `database` must outlive the session. An empty name takes the
+// scene's.
+std::unique_ptr<Session> createSession(const std::string& id, const std::string& name, const nlohmann::json& scene,
+                                       TemplateDatabase& database, const SessionOptions& options = {});
+
+}  // namespace fc::service

@@ -1,0 +1,645 @@
+// Sessions (service/session.h): transport on the session's own thread, edits
+// validated and applied at frame boundaries with the frame they took effect
+// in, the quantized replay history with its byte cap, seek, frame
+// publication, the error state of a non-finite simulation, and independence
+// of parallel sessions. Scenes are small 2D tanks built here; templates are
+// written to a temporary directory.
+#include "service/session.h"
+
+#include "io/scene.h"
+#include "io/template_database.h"
+#include "io/template_file.h"
+#include "tests/hdf5_test_util.h"
+
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <map>
+#include <mutex>
+#include <thread>
+
+namespace fc::service {
+namespace {
+
+using nlohmann::json;
+using fc::test::TempDir;
+using namespace std::chrono_literals;
+
+constexpr auto kWait = 4000ms;
+
+// 100 particles (a 10 × 10 block) in a 1 m tank.
+json smallScene(const std::string& name = "box") {
+  json j = json::parse(R"({
+    "dimension": 2, "particle_radius": 0.02,
+    "domain": {"min": [0, 0], "max": [1, 1]},
+    "fluid_blocks": [{"min": [0, 0], "max": [0.4, 0.4]}]
+  })");
+  j["name"] = name;
+  return j;
+}
+
+// A small template (4 × 4 particles rising slowly; 13 frames at 60 fps =
+// 0.2 s) captured in [lo, hi], as test_instance_scene.cpp writes them.
+void writeSmallTemplate(const std::string& dir, const std::string& name, int frames, const std::vector<double>& lo,
+                        const std::vector<double>& hi) {
+  Template<2> t;
+  TemplateHeader& h = t.header;
+  h.name = name;
+  h.dimension = 2;
+  h.frameRate = 60;
+  h.particleRadius = 0.01;
+  h.supportRadius = 0.04;
+  h.restDensity = 1000;
+  h.regionMin = lo;
+  h.regionMax = hi;
+  h.recipe = "{}";
+  h.createdBy = "flowclip tests";
+  const double dx = 2 * h.particleRadius;
+  for (int f = 0; f < frames; ++f) {
+    TemplateFrame<2> fr;
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 4; ++j) {
+        fr.x.push_back(Vec<2>(Real(lo[0] + dx + i * dx), Real(lo[1] + dx + j * dx + 0.001 * f)));
+        fr.v.push_back(Vec<2>(0, Real(0.06)));
+        fr.mass.push_back(Real(1000 * dx * dx));
+        fr.phase.push_back(0);
+      }
+    t.frames.push_back(std::move(fr));
+  }
+  std::filesystem::create_directories(dir);
+  writeTemplate<2>((std::filesystem::path(dir) / (name + ".h5")).string(), t);
+}
+
+struct Fixture {
+  TempDir tmp;
+  std::string dir = tmp.file("templates");
+  TemplateDatabase db{dir};
+  Fixture() { writeSmallTemplate(dir, "blob", 13, {0.05, 0.05}, {0.35, 0.35}); }
+};
+
+EditResult resultOf(const EditTicket& t) {
+  EXPECT_EQ(t.result.wait_for(kWait), std::future_status::ready);
+  return t.result.get();
+}
+
+int historyFrames(const Session& s) { return s.state()["history"]["frames"].get<int>(); }
+
+// ------------------------------------------------------------------ create ---
+
+TEST(SessionCreate, InvalidSceneThrowsWithKeyPath) {
+  Fixture fx;
+  json bad = smallScene();
+  bad["settings"] = {{"cfl_factor", 7}};
+  try {
+    createSession("s", "", bad, fx.db);
+    ADD_FAILURE() << "expected SceneError";
+  } catch (const SceneError& e) {
+    EXPECT_EQ(e.path, "settings.cfl_factor");
+  }
+  json unknown = smallScene();
+  unknown["instances"] = json::array({{{"template", "nope"}}});
+  try {
+    createSession("s", "", unknown, fx.db);
+    ADD_FAILURE() << "expected SceneError";
+  } catch (const SceneError& e) {
+    EXPECT_EQ(e.path, "instances[0].template");
+  }
+}
+
+TEST(SessionCreate, ThreeDimensionalScene) {
+  Fixture fx;
+  const json scene = json::parse(R"({
+    "dimension": 3, "particle_radius": 0.02,
+    "domain": {"min": [0, 0, 0], "max": [0.3, 0.3, 0.3]},
+    "fluid_blocks": [{"min": [0, 0, 0], "max": [0.12, 0.12, 0.12]}]
+  })");
+  auto s = createSession("3d", "named", scene, fx.db);
+  EXPECT_EQ(s->dimension(), 3);
+  EXPECT_EQ(s->name(), "named");
+  s->step(2);
+  ASSERT_TRUE(s->waitIdle(kWait));
+  const FramePtr f = s->latestFrame();
+  EXPECT_EQ(f->frame, 2);
+  EXPECT_EQ(f->particles(), 27u);
+  EXPECT_EQ(f->positions.size(), 81u);
+  EXPECT_EQ(f->bytes(), FrameSnapshot::estimateBytes(3, 27, 0));
+  EXPECT_EQ(s->sceneJson()["dimension"], 3);
+}
+
+TEST(SessionCreate, StartsPausedAtFrameZeroWithState) {
+  Fixture fx;
+  auto s = createSession("abc", "", smallScene("tank"), fx.db);
+  EXPECT_EQ(s->id(), "abc");
+  EXPECT_EQ(s->name(), "tank");
+  EXPECT_EQ(s->dimension(), 2);
+  EXPECT_EQ(s->status(), SessionStatus::Paused);
+  const json st = s->state();
+  EXPECT_EQ(st["status"], "paused");
+  EXPECT_EQ(st["frame"], 0);
+  EXPECT_EQ(st["particles"]["liquid"], 100);
+  EXPECT_GT(st["particles"]["boundary"].get<int>(), 0);
+  EXPECT_EQ(st["history"]["frames"], 1);
+  EXPECT_EQ(st["history"]["first"], 0);
+  EXPECT_EQ(st["history"]["dropped"], 0);
+  EXPECT_EQ(st["history"]["cap"], size_t(512) << 20);
+  EXPECT_TRUE(st["shown"]["live"].get<bool>());
+  EXPECT_FALSE(st.contains("error"));
+  const FramePtr f = s->latestFrame();
+  ASSERT_TRUE(f);
+  EXPECT_EQ(f->frame, 0);
+  EXPECT_EQ(f->particles(), 100u);
+  EXPECT_EQ(f->positions.size(), 200u);
+  // The block's lower-left particle sits one radius from the walls.
+  double minX = 1;
+  for (size_t i = 0; i < f->particles(); ++i) minX = std::min(minX, f->position(i, 0));
+  EXPECT_NEAR(minX, 0.02, 2.0 / 65535);
+  // Memory per frame: 100 particles × (2 × 2 + 2) bytes plus a fixed part.
+  EXPECT_EQ(f->bytes(), FrameSnapshot::estimateBytes(2, 100, 0));
+  EXPECT_EQ(st["memory"]["history_bytes_per_1000_frames"], 1000 * f->bytes());
+  // The scene as saved parses back.
+  const json scene = s->sceneJson();
+  EXPECT_EQ(scene["settings"]["cfl_factor"], 1.0);
+  EXPECT_NO_THROW(parseScene<2>(scene));
+  EXPECT_TRUE(scene["instances"].empty());
+}
+
+// --------------------------------------------------------------- transport ---
+
+TEST(SessionTransport, StepPlayPauseReset) {
+  Fixture fx;
+  auto s = createSession("t", "", smallScene(), fx.db);
+  s->step(3);
+  ASSERT_TRUE(s->waitIdle(kWait));
+  EXPECT_EQ(s->currentFrame(), 3);
+  EXPECT_EQ(s->status(), SessionStatus::Paused);
+  EXPECT_EQ(historyFrames(*s), 4);  // 0..3
+  EXPECT_NEAR(s->state()["time"].get<double>(), 3.0 / 60, 1e-9);
+
+  s->play();
+  EXPECT_EQ(s->status(), SessionStatus::Playing);
+  ASSERT_TRUE(s->waitForFrame(6, kWait));
+  s->pause();
+  ASSERT_TRUE(s->waitIdle(kWait));
+  const int paused = s->currentFrame();
+  EXPECT_GE(paused, 6);
+  EXPECT_EQ(s->status(), SessionStatus::Paused);
+  std::this_thread::sleep_for(50ms);
+  EXPECT_EQ(s->currentFrame(), paused);  // paused means paused
+  EXPECT_EQ(historyFrames(*s), paused + 1);
+
+  s->reset();
+  ASSERT_TRUE(s->waitIdle(kWait));
+  const json st = s->state();
+  EXPECT_EQ(st["frame"], 0);
+  EXPECT_EQ(st["time"], 0.0);
+  EXPECT_EQ(st["history"]["frames"], 1);
+  EXPECT_EQ(st["history"]["first"], 0);
+  EXPECT_EQ(st["history"]["last"], 0);
+  EXPECT_EQ(s->status(), SessionStatus::Paused);
+  EXPECT_THROW(s->step(0), SessionError);
+  EXPECT_THROW(s->setPlaybackSpeed(-1), SessionError);
+}
+
+TEST(SessionTransport, PlaybackSpeedCapsTheFrameRate) {
+  Fixture fx;
+  auto s = createSession("t", "", smallScene(), fx.db);
+  s->setPlaybackSpeed(20);  // 50 ms per frame at most
+  EXPECT_EQ(s->state()["playback_speed"], 20.0);
+  const auto t0 = std::chrono::steady_clock::now();
+  s->play();
+  ASSERT_TRUE(s->waitForFrame(5, kWait));
+  const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  s->pause();
+  EXPECT_GE(took, 4 * 0.05 - 0.01);  // frames 2..5 each waited for their slot
+}
+
+TEST(SessionTransport, FrameListenersSeeEveryFrameInOrder) {
+  Fixture fx;
+  std::mutex m;  // listener state outlives the session
+  std::vector<int> seen;
+  std::vector<std::string> states;
+  auto s = createSession("t", "", smallScene(), fx.db);
+  const uint64_t id = s->subscribe({[&](const FramePtr& f) {
+                                      std::lock_guard lk(m);
+                                      seen.push_back(f->frame);
+                                    },
+                                    nullptr,
+                                    [&](const json& st) {
+                                      std::lock_guard lk(m);
+                                      states.push_back(st["status"]);
+                                    }});
+  s->step(4);
+  ASSERT_TRUE(s->waitIdle(kWait));
+  {
+    std::lock_guard lk(m);
+    EXPECT_EQ(seen, (std::vector<int>{1, 2, 3, 4}));
+    ASSERT_FALSE(states.empty());
+    EXPECT_EQ(states.back(), "paused");
+  }
+  s->unsubscribe(id);
+  s->step(1);
+  ASSERT_TRUE(s->waitIdle(kWait));
+  std::lock_guard lk(m);
+  EXPECT_EQ(seen.size(), 4u);
+  EXPECT_EQ(s->latestFrame()->frame, 5);
+}
+
+// ------------------------------------------------------------------- edits ---
+
+TEST(SessionEdits, FromJsonNamesTheBadKey) {
+  const auto path = [](const json& j) {
+    try {
+      Edit::fromJson(j);
+    } catch (const SceneError& e) {
+      return e.path;
+    }
+    return std::string("(accepted)");
+  };
+  EXPECT_EQ(path(json{{"type", "jump"}}), "type");
+  EXPECT_EQ(path(json{{"name", "x"}}), "type");
+  EXPECT_EQ(path(json{{"type", "add_instance"}}), "instance");
+  EXPECT_EQ(path(json{{"type", "add_instance"}, {"instance", 3}}), "instance");
+  EXPECT_EQ(path(json{{"type", "update_instance"}, {"patch", json::object()}}), "name");
+  EXPECT_EQ(path(json{{"type", "remove_instance"}, {"name", "a"}, {"extra", 1}}), "extra");
+  EXPECT_EQ(path(json{{"type", "settings"}, {"settings", 1}}), "settings");
+  EXPECT_EQ(path(json{{"type", "settings"}, {"particle_radius", 1}}), "particle_radius");
+  const Edit e = Edit::fromJson(json{{"type", "update_instance"}, {"name", "a"}, {"patch", {{"speed", 2}}}});
+  EXPECT_EQ(e.kind, EditKind::UpdateInstance);
+  EXPECT_EQ(e.instance, "a");
+  EXPECT_EQ(e.payload["speed"], 2);
+}
+
+// Adding the first instance to a scene without instances adds the control
+// stage; the ack names the first frame simulated with it, and frames before
+// it carry no instance.
+TEST(SessionEdits, FirstInstanceAddsControlAtTheAcknowledgedFrame) {
+  Fixture fx;
+  auto s = createSession("e", "", smallScene(), fx.db);
+  s->step(2);
+  ASSERT_TRUE(s->waitIdle(kWait));
+  EXPECT_FALSE(s->latestFrame()->stats.instances.size());
+  EditResult r = resultOf(s->submit(Edit::fromJson(json{{"type", "add_instance"}, {"instance", {{"template", "blob"}}}})));
+  ASSERT_TRUE(r.accepted) << r.message;
+  EXPECT_EQ(r.frame, 3);  // paused at frame 2: the next frame is the first with it
+  EXPECT_EQ(r.instance, "blob");
+  EXPECT_EQ(s->editResult(r.id)->frame, 3);
+  EXPECT_EQ(s->sceneJson()["instances"].size(), 1u);
+  EXPECT_EQ(s->state()["instances"], 1);
+  s->step(1);
+  ASSERT_TRUE(s->waitIdle(kWait));
+  const FramePtr f = s->latestFrame();
+  EXPECT_EQ(f->frame, 3);
+  ASSERT_EQ(f->stats.instances.size(), 1u);
+  EXPECT_TRUE(f->stats.instances[0].active);
+  ASSERT_EQ(f->instances.size(), 1u);
+  EXPECT_EQ(f->instances[0].name, "blob");
+  EXPECT_TRUE(f->instances[0].active);
+  // Played where it was recorded: the region's centre maps to itself.
+  const auto& m = f->instances[0].toWorld;
+  EXPECT_NEAR(m[0] * 0.2 + m[4] * 0.2 + m[12], 0.2, 1e-9);
+  EXPECT_NEAR(m[1] * 0.2 + m[5] * 0.2 + m[13], 0.2, 1e-9);
+  EXPECT_EQ(s->frame(2)->instances.size(), 0u);
+  EXPECT_TRUE(s->state()["stats"].contains("control_ms"));
+
+  // Update (merge patch), then remove.
+  r = resultOf(s->submit(Edit::fromJson(
+      json{{"type", "update_instance"}, {"name", "blob"}, {"patch", {{"speed", 0.5}, {"name", "slow"}}}})));
+  ASSERT_TRUE(r.accepted) << r.message;
+  EXPECT_EQ(r.frame, 4);
+  EXPECT_EQ(r.instance, "slow");
+  json inst = s->sceneJson()["instances"][0];
+  EXPECT_EQ(inst["name"], "slow");
+  EXPECT_EQ(inst["speed"], 0.5);
+  EXPECT_EQ(inst["template"], "blob");
+  r = resultOf(s->submit(Edit::fromJson(json{{"type", "remove_instance"}, {"name", "slow"}})));
+  ASSERT_TRUE(r.accepted) << r.message;
+  EXPECT_TRUE(s->sceneJson()["instances"].empty());
+  s->step(1);
+  ASSERT_TRUE(s->waitIdle(kWait));
+  EXPECT_EQ(s->latestFrame()->instances.size(), 0u);
+  EXPECT_EQ(s->latestFrame()->stats.instances.size(), 0u);
+  EXPECT_EQ(s->status(), SessionStatus::Paused);
+}
+
+// While playing, the acknowledged frame is the first one computed with the
+// edit: the frame before it has no instance, that frame has one.
+TEST(SessionEdits, AppliedAtAFrameBoundaryWhilePlaying) {
+  Fixture fx;
+  auto s = createSession("e", "", smallScene(), fx.db);
+  s->play();
+  ASSERT_TRUE(s->waitForFrame(2, kWait));
+  const EditResult r =
+      resultOf(s->submit(Edit::fromJson(json{{"type", "add_instance"}, {"instance", {{"template", "blob"}}}})));
+  ASSERT_TRUE(r.accepted) << r.message;
+  ASSERT_TRUE(s->waitForFrame(r.frame, kWait));
+  s->pause();
+  ASSERT_TRUE(s->waitIdle(kWait));
+  ASSERT_GE(r.frame, 3);
+  const FramePtr before = s->frame(r.frame - 1), at = s->frame(r.frame);
+  ASSERT_TRUE(before && at);
+  EXPECT_EQ(before->stats.instances.size(), 0u);
+  EXPECT_EQ(at->stats.instances.size(), 1u);
+}
+
+TEST(SessionEdits, InvalidEditsAreRejectedNamingTheFieldAndNotApplied) {
+  Fixture fx;
+  json scene = smallScene();
+  scene["instances"] = json::array({{{"template", "blob"}, {"name", "a"}}});
+  std::mutex m;
+  std::vector<EditResult> heard;
+  auto s = createSession("e", "", scene, fx.db);
+  const json before = s->sceneJson();
+  s->subscribe({nullptr, [&](const EditResult& r) {
+                  std::lock_guard lk(m);
+                  heard.push_back(r);
+                }, nullptr});
+  struct Case {
+    json edit;
+    std::string path;
+    std::string mention;
+  };
+  const std::vector<Case> cases = {
+      {{{"type", "add_instance"}, {"instance", {{"template", "nope"}}}}, "instances[1].template", "nope"},
+      {{{"type", "add_instance"}, {"instance", {{"template", "blob"}, {"speed", -1}}}}, "instances[1].speed", "> 0"},
+      {{{"type", "add_instance"}, {"instance", {{"template", "blob"}, {"name", "a"}}}}, "instances[1].name",
+       "duplicate"},
+      {{{"type", "add_instance"}, {"instance", {{"template", "blob"}, {"colour", 1}}}}, "instances[1].colour", ""},
+      {{{"type", "add_instance"}, {"instance", {{"template", "blob"}, {"crop_end", 5}}}}, "instances[1].crop_end", ""},
+      {{{"type", "update_instance"}, {"name", "a"}, {"patch", {{"phase", "oil"}}}}, "instances[0].phase", "oil"},
+      {{{"type", "update_instance"}, {"name", "zz"}, {"patch", {{"speed", 2}}}}, "name", "zz"},
+      {{{"type", "remove_instance"}, {"name", "zz"}}, "name", "zz"},
+      {{{"type", "settings"}, {"settings", {{"cfl_factor", 5}}}}, "settings.cfl_factor", "5"},
+      {{{"type", "settings"}, {"settings", {{"dt_min", 0.01}, {"dt_max", 0.001}}}}, "settings.dt_min", ""},
+      {{{"type", "settings"}, {"solver", {{"density_tolerance_pct", 50}}}}, "solver.density_tolerance_pct", "50"},
+      {{{"type", "settings"}, {"solver", {{"method", "magic"}}}}, "solver.method", "magic"},
+      {{{"type", "settings"}, {"control", {{"fidelity_cell", 0}}}}, "control.fidelity_cell", ""},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.edit.dump());
+    const EditResult r = resultOf(s->submit(Edit::fromJson(c.edit)));
+    EXPECT_FALSE(r.accepted);
+    EXPECT_EQ(r.frame, -1);
+    EXPECT_EQ(r.path, c.path) << r.message;
+    EXPECT_EQ(r.message.rfind(c.path + ": ", 0), 0u) << r.message;
+    EXPECT_NE(r.message.find(c.mention), std::string::npos) << r.message;
+    const json rj = r.toJson();
+    EXPECT_FALSE(rj["accepted"].get<bool>());
+    EXPECT_EQ(rj["error"]["path"], c.path);
+  }
+  EXPECT_EQ(s->sceneJson(), before);
+  EXPECT_EQ(s->state()["pending_edits"], 0);
+  s->step(1);
+  ASSERT_TRUE(s->waitIdle(kWait));
+  EXPECT_EQ(s->latestFrame()->stats.instances.size(), 1u);  // still only "a"
+  std::lock_guard lk(m);
+  EXPECT_EQ(heard.size(), cases.size());
+}
+
+// A settings change rebuilds the simulation around the current particles:
+// none lost, none moved back to the initial block, the clock continues.
+TEST(SessionEdits, SettingsChangeKeepsParticlesAndClock) {
+  Fixture fx;
+  auto s = createSession("e", "", smallScene(), fx.db);
+  s->step(5);
+  ASSERT_TRUE(s->waitIdle(kWait));
+  const FramePtr f5 = s->latestFrame();
+  const EditResult r = resultOf(s->submit(Edit::fromJson(json{{"type", "settings"},
+                                                             {"settings", {{"cfl_factor", 0.5}, {"dt_max", 0.002}}},
+                                                             {"solver", {{"density_tolerance_pct", 0.05}}}})));
+  ASSERT_TRUE(r.accepted) << r.message;
+  EXPECT_EQ(r.frame, 6);
+  const json scene = s->sceneJson();
+  EXPECT_EQ(scene["settings"]["cfl_factor"], 0.5);
+  EXPECT_NEAR(scene["settings"]["dt_max"].get<double>(), 0.002, 1e-9);
+  EXPECT_NEAR(scene["solver"]["density_tolerance_pct"].get<double>(), 0.05, 1e-9);
+  EXPECT_EQ(scene["solver"]["method"], "dfsph");
+  s->step(1);
+  ASSERT_TRUE(s->waitIdle(kWait));
+  const FramePtr f6 = s->latestFrame();
+  EXPECT_EQ(f6->frame, 6);
+  EXPECT_NEAR(f6->time, 6.0 / 60, 1e-9);
+  EXPECT_EQ(f6->particles(), f5->particles());
+  EXPECT_GE(f6->stats.minDt, 0.0);
+  EXPECT_LE(f6->stats.maxDt, 0.002 + 1e-9);
+  // The particles carried on from frame 5 (falling by at most a few mm in a
+  // frame), which is not the initial block.
+  const auto sortedY = [](const FramePtr& f) {
+    std::vector<double> y;
+    for (size_t i = 0; i < f->particles(); ++i) y.push_back(f->position(i, 1));
+    std::sort(y.begin(), y.end());
+    return y;
+  };
+  const auto y5 = sortedY(f5), y6 = sortedY(f6), y0 = sortedY(s->frame(0));
+  double d56 = 0, d06 = 0;
+  for (size_t i = 0; i < y5.size(); ++i) {
+    d56 = std::max(d56, std::abs(y5[i] - y6[i]));
+    d06 = std::max(d06, std::abs(y0[i] - y6[i]));
+  }
+  EXPECT_LT(d56, d06);
+  // A method change takes the new method's defaults.
+  const EditResult w = resultOf(s->submit(Edit::fromJson(json{{"type", "settings"}, {"solver", {{"method", "wcsph"}}}})));
+  ASSERT_TRUE(w.accepted) << w.message;
+  EXPECT_EQ(s->sceneJson()["solver"]["method"], "wcsph");
+  EXPECT_FALSE(s->sceneJson()["solver"].contains("density_tolerance_pct"));
+  s->step(1);
+  ASSERT_TRUE(s->waitIdle(kWait));
+  EXPECT_EQ(s->latestFrame()->frame, 7);
+  EXPECT_EQ(s->latestFrame()->particles(), 100u);
+  // Reset rebuilds from the scene as edited.
+  s->reset();
+  ASSERT_TRUE(s->waitIdle(kWait));
+  EXPECT_EQ(s->currentFrame(), 0);
+  EXPECT_EQ(s->sceneJson()["solver"]["method"], "wcsph");
+}
+
+// The rebuilt simulation's control stage keeps the scene clock: instances
+// go on with the template frame they were at.
+TEST(SessionEdits, SettingsChangeKeepsInstancesOnTheSceneClock) {
+  Fixture fx;
+  json scene = smallScene();
+  scene["instances"] = json::array({{{"template", "blob"}}});
+  auto s = createSession("e", "", scene, fx.db);
+  s->step(3);
+  ASSERT_TRUE(s->waitIdle(kWait));
+  ASSERT_EQ(s->latestFrame()->stats.instances.size(), 1u);
+  EXPECT_EQ(s->latestFrame()->stats.instances[0].templateFrame, 2);  // frame 3 starts at t = 2/60
+  ASSERT_TRUE(resultOf(s->submit(Edit::fromJson(json{{"type", "settings"}, {"control", {{"fidelity_cell", 3}}}})))
+                  .accepted);
+  EXPECT_EQ(s->sceneJson()["control"]["fidelity_cell"], 3.0);
+  s->step(2);
+  ASSERT_TRUE(s->waitIdle(kWait));
+  const FramePtr f = s->latestFrame();
+  EXPECT_EQ(f->frame, 5);
+  ASSERT_EQ(f->stats.instances.size(), 1u);
+  EXPECT_EQ(f->stats.instances[0].templateFrame, 4);
+  EXPECT_EQ(s->frame(4)->stats.instances.at(0).templateFrame, 3);
+  EXPECT_EQ(f->particles(), s->frame(3)->particles() + f->stats.seededParticles + s->frame(4)->stats.seededParticles -
+                                f->stats.removedParticles - s->frame(4)->stats.removedParticles);
+}
+
+// ------------------------------------------------------------------ history ---
+
+TEST(SessionHistory, CapDropsTheOldestFramesAndSaysSo) {
+  Fixture fx;
+  const size_t frameBytes = FrameSnapshot::estimateBytes(2, 100, 0);
+  SessionOptions opt;
+  opt.historyCapBytes = frameBytes * 5 + frameBytes / 2;  // room for 5 frames
+  auto s = createSession("h", "", smallScene(), fx.db, opt);
+  s->step(10);
+  ASSERT_TRUE(s->waitIdle(kWait));
+  const json h = s->state()["history"];
+  EXPECT_EQ(h["frames"], 5);
+  EXPECT_EQ(h["first"], 6);
+  EXPECT_EQ(h["last"], 10);
+  EXPECT_EQ(h["dropped"], 6);  // frames 0..5
+  EXPECT_EQ(h["bytes"], 5 * frameBytes);
+  EXPECT_LE(h["bytes"].get<size_t>(), h["cap"].get<size_t>());
+  EXPECT_FALSE(s->frame(5));
+  EXPECT_TRUE(s->frame(6));
+  EXPECT_THROW(s->seek(2), std::out_of_range);
+  EXPECT_EQ(s->history().size(), 5u);
+  EXPECT_EQ(s->history().front()->frame, 6);
+  // Reset clears the history and the dropped count.
+  s->reset();
+  ASSERT_TRUE(s->waitIdle(kWait));
+  EXPECT_EQ(s->state()["history"]["dropped"], 0);
+  EXPECT_EQ(s->state()["history"]["frames"], 1);
+}
+
+TEST(SessionHistory, SeekShowsTheRecordedFrameAsPublished) {
+  Fixture fx;
+  std::mutex m;
+  std::map<int, std::vector<uint16_t>> published;
+  auto s = createSession("h", "", smallScene(), fx.db);
+  s->subscribe({[&](const FramePtr& f) {
+                  std::lock_guard lk(m);
+                  published[f->frame] = f->positions;
+                },
+                nullptr, nullptr});
+  s->step(6);
+  ASSERT_TRUE(s->waitIdle(kWait));
+  std::vector<uint16_t> at2;
+  {
+    std::lock_guard lk(m);
+    ASSERT_TRUE(published.count(2));
+    at2 = published[2];
+  }
+  const FramePtr f = s->seek(2);
+  ASSERT_TRUE(f);
+  EXPECT_EQ(f->frame, 2);
+  EXPECT_EQ(f->positions, at2);
+  EXPECT_NE(f->positions, s->frame(6)->positions);
+  EXPECT_EQ(s->latestFrame(), f);
+  json st = s->state();
+  EXPECT_FALSE(st["shown"]["live"].get<bool>());
+  EXPECT_EQ(st["shown"]["frame"], 2);
+  EXPECT_EQ(st["frame"], 6);  // the simulation did not move
+  EXPECT_EQ(st["status"], "paused");
+  // Stepping leaves replay and continues from the newest frame.
+  s->step(1);
+  ASSERT_TRUE(s->waitIdle(kWait));
+  st = s->state();
+  EXPECT_TRUE(st["shown"]["live"].get<bool>());
+  EXPECT_EQ(s->latestFrame()->frame, 7);
+}
+
+// ----------------------------------------------------- parallel and errors ---
+
+TEST(SessionParallel, TwoSessionsRunIndependently) {
+  Fixture fx;
+  SessionOptions opt;
+  opt.threads = 1;  // identical scenes then give identical frames
+  auto a = createSession("a", "", smallScene(), fx.db, opt);
+  auto b = createSession("b", "", smallScene(), fx.db, opt);
+  a->play();
+  b->play();
+  ASSERT_TRUE(a->waitForFrame(8, kWait));
+  ASSERT_TRUE(b->waitForFrame(8, kWait));
+  a->pause();
+  ASSERT_TRUE(a->waitIdle(kWait));
+  const int aFrame = a->currentFrame();
+  ASSERT_TRUE(b->waitForFrame(aFrame + 5, kWait));  // b goes on while a is paused
+  EXPECT_EQ(a->currentFrame(), aFrame);
+  EXPECT_EQ(b->status(), SessionStatus::Playing);
+  b->pause();
+  ASSERT_TRUE(b->waitIdle(kWait));
+  EXPECT_EQ(a->frame(8)->positions, b->frame(8)->positions);
+  // An edit of one is not seen by the other.
+  ASSERT_TRUE(resultOf(a->submit(Edit::fromJson(json{{"type", "settings"}, {"settings", {{"cfl_factor", 0.4}}}})))
+                  .accepted);
+  EXPECT_EQ(a->sceneJson()["settings"]["cfl_factor"], 0.4);
+  EXPECT_EQ(b->sceneJson()["settings"]["cfl_factor"], 1.0);
+}
+
+TEST(SessionErrors, NonFiniteFramePausesWithErrorOtherSessionContinues) {
+  Fixture fx;
+  // Gravity near the float limit with 0.1 s substeps: velocities overflow
+  // within a few substeps.
+  json blowup = smallScene("blowup");
+  blowup["gravity"] = {0, -3e38};
+  blowup["settings"] = {{"frame_rate", 1}, {"dt_min", 0.1}, {"dt_max", 0.1}};
+  std::atomic<bool> nonFinitePublished = false;
+  auto bad = createSession("bad", "", blowup, fx.db);
+  auto good = createSession("good", "", smallScene(), fx.db);
+  bad->subscribe({[&](const FramePtr& f) {
+                    if (!f->stats.finite) nonFinitePublished = true;
+                  },
+                  nullptr, nullptr});
+  good->play();
+  bad->play();
+  ASSERT_TRUE(bad->waitIdle(kWait));
+  EXPECT_EQ(bad->status(), SessionStatus::Error);
+  const json st = bad->state();
+  EXPECT_EQ(st["status"], "error");
+  ASSERT_TRUE(st.contains("error"));
+  const int errorFrame = st["error"]["frame"];
+  EXPECT_GE(errorFrame, 1);
+  EXPECT_NE(st["error"]["message"].get<std::string>().find("non-finite"), std::string::npos);
+  // The broken frame was never published nor recorded.
+  EXPECT_FALSE(nonFinitePublished);
+  EXPECT_EQ(bad->currentFrame(), errorFrame - 1);
+  EXPECT_FALSE(bad->frame(errorFrame));
+  EXPECT_EQ(st["history"]["last"], errorFrame - 1);
+  EXPECT_THROW(bad->play(), SessionError);
+  EXPECT_THROW(bad->step(1), SessionError);
+  // The other session keeps running.
+  const int g = good->currentFrame();
+  ASSERT_TRUE(good->waitForFrame(g + 3, kWait));
+  EXPECT_EQ(good->status(), SessionStatus::Playing);
+  good->pause();
+  // Reset clears the error (the scene still blows up when played again).
+  bad->reset();
+  ASSERT_TRUE(bad->waitIdle(kWait));
+  EXPECT_EQ(bad->status(), SessionStatus::Paused);
+  EXPECT_FALSE(bad->state().contains("error"));
+}
+
+TEST(SessionLifetime, DestructionDuringPlayIsPrompt) {
+  Fixture fx;
+  auto s = createSession("d", "", smallScene(), fx.db);
+  s->play();
+  ASSERT_TRUE(s->waitForFrame(2, kWait));
+  auto t0 = std::chrono::steady_clock::now();
+  const EditTicket t = s->submit(Edit::fromJson(json{{"type", "remove_instance"}, {"name", "none"}}));
+  s.reset();
+  const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  EXPECT_LT(took, 0.5);
+  // An edit submitted just before is answered (applied or closed), never lost.
+  ASSERT_EQ(t.result.wait_for(0ms), std::future_status::ready);
+  EXPECT_FALSE(t.result.get().accepted);
+
+  // Paced playback waiting for its next slot also stops at once.
+  auto p = createSession("p", "", smallScene(), fx.db);
+  p->setPlaybackSpeed(0.2);  // one frame per 5 s
+  p->play();
+  ASSERT_TRUE(p->waitForFrame(1, kWait));
+  t0 = std::chrono::steady_clock::now();
+  p.reset();
+  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 0.5);
+}
+
+}  // namespace
+}  // namespace fc::service
