@@ -18,7 +18,8 @@
 // return quickly and never block: a streaming client keeps the FramePtr or
 // just notes that a frame is ready and reads latestFrame() when it can send
 // (a slow consumer simply gets the newest frame, there is no queue). A
-// listener may call any method of the session except destroying it.
+// listener may call any method of the session except waitIdle/waitForFrame
+// (which wait for the listeners) and destroying it.
 // After unsubscribe() returns, the listener is never called again.
 //
 // Frame numbers are the scene's: frame 0 is the initial state, frame n ends
