@@ -83,6 +83,9 @@ class Control : public Effect<D> {
   const std::vector<Vec<D>>& controlAcceleration() const { return controlAcc_; }
   // Coverage α_j of the control particles of an active instance (eq. 3).
   const std::vector<Real>& coverage(size_t instance) const { return state_[instance].alpha; }
+  // Template space → world of an active instance, as used by the last
+  // evaluation (the frame's start, or the substep's with forces_every_substep).
+  const Affine<D>& toWorld(size_t instance) const { return state_[instance].toWorld; }
   // Occupancy IoU of an active instance at the last computeForces (-1: none).
   double fidelity(size_t instance) const { return state_[instance].fidelity; }
 
