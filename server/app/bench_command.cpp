@@ -1,5 +1,7 @@
 // `flowclip bench solver`: each (scene, solver) pair runs in its own child
 // process (`flowclip run --stats`), so that peak RSS is that run's alone.
+// `flowclip bench templates`: the template database. `bench control` lives in
+// bench_control.cpp.
 #include "app/commands.h"
 #include "io/template_database.h"
 #include "io/template_file.h"
@@ -14,6 +16,21 @@
 #include <vector>
 
 namespace fc::app {
+
+int runChild(const std::vector<std::string>& args) {
+  const pid_t pid = fork();
+  if (pid < 0) return -1;
+  if (pid == 0) {
+    std::vector<char*> argv;
+    for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    execv(argv[0], argv.data());
+    _exit(127);
+  }
+  int status = 0;
+  waitpid(pid, &status, 0);
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
 
 namespace {
 
@@ -43,21 +60,6 @@ struct BenchOptions {
   int threads = 0;
   std::string out;
 };
-
-int runChild(const std::vector<std::string>& args) {
-  const pid_t pid = fork();
-  if (pid < 0) return -1;
-  if (pid == 0) {
-    std::vector<char*> argv;
-    for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
-    argv.push_back(nullptr);
-    execv(argv[0], argv.data());
-    _exit(127);
-  }
-  int status = 0;
-  waitpid(pid, &status, 0);
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
 
 std::vector<std::string> defaultBenchScenes() {
   std::vector<std::string> found;
@@ -211,6 +213,8 @@ void addBenchCommand(CLI::App& app) {
     }
     if (code != Ok) throw ExitCode(code);
   });
+
+  addBenchControlCommand(*bench);
 }
 
 }  // namespace fc::app

@@ -2,18 +2,23 @@
 // Sub-commands of the flowclip executable.
 #include <CLI/CLI.hpp>
 #include <string>
+#include <vector>
 
 namespace fc::app {
 
 void addRunCommand(CLI::App& app);
 void addBenchCommand(CLI::App& app);
 void addTemplatesCommands(CLI::App& app);  // record, templates list|inspect|remove
+void addBenchControlCommand(CLI::App& bench);  // bench control (bench_control.cpp)
 
 // Exit codes shared by every command.
 enum ExitCode { Ok = 0, Failure = 1, BadInput = 2, SimulationFailed = 3, Interrupted = 130 };
 
 double peakRssMb();
 std::string selfExecutable();
+// Runs args[0] (an absolute path) with args in a child process and waits:
+// its exit status, -1 if it could not start or did not exit normally.
+int runChild(const std::vector<std::string>& args);
 
 // While a guard lives, Ctrl-C (SIGINT) only sets requested(), so a long
 // command can stop cleanly after its current frame; the previous handler is

@@ -15,6 +15,8 @@
 #include <fstream>
 #include <iostream>
 #include <optional>
+#include <string>
+#include <vector>
 
 namespace fc::app {
 
@@ -30,8 +32,47 @@ struct RunOptions {
   double particleRadius = 0;
   std::string solver;
   std::string templates = "templates";
+  std::vector<std::string> controlSettings;  // KEY=VALUE, over the scene's "control" object
   bool quiet = false;
 };
+
+// --control-setting KEY=VALUE: one of the scene's control settings
+// (controlSettingsSpecs) replaced, checked as the scene file's would be
+// (booleans as 0/1/true/false). `flowclip bench control` uses it to time
+// forces_every_substep.
+void overrideControlSettings(const std::vector<std::string>& overrides, ParamValues& settings) {
+  for (const auto& kv : overrides) {
+    const size_t eq = kv.find('=');
+    const std::string key = kv.substr(0, eq);
+    const ParamSpec* spec = findSpec(controlSettingsSpecs(), key);
+    if (eq == std::string::npos || !spec)
+      throw SceneError("control", "--control-setting '" + kv + "': expected KEY=VALUE with KEY a control setting");
+    const std::string text = kv.substr(eq + 1);
+    const auto bad = [&](const std::string& why) {
+      return SceneError("control." + key, "'" + text + "' given by --control-setting: " + why);
+    };
+    double value = 0;
+    if (spec->type == ParamType::Boolean && (text == "true" || text == "false")) {
+      value = text == "true" ? 1 : 0;
+    } else {
+      size_t used = 0;
+      try {
+        value = std::stod(text, &used);
+      } catch (const std::exception&) {
+        used = 0;
+      }
+      if (used == 0 || used != text.size()) throw bad("not a number");
+    }
+    if (spec->type == ParamType::Boolean && value != 0 && value != 1) throw bad("must be 0, 1, true or false");
+    if (spec->type == ParamType::Integer && value != std::floor(value)) throw bad("must be an integer");
+    if (!(value >= spec->min && value <= spec->max)) {
+      char range[64];
+      std::snprintf(range, sizeof(range), "must be in [%g, %g]", spec->min, spec->max);
+      throw bad(range);
+    }
+    settings.set(key, value);
+  }
+}
 
 nlohmann::json frameJson(const FrameStats& s, bool controlled) {
   nlohmann::json j = {{"frame", s.frame},
@@ -103,7 +144,8 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
     setup.solver.name = opt.solver;
     setup.solver.values = ParamValues();  // that solver's defaults
   }
-  const SceneControl<D> control = parseSceneControl<D>(sceneJson, setup.phases);
+  SceneControl<D> control = parseSceneControl<D>(sceneJson, setup.phases);
+  overrideControlSettings(opt.controlSettings, control.settings);
   Simulation<D> sim(setup);
   TemplateDatabase database(opt.templates);
   const auto tBind = std::chrono::steady_clock::now();
@@ -254,6 +296,8 @@ void addRunCommand(CLI::App& app) {
       ->check(CLI::PositiveNumber);
   run->add_option("--solver", opt->solver, "override the scene's pressure solver (its default parameters)");
   run->add_option("--templates", opt->templates, "template database directory (default: templates)");
+  run->add_option("--control-setting", opt->controlSettings,
+                  "override a control setting of the scene, KEY=VALUE (e.g. forces_every_substep=1); repeatable");
   run->add_flag("--quiet", opt->quiet, "no progress line or summary");
   run->callback([opt] {
     if (opt->threads > 0) omp_set_num_threads(opt->threads);

@@ -90,3 +90,12 @@ fc_cli_expect(cli_record_bad_region 2 "capture.region.min[1]:" record ${FC_BAD_R
 fc_cli_expect(cli_record_bad_name 2 "capture.name: invalid template name '../evil'" record ${FC_BAD_RECIPES}/bad_name.json --templates ${FC_BAD_RECIPES})
 fc_cli_expect(cli_templates_inspect_path 2 "invalid template name '../x'" templates inspect ../x --templates ${FC_BAD_RECIPES})
 fc_cli_expect(cli_templates_inspect_missing 2 "no template 'nosuch'" templates inspect nosuch --templates ${FC_BAD_RECIPES})
+
+# bench control: both ways of applying the forces on drop2d, two frames past
+# the instance's start (t = 0.2 s); the table and a verdict are printed.
+fc_cli_expect(cli_bench_control 0 "drop2d: control is"
+  bench control ${FC_CLI_TESTS_DIR}/../../scenes/drop2d.json --frames 14 --threads 1 --templates ${FC_TEST_TEMPLATES})
+set_tests_properties(cli_bench_control PROPERTIES FIXTURES_REQUIRED test_templates)
+# run --control-setting is checked as the scene file's "control" object.
+fc_cli_expect(cli_run_bad_control_setting 2 "control.forces_every_substep: '2' given by --control-setting"
+  run ${FC_CLI_TESTS_DIR}/../../scenes/drop2d.json --frames 1 --control-setting forces_every_substep=2)
