@@ -345,17 +345,17 @@ void Control<D>::beginFrame(Simulation<D>& sim, FrameStats& fs) {
 template <int D>
 void Control<D>::addAccelerations(Simulation<D>& sim) {
   const bool everySubstep = settings_.get("forces_every_substep") != 0;
+  const auto t0 = Clock::now();
   if (forcesDue_ || everySubstep) {
-    const auto t0 = Clock::now();
     if (everySubstep && !forcesDue_) selectActive(sim.time() + timeOffset_);
     const Real applyFor = everySubstep ? Real(sim.setup().settings.get("dt_max")) : Real(sim.frameDuration());
     computeForces(sim, applyFor);
     forcesDue_ = false;
-    controlMs_ += msSince(t0);
   }
   const long m = long(controlled_.size());
 #pragma omp parallel for schedule(static) if (m >= kParallelMin)
   for (long k = 0; k < m; ++k) sim.fluid.a[controlled_[k]] += controlAcc_[controlled_[k]];
+  controlMs_ += msSince(t0);
 }
 
 template <int D>
