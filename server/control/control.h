@@ -128,6 +128,8 @@ class Control : public Effect<D> {
   std::vector<State> state_;          // one per instance
   std::vector<uint8_t> occupancy_;    // fidelity scratch
   std::vector<uint32_t> candidates_;  // gather scratch (kept: no allocation in a step)
+  std::vector<uint32_t> temporaryScratch_;  // removal pass scratch
+  std::vector<uint8_t> verdictScratch_;
   NeighborhoodSearch<D> localGrid_;   // gathered liquid in template space (for α)
   std::vector<Vec<D>> controlAcc_;    // per liquid particle
   std::vector<uint32_t> controlled_;  // particles with a non-zero controlAcc_

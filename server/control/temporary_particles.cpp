@@ -81,26 +81,38 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
   if (temporaries_ > 0) {
     const uint32_t grace = uint32_t(settings_.get("temporary_grace_frames"));
     const Real dtp = l * hL;
-    SpacingFilter<D> spacing(Real(0.95) * dtp);
-    for (long i = 0; i < n; ++i) {
-      if (f.kind[i] != uint8_t(ParticleKind::Temporary)) continue;
+    std::vector<uint32_t>& temporary = temporaryScratch_;
+    temporary.clear();
+    for (long i = 0; i < n; ++i)
+      if (f.kind[i] == uint8_t(ParticleKind::Temporary)) temporary.push_back(uint32_t(i));
+    // Per temporary particle, in parallel: 0 stays, 1 dense enough to go
+    // (subject to spacing), 2 past its grace period (goes regardless).
+    std::vector<uint8_t>& verdict = verdictScratch_;
+    verdict.assign(temporary.size(), 0);
+    const long nt = long(temporary.size());
+#pragma omp parallel for schedule(dynamic, 64)
+    for (long k = 0; k < nt; ++k) {
+      const uint32_t i = temporary[k];
       if (insideAnyInstance(f.x[i])) {  // no removal inside a box or its falloff band
         framesOutside_[i] = 0;
         continue;
       }
-      ++framesOutside_[i];
       // Past the grace period it goes whatever its surroundings (bounded
       // lifetime: the liquid's mass always returns to the scene's).
-      bool go = framesOutside_[i] > grace;
-      if (!go) {
-        Real rho = 0;  // density of the original (non-temporary) liquid
-        sim.search.forEachDynamicNear(f.x[i], hL, [&](uint32_t j, const Vec<D>&) {
-          if (f.kind[j] != uint8_t(ParticleKind::Temporary)) rho += f.mass[j] * W.W(Vec<D>(f.x[i] - f.x[j]));
-        });
-        go = rho > tau * sim.restDensity(size_t(i)) && spacing.tryKeep(f.x[i]);
+      if (++framesOutside_[i] > grace) {
+        verdict[k] = 2;
+        continue;
       }
-      if (go) remove.push_back(uint32_t(i));
+      Real rho = 0;  // density of the original (non-temporary) liquid
+      sim.search.forEachDynamicNear(f.x[i], hL, [&](uint32_t j, const Vec<D>&) {
+        if (f.kind[j] != uint8_t(ParticleKind::Temporary)) rho += f.mass[j] * W.W(Vec<D>(f.x[i] - f.x[j]));
+      });
+      verdict[k] = rho > tau * sim.restDensity(i) ? 1 : 0;
     }
+    // No two removals within d_tp of each other, in index order.
+    SpacingFilter<D> spacing(Real(0.95) * dtp);
+    for (long k = 0; k < nt; ++k)
+      if (verdict[k] == 2 || (verdict[k] == 1 && spacing.tryKeep(f.x[temporary[k]]))) remove.push_back(temporary[k]);
   }
 
   // ---- Algorithm 1 in [SPDM20]: seeding temporary particles ----
