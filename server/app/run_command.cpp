@@ -4,6 +4,7 @@
 #include "io/frame_export.h"
 #include "io/instance_binding.h"
 #include "io/scene.h"
+#include "io/stats_json.h"
 #include "sph/simulation.h"
 #include <nlohmann/json.hpp>
 #include <omp.h>
@@ -72,55 +73,6 @@ void overrideControlSettings(const std::vector<std::string>& overrides, ParamVal
     }
     settings.set(key, value);
   }
-}
-
-nlohmann::json frameJson(const FrameStats& s, bool controlled) {
-  nlohmann::json j = {{"frame", s.frame},
-          {"time", s.time},
-          {"wall_ms", s.wallMs},
-          {"substeps", s.substeps},
-          {"divergence_iterations", s.divergenceIterations},
-          {"density_iterations", s.densityIterations},
-          {"avg_density_error_pct", s.avgDensityErrorPct},
-          {"max_density_error_pct", s.maxDensityErrorPct},
-          {"converged", s.converged},
-          {"particles", s.particles},
-          {"boundary_particles", s.boundaryParticles},
-          {"escaped_particles", s.escapedParticles},
-          {"wall_contacts", s.wallContacts},
-          {"crossed_surface", s.crossedSurface},
-          {"max_speed", s.maxSpeed},
-          {"kinetic_energy", s.kineticEnergy},
-          {"min_dt", s.minDt},
-          {"max_dt", s.maxDt},
-          {"neighbor_ms", s.neighborMs},
-          {"density_ms", s.densityMs},
-          {"divergence_ms", s.divergenceMs},
-          {"non_pressure_ms", s.nonPressureMs},
-          {"pressure_ms", s.pressureMs},
-          {"avg_neighbors", s.avgNeighbors}};
-  if (!controlled) return j;  // a scene without instances pays nothing, in the stats too
-  // The paper's Table 1 columns, per frame.
-  j["liquid_particles"] = s.particles - s.temporaryParticles;
-  j["temporary_particles"] = s.temporaryParticles;
-  j["control_particles"] = s.controlParticles;
-  j["repulsion_particles"] = s.repulsionParticles;
-  j["controlled_particles"] = s.controlledParticles;
-  j["seeded_particles"] = s.seededParticles;
-  j["removed_particles"] = s.removedParticles;
-  j["control_ms"] = s.controlMs;
-  j["simulation_ms"] = s.wallMs - s.controlMs;
-  nlohmann::json inst = nlohmann::json::array();
-  for (const auto& i : s.instances)
-    inst.push_back({{"name", i.name},
-                    {"active", i.active},
-                    {"template_frame", i.templateFrame},
-                    {"fidelity", i.fidelity},
-                    {"controlled_particles", i.controlled},
-                    {"control_particles", i.controlParticles},
-                    {"repulsion_particles", i.repulsionParticles}});
-  j["instances"] = inst;
-  return j;
 }
 
 // Writes to a temporary name, then renames: a reader never sees half a file.
@@ -208,7 +160,7 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
                 std::to_string(s.time) + " s); simulation stopped";
       break;
     }
-    framesJson.push_back(frameJson(s, instances > 0));
+    framesJson.push_back(frameStatsToJson(s, instances > 0));
     if (exporter) exporter->writeFrame(s.frame, s.time, sim.fluid);
     if (!opt.quiet && (tty || f + 1 == frames || (f + 1) % std::max(1, frames / 20) == 0)) {
       const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();

@@ -43,53 +43,6 @@ size_t FrameSnapshot::estimateBytes(int dimension, size_t particles, size_t inst
          instances * (sizeof(InstanceFrameStats) + sizeof(InstanceSnapshot));
 }
 
-json frameStatsToJson(const FrameStats& s, bool controlled) {
-  json j = {{"frame", s.frame},
-            {"time", s.time},
-            {"wall_ms", s.wallMs},
-            {"substeps", s.substeps},
-            {"divergence_iterations", s.divergenceIterations},
-            {"density_iterations", s.densityIterations},
-            {"avg_density_error_pct", s.avgDensityErrorPct},
-            {"max_density_error_pct", s.maxDensityErrorPct},
-            {"converged", s.converged},
-            {"particles", s.particles},
-            {"boundary_particles", s.boundaryParticles},
-            {"escaped_particles", s.escapedParticles},
-            {"wall_contacts", s.wallContacts},
-            {"max_speed", s.maxSpeed},
-            {"kinetic_energy", s.kineticEnergy},
-            {"min_dt", s.minDt},
-            {"max_dt", s.maxDt},
-            {"neighbor_ms", s.neighborMs},
-            {"density_ms", s.densityMs},
-            {"divergence_ms", s.divergenceMs},
-            {"non_pressure_ms", s.nonPressureMs},
-            {"pressure_ms", s.pressureMs},
-            {"avg_neighbors", s.avgNeighbors},
-            {"finite", s.finite}};
-  if (!controlled) return j;
-  j["liquid_particles"] = s.particles - s.temporaryParticles;
-  j["temporary_particles"] = s.temporaryParticles;
-  j["control_particles"] = s.controlParticles;
-  j["repulsion_particles"] = s.repulsionParticles;
-  j["controlled_particles"] = s.controlledParticles;
-  j["seeded_particles"] = s.seededParticles;
-  j["removed_particles"] = s.removedParticles;
-  j["control_ms"] = s.controlMs;
-  json inst = json::array();
-  for (const auto& i : s.instances)
-    inst.push_back({{"name", i.name},
-                    {"active", i.active},
-                    {"template_frame", i.templateFrame},
-                    {"fidelity", i.fidelity},
-                    {"controlled_particles", i.controlled},
-                    {"control_particles", i.controlParticles},
-                    {"repulsion_particles", i.repulsionParticles}});
-  j["instances"] = inst;
-  return j;
-}
-
 // -------------------------------------------------------------------- edits ---
 
 const char* editKindName(EditKind kind) {

@@ -25,6 +25,7 @@
 // Frame numbers are the scene's: frame 0 is the initial state, frame n ends
 // at scene time n / frame_rate (while the frame rate is unchanged).
 #include "io/scene.h"
+#include "io/stats_json.h"
 #include "io/template_database.h"
 #include "sph/simulation.h"
 
@@ -93,9 +94,6 @@ struct FrameSnapshot {
 };
 using FramePtr = std::shared_ptr<const FrameSnapshot>;
 
-// FrameStats as JSON (snake_case keys; the control keys and the per-instance
-// list only when the scene has a control stage, `controlled`).
-nlohmann::json frameStatsToJson(const FrameStats& stats, bool controlled);
 
 // ---- edits -----------------------------------------------------------------
 
