@@ -81,7 +81,8 @@ void Control<D>::prepare(size_t i, double time) {
   s.kernel.setRadius(hT);
   // A world length w spans w / ‖L e_d‖ template units along template axis d.
   const Real width = Real(inst.spec.params.get("falloff_width"));
-  AABB<D> region = tpl.region();
+  s.region = tpl.region();
+  const AABB<D>& region = s.region;
   for (int d = 0; d < D; ++d) {
     const Real stretch = s.toWorld.linear.col(d).norm();
     s.falloff[d] = width / stretch;
@@ -121,7 +122,7 @@ void Control<D>::selectActive(double time) {
 template <int D>
 Real Control<D>::bandCoordinate(size_t i, const Vec<D>& y) const {
   const State& s = state_[i];
-  const AABB<D> region = instances_[i].templ().region();
+  const AABB<D>& region = s.region;
   Real frac2 = 0;
   for (int d = 0; d < D; ++d) {
     const Real out = std::max({region.min[d] - y[d], y[d] - region.max[d], Real(0)});
@@ -135,7 +136,7 @@ Real Control<D>::bandCoordinate(size_t i, const Vec<D>& y) const {
 
 template <int D>
 bool Control<D>::insideBox(size_t i, const Vec<D>& y) const {
-  return instances_[i].templ().region().contains(y);
+  return state_[i].region.contains(y);
 }
 
 template <int D>
@@ -281,7 +282,7 @@ template <int D>
 double Control<D>::measureFidelity(size_t i) {
   const State& s = state_[i];
   const BoundInstance<D>& inst = instances_[i];
-  const AABB<D> region = inst.templ().region();
+  const AABB<D>& region = s.region;
   const TemplateFrameGrids<D>& grids = inst.accel->frame(s.frame);
   Real radius = Real(inst.templ().header.particleRadius);
   if (!(radius > 0)) radius = s.kernel.radius() / 4;

@@ -96,6 +96,7 @@ class Control : public Effect<D> {
     Poly6<D> kernel;         // h_T of the template
     Affine<D> toWorld, toTemplate;
     Real volumeScale = 1;    // |det| of toWorld's linear part
+    AABB<D> region;          // the template's capture region (the instance box, template space)
     Vec<D> falloff;          // band width per template axis (template units)
     AABB<D> gatherBox;       // template space: region grown by max(band, h_T)
     AABB<D> worldBox;        // world AABB of gatherBox
