@@ -1,0 +1,67 @@
+"""Fixtures of the service tests (tests/test_service_*.py).
+
+`server` is one `flowclip serve` per test module (FLOWCLIP_BIN, default
+build/flowclip) with copies of the 2D templates and the scenes in a temporary
+directory (the tests delete templates and save scenes), --max-body-mb 1, and
+checked to exit 0 on SIGINT. Every `client` validates each response against
+proto/openapi.yaml as it arrives.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+
+import pytest
+
+from flowclip_client import FLOWCLIP_BIN, ROOT, FlowClipServer
+from openapi_check import OpenApiChecker
+
+TEMPLATES_2D = ("drop2d", "column2d", "jet2d")
+MAX_BODY_MB = 1
+
+
+@pytest.fixture(scope="session")
+def openapi():
+    return OpenApiChecker()
+
+
+@pytest.fixture(scope="session")
+def template_dir(tmp_path_factory):
+    """The 2D templates (recorded here when `make templates` has not)."""
+    assert FLOWCLIP_BIN.exists(), f"{FLOWCLIP_BIN} is missing: build first (make build) or set FLOWCLIP_BIN"
+    out = tmp_path_factory.mktemp("templates")
+    for name in TEMPLATES_2D:
+        src = ROOT / "templates" / f"{name}.h5"
+        if src.exists():
+            shutil.copy(src, out / src.name)
+        else:
+            subprocess.run([str(FLOWCLIP_BIN), "record", str(ROOT / "templates" / "recipes" / f"{name}.json"),
+                            "--templates", str(out), "--force", "--quiet"], check=True, timeout=300)
+    return out
+
+
+@pytest.fixture(scope="session")
+def scene_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("scenes")
+    for src in (ROOT / "scenes").glob("*.json"):
+        shutil.copy(src, out / src.name)
+    return out
+
+
+@pytest.fixture(scope="module")
+def server(template_dir, scene_dir, tmp_path_factory):
+    with FlowClipServer(template_dir, scene_dir, tmp_path_factory.mktemp("exports"),
+                        max_body_mb=MAX_BODY_MB) as s:
+        yield s
+    assert s.returncode == 0, "flowclip serve did not stop cleanly on SIGINT:\n" + "\n".join(s.output[-30:])
+
+
+@pytest.fixture
+def client(server, openapi):
+    c = server.client()
+    c.observers.append(openapi.observe)
+    yield c
+    # Sessions a test leaves behind would count against --max-sessions.
+    for st in c.sessions():
+        c.delete_session(st["id"])

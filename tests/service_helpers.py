@@ -1,0 +1,65 @@
+"""Scenes and checks shared by the service tests."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+
+def small_scene(name="box", particles_per_side=10, radius=0.02):
+    """A block of n × n particles resting in a 1 m tank (100 particles: ~1 ms a frame)."""
+    side = particles_per_side * 2 * radius
+    return {"name": name, "dimension": 2, "particle_radius": radius,
+            "domain": {"min": [0, 0], "max": [1, 1]},
+            "fluid_blocks": [{"min": [0, 0], "max": [side, side]}]}
+
+
+def heavy_frames_scene(name="heavy"):
+    """20 000 particles at rest, one cheap WCSPH frame after another (~8 ms a frame on one
+    thread): 120 kB a frame, ~15 MB of frames per second."""
+    return {"name": name, "dimension": 2, "particle_radius": 0.005,
+            "domain": {"min": [0, 0], "max": [2, 1]},
+            "fluid_blocks": [{"min": [0, 0], "max": [2, 0.5]}],
+            "solver": {"method": "wcsph"},
+            "settings": {"frame_rate": 1000, "dt_max": 0.001}}
+
+
+def blowup_scene(name="blowup"):
+    """server/tests/test_session.cpp's trick: gravity near the float limit with 0.1 s
+    substeps overflows the velocities within a few substeps (non-finite frame 1)."""
+    scene = small_scene(name)
+    scene["gravity"] = [0, -3e38]
+    scene["settings"] = {"frame_rate": 1, "dt_min": 0.1, "dt_max": 0.1}
+    return scene
+
+
+def drop_scene_without_instances(client, name="drop2d-copy"):
+    """scenes/drop2d.json as the server has it, its template instances taken out (inline)."""
+    scene = client.scene("drop2d")
+    scene = {k: v for k, v in scene.items() if k != "instances"}
+    scene["name"] = name
+    return scene
+
+
+def positions_of(frame_json):
+    """A REST JSON frame's positions as (count, dimension)."""
+    return np.asarray(frame_json["positions"], np.float64).reshape(frame_json["count"], frame_json["dimension"])
+
+
+def quantum(frame_json):
+    """The largest quantization error of a frame recorded against its domain (per axis)."""
+    dim = frame_json["dimension"]
+    extent = np.asarray(frame_json["domain_max"][:dim]) - np.asarray(frame_json["domain_min"][:dim])
+    return extent / 65535.0
+
+
+def wait_until(predicate, timeout=10.0, interval=0.02, what="condition"):
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{what} not reached within {timeout} s")
+        time.sleep(interval)
