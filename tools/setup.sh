@@ -8,6 +8,13 @@ cd "$(dirname "$0")/.."
 APT_PACKAGES=(build-essential cmake ninja-build pkg-config libeigen3-dev libhdf5-dev
   libflatbuffers-dev flatbuffers-compiler libboost-dev nlohmann-json3-dev
   libgtest-dev libbenchmark-dev libcli11-dev chromium python3-venv)
+# FLOWCLIP_HEADLESS=1 (docker/Dockerfile's server image): only what building
+# the server needs, no browser, Python venv or npm packages.
+if [ -n "${FLOWCLIP_HEADLESS:-}" ]; then
+  APT_PACKAGES=(build-essential cmake ninja-build pkg-config libeigen3-dev libhdf5-dev
+    libflatbuffers-dev flatbuffers-compiler libboost-dev nlohmann-json3-dev
+    libgtest-dev libbenchmark-dev libcli11-dev)
+fi
 
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
@@ -23,6 +30,7 @@ fi
 # Python venv for the scripted clients and h5py checks. Debian's python, not
 # pyenv's, so the venv module is the one apt installed.
 VENV=build/venv
+[ -n "${FLOWCLIP_HEADLESS:-}" ] && exit 0
 if [ ! -x "$VENV/bin/python" ] || ! cmp -s requirements.txt "$VENV/.requirements"; then
   echo "setup: creating Python venv in $VENV"
   mkdir -p build

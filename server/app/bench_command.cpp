@@ -215,6 +215,7 @@ void addBenchCommand(CLI::App& app) {
   });
 
   addBenchControlCommand(*bench);
+  addBenchServiceCommand(*bench);
 }
 
 }  // namespace fc::app

@@ -8,8 +8,10 @@ namespace fc::app {
 
 void addRunCommand(CLI::App& app);
 void addBenchCommand(CLI::App& app);
-void addTemplatesCommands(CLI::App& app);  // record, templates list|inspect|remove
+void addTemplatesCommands(CLI::App& app);
+void addServeCommand(CLI::App& app);      // serve (serve_command.cpp)  // record, templates list|inspect|remove
 void addBenchControlCommand(CLI::App& bench);  // bench control (bench_control.cpp)
+void addBenchServiceCommand(CLI::App& bench);  // bench service (bench_service.cpp)
 
 // Exit codes shared by every command.
 enum ExitCode { Ok = 0, Failure = 1, BadInput = 2, SimulationFailed = 3, Interrupted = 130 };

@@ -76,6 +76,7 @@ int main(int argc, char** argv) {
   fc::app::addRunCommand(app);
   fc::app::addBenchCommand(app);
   fc::app::addTemplatesCommands(app);
+  fc::app::addServeCommand(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -1,0 +1,354 @@
+// `flowclip bench service`: what the service costs (issue 5). Frame encode
+// time and bytes per particle; frames/s and MB/s delivered over loopback
+// WebSockets to 1 and to 8 clients for a 100k-particle frame; memory per
+// session and per 1000 replay frames; the idle server's RSS.
+//
+// Streaming is measured without the simulation in the way: a pump session
+// publishes two prepared 100k-particle frames alternately as fast as the
+// streams take them, so the figures are the network path's (encode, write,
+// loopback, client read), not the solver's.
+#include "app/commands.h"
+#include "io/scene.h"
+#include "service/http_server.h"
+#include "service/rest_api.h"
+
+#include <malloc.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <condition_variable>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <mutex>
+#include <random>
+#include <thread>
+
+namespace fc::app {
+
+namespace {
+
+using json = nlohmann::json;
+using Clock = std::chrono::steady_clock;
+namespace fs = std::filesystem;
+using namespace fc::service;
+
+struct ServiceBenchOptions {
+  int particles = 100000;
+  double seconds = 3;
+  std::vector<int> clients{1, 8};
+  std::string scene = "scenes/drop2d.json";
+  int frames = 300;
+  std::string templates = "templates";
+};
+
+// A 3D frame of n particles spread through a 1 m box, moving, 5 % of them
+// temporary, with two instance records: what a 3D scene streams.
+FramePtr syntheticFrame(int n, int frameNumber) {
+  auto f = std::make_shared<FrameSnapshot>();
+  f->dimension = 3;
+  f->frame = frameNumber;
+  f->time = frameNumber / 60.0;
+  f->domainMin = {0, 0, 0};
+  f->domainMax = {1, 1, 1};
+  std::mt19937 rng{uint32_t(frameNumber)};
+  std::uniform_int_distribution<int> q(0, 65535);
+  f->positions.resize(size_t(n) * 3);
+  f->velocities.resize(size_t(n) * 3);
+  f->velocityMax = {2, 2, 2};
+  for (auto& x : f->positions) x = uint16_t(q(rng));
+  for (auto& v : f->velocities) v = uint16_t(q(rng));
+  f->kind.assign(size_t(n), uint8_t(ParticleKind::Liquid));
+  for (int i = 0; i < n; i += 20) f->kind[size_t(i)] = uint8_t(ParticleKind::Temporary);
+  f->phase.assign(size_t(n), 0);
+  f->stats.frame = frameNumber;
+  f->stats.time = f->time;
+  f->stats.particles = size_t(n);
+  for (int i = 0; i < 2; ++i) {
+    InstanceSnapshot s;
+    s.name = "instance" + std::to_string(i);
+    s.templateName = "letter_S";
+    s.active = true;
+    s.templateFrame = frameNumber % 60;
+    s.toWorld = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0.2 * i, 0.1, 0.3, 1};
+    s.regionMax = {0.3, 0.3, 0.3};
+    s.falloffWidth = 0.05;
+    f->instances.push_back(s);
+  }
+  f->byteSize = f->bytes();
+  return f;
+}
+
+// A session that only publishes prepared frames, alternating between two,
+// as fast as its subscribers' streams take them (at most every 100 µs).
+class PumpSession final : public Session {
+ public:
+  PumpSession(FramePtr a, FramePtr b) : frames_{std::move(a), std::move(b)}, latest_(frames_[0]) {}
+  ~PumpSession() override { stop(); }
+
+  void start() {
+    thread_ = std::thread([this] {
+      size_t i = 0;
+      while (!stopping_) {
+        FramePtr f = frames_[++i % 2];
+        std::vector<SessionListener> listeners;
+        {
+          std::lock_guard lk(mutex_);
+          latest_ = f;
+          for (auto& [id, l] : listeners_) listeners.push_back(l);
+        }
+        published_.fetch_add(1);
+        for (auto& l : listeners)
+          if (l.frame) l.frame(f);
+        std::this_thread::sleep_for(std::chrono::microseconds(100));
+      }
+    });
+  }
+  void stop() {
+    stopping_ = true;
+    if (thread_.joinable()) thread_.join();
+  }
+  uint64_t published() const { return published_.load(); }
+
+  const std::string& id() const override { return id_; }
+  const std::string& name() const override { return id_; }
+  int dimension() const override { return 3; }
+  void play() override {}
+  void pause() override {}
+  void step(int) override { throw SessionError("the benchmark's pump session does not simulate"); }
+  void reset() override {}
+  void setPlaybackSpeed(double) override {}
+  FramePtr seek(int) override { throw std::out_of_range("the benchmark's pump session keeps no history"); }
+  EditTicket submit(Edit) override { throw SessionError("the benchmark's pump session takes no edits"); }
+  std::optional<EditResult> editResult(uint64_t) const override { return std::nullopt; }
+  FramePtr latestFrame() const override {
+    std::lock_guard lk(mutex_);
+    return latest_;
+  }
+  FramePtr frame(int) const override { return nullptr; }
+  std::vector<FramePtr> history() const override { return {}; }
+  json sceneJson() const override { return json::object(); }
+  json state() const override { return {{"id", id_}, {"status", "playing"}, {"frame", latestFrame()->frame}}; }
+  SessionStatus status() const override { return SessionStatus::Playing; }
+  int currentFrame() const override { return latestFrame()->frame; }
+  uint64_t subscribe(SessionListener l) override {
+    std::lock_guard lk(mutex_);
+    listeners_[++nextListener_] = std::move(l);
+    return nextListener_;
+  }
+  void unsubscribe(uint64_t id) override {
+    std::lock_guard lk(mutex_);
+    listeners_.erase(id);
+  }
+  bool waitIdle(std::chrono::milliseconds) const override { return true; }
+  bool waitForFrame(int, std::chrono::milliseconds) const override { return true; }
+  HistoryExport exportHistory(const std::string&, int, int) const override {
+    throw std::invalid_argument("the benchmark's pump session keeps no history");
+  }
+  TemplateEntry recordTemplate(TemplateDatabase&, const std::string&, const std::vector<double>&,
+                               const std::vector<double>&, int, int, bool) const override {
+    throw std::invalid_argument("the benchmark's pump session keeps no history");
+  }
+
+ private:
+  const std::string id_ = "pump";
+  std::array<FramePtr, 2> frames_;
+  mutable std::mutex mutex_;
+  FramePtr latest_;
+  std::map<uint64_t, SessionListener> listeners_;
+  uint64_t nextListener_ = 0;
+  std::atomic<bool> stopping_{false};
+  std::atomic<uint64_t> published_{0};
+  std::thread thread_;
+};
+
+double rssMbOf(pid_t pid) {
+  std::ifstream f("/proc/" + std::to_string(pid) + "/status");
+  std::string line;
+  while (std::getline(f, line))
+    if (line.rfind("VmRSS:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;
+  return 0;
+}
+
+void benchEncode(int n) {
+  const FramePtr f = syntheticFrame(n, 1);
+  flatbuffers::FlatBufferBuilder fbb(1 << 20);
+  encodeSnapshot(*f, "s1", wire::LayerFlags{}, fbb);  // warm the builder's memory
+  int reps = 0;
+  const auto t0 = Clock::now();
+  double elapsed = 0;
+  while (elapsed < 1.0 || reps < 5) {
+    encodeSnapshot(*f, "s1", wire::LayerFlags{}, fbb);
+    ++reps;
+    elapsed = std::chrono::duration<double>(Clock::now() - t0).count();
+  }
+  const double msPerFrame = elapsed / reps * 1e3;
+  std::printf("frame encoding (3D, %d particles, 2 instances)\n", n);
+  std::printf("  encode time          %8.3f ms per frame  (%.1f ns per particle, %d repetitions)\n", msPerFrame,
+              msPerFrame * 1e6 / n, reps);
+  std::printf("  message size         %8.2f bytes per particle  (%.2f MB per frame)\n", double(fbb.GetSize()) / n,
+              fbb.GetSize() / 1e6);
+  std::printf("  history              %8.2f bytes per particle-frame in memory (positions, velocities, kind, phase)\n",
+              double(FrameSnapshot::estimateBytes(3, size_t(n), 2)) / n);
+}
+
+void benchStreaming(int n, const std::vector<int>& clientCounts, double seconds) {
+  const fs::path tmp = fs::temp_directory_path() / ("flowclip-bench-service-" + std::to_string(::getpid()));
+  ServiceOptions so;
+  so.templatesDir = (tmp / "templates").string();
+  so.scenesDir = (tmp / "scenes").string();
+  so.exportsDir = (tmp / "exports").string();
+  ServiceHub hub(so);
+  auto pump = std::make_shared<PumpSession>(syntheticFrame(n, 1), syntheticFrame(n, 2));
+  hub.adoptSession(pump);
+  ServerOptions net;
+  net.port = 0;
+  HttpServer server(hub, net);
+  std::thread serverThread([&] { server.run(false); });
+  pump->start();
+
+  std::printf("\nWebSocket streaming, loopback, %d-particle 3D frames (newest frame only, no queue)\n", n);
+  std::printf("  %-8s %14s %14s %14s %14s\n", "clients", "frames/s each", "min frames/s", "MB/s total", "published/s");
+  for (int k : clientCounts) {
+    std::vector<uint64_t> frames(size_t(k), 0), bytes(size_t(k), 0);
+    std::atomic<int> ready{0};
+    std::atomic<bool> go{false}, done{false};
+    std::vector<std::thread> clients;
+    for (int c = 0; c < k; ++c)
+      clients.emplace_back([&, c] {
+        StreamClient client("127.0.0.1", server.port(), "/api/sessions/pump/stream");
+        std::string msg;
+        ++ready;
+        while (!go) std::this_thread::yield();
+        while (!done && client.read(msg)) {
+          const auto* env = flowclip::wire::GetEnvelope(msg.data());
+          if (env->message_type() != flowclip::wire::Message::Frame) continue;
+          ++frames[size_t(c)];
+          bytes[size_t(c)] += msg.size();
+        }
+        client.close();
+      });
+    while (ready < k) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));  // past the first frames
+    const uint64_t published0 = pump->published();
+    go = true;
+    std::this_thread::sleep_for(std::chrono::duration<double>(seconds));
+    done = true;
+    const uint64_t published = pump->published() - published0;
+    for (auto& t : clients) t.join();
+    uint64_t totalBytes = 0, minFrames = UINT64_MAX, totalFrames = 0;
+    for (int c = 0; c < k; ++c) {
+      totalBytes += bytes[size_t(c)];
+      totalFrames += frames[size_t(c)];
+      minFrames = std::min(minFrames, frames[size_t(c)]);
+    }
+    std::printf("  %-8d %14.1f %14.1f %14.1f %14.1f\n", k, double(totalFrames) / k / seconds, double(minFrames) / seconds,
+                double(totalBytes) / 1e6 / seconds, double(published) / seconds);
+  }
+  pump->stop();
+  server.stop();
+  serverThread.join();
+  std::error_code ec;
+  fs::remove_all(tmp, ec);
+}
+
+void benchSessionMemory(const ServiceBenchOptions& o) {
+  ServiceOptions so;
+  so.templatesDir = o.templates;
+  so.scenesDir = fs::path(o.scene).parent_path().string();
+  so.exportsDir = (fs::temp_directory_path() / "flowclip-bench-exports").string();
+  ServiceHub hub(so);
+  const json scene = loadSceneJson(o.scene);
+  malloc_trim(0);
+  const double rss0 = currentRssMb();
+  HttpRequest create;
+  create.method = "POST";
+  create.path = "/api/sessions";
+  create.body = json{{"scene", scene}, {"history_cap_mb", 4096}}.dump();
+  HttpResponse r = hub.handle(create);
+  if (r.status != 201) throw std::runtime_error("cannot create a session of " + o.scene + ": " + r.body);
+  const std::string id = json::parse(r.body)["id"];
+  auto session = hub.session(id);
+  const double rss1 = currentRssMb();
+  const json s0 = session->state();
+  session->step(o.frames);
+  session->waitForFrame(o.frames, std::chrono::minutes(30));
+  session->waitIdle(std::chrono::minutes(1));
+  const json s1 = session->state();
+  const double rss2 = currentRssMb();
+  const double frames = s1["history"]["frames"].get<double>() - 1;
+  const double historyMb = (s1["memory"]["history_bytes"].get<double>() - s0["memory"]["history_bytes"].get<double>()) / 1e6;
+  std::printf("\nsession memory (%s: %d particles, %d frames)\n", o.scene.c_str(), s1["particles"]["liquid"].get<int>(),
+              int(frames));
+  std::printf("  session, frame 0      %8.2f MB RSS  (simulation state %.2f MB counted by the session)\n", rss1 - rss0,
+              s0["memory"]["simulation_bytes"].get<double>() / 1e6);
+  std::printf("  history per 1000 fr.  %8.2f MB counted  (%.2f MB RSS measured over %d frames)\n",
+              historyMb / frames * 1000, (rss2 - rss1) / frames * 1000, int(frames));
+  session.reset();
+  HttpRequest del;
+  del.method = "DELETE";
+  del.path = "/api/sessions/" + id;
+  hub.handle(del);
+  malloc_trim(0);
+  std::printf("  after DELETE          %8.2f MB RSS above the start\n", currentRssMb() - rss0);
+}
+
+void benchIdleServer() {
+  int out[2];
+  if (pipe(out) != 0) throw std::runtime_error("pipe failed");
+  const std::string exe = selfExecutable();
+  const pid_t pid = fork();
+  if (pid == 0) {
+    dup2(out[1], 1);
+    close(out[0]);
+    execl(exe.c_str(), exe.c_str(), "serve", "--port", "0", nullptr);
+    _exit(127);
+  }
+  close(out[1]);
+  FILE* f = fdopen(out[0], "r");
+  char line[512] = {0};
+  const bool started = f && std::fgets(line, sizeof line, f) && std::strstr(line, "listening on");
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  const double rss = rssMbOf(pid);
+  kill(pid, SIGINT);
+  int status = 0;
+  waitpid(pid, &status, 0);
+  if (f) fclose(f);
+  if (!started) throw std::runtime_error("flowclip serve did not start");
+  std::printf("\nidle server: %.1f MB RSS (flowclip serve, no session; the paper's system: 71.2 MB; target < 20 MB)\n",
+              rss);
+}
+
+}  // namespace
+
+void addBenchServiceCommand(CLI::App& bench) {
+  auto o = std::make_shared<ServiceBenchOptions>();
+  CLI::App* cmd = bench.add_subcommand(
+      "service", "frame encoding, WebSocket delivery to 1 and 8 clients, memory per session, idle server RSS");
+  cmd->add_option("--particles", o->particles, "particles per streamed frame (default 100000)")
+      ->check(CLI::Range(1, 10000000));
+  cmd->add_option("--seconds", o->seconds, "seconds per streaming measurement (default 3)")->check(CLI::PositiveNumber);
+  cmd->add_option("--clients", o->clients, "client counts to measure (default 1,8)")->delimiter(',');
+  cmd->add_option("--scene", o->scene, "scene for the memory figures (default scenes/drop2d.json)");
+  cmd->add_option("--frames", o->frames, "frames simulated for the history figure (default 300)")
+      ->check(CLI::Range(1, 100000));
+  cmd->add_option("--templates", o->templates, "template directory (default: templates)");
+  cmd->callback([o] {
+    try {
+      benchIdleServer();
+      benchEncode(o->particles);
+      benchStreaming(o->particles, o->clients, o->seconds);
+      benchSessionMemory(*o);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "error: %s\n", e.what());
+      throw ExitCode(Failure);
+    }
+  });
+}
+
+}  // namespace fc::app

@@ -1,0 +1,92 @@
+// `flowclip serve`: the simulation service (REST, WebSocket stream, editor
+// files) on one port. See service/http_server.h and README "The simulation
+// service".
+#include "app/commands.h"
+#include "service/http_server.h"
+#include "service/rest_api.h"
+
+#include <cstdio>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace fc::app {
+
+namespace {
+
+struct ServeOptions {
+  std::string host = "127.0.0.1";
+  int port = 8080;
+  std::string templates = "templates";
+  std::string scenes = "scenes";
+  std::string exports = "exports";
+  std::string web = "web/dist";
+  std::string token;
+  std::vector<std::string> allowOrigins;
+  int maxSessions = 8;
+  double maxBodyMb = 8;
+  double historyCapMb = 256;
+  int ioThreads = 2;
+};
+
+int serve(const ServeOptions& o) {
+  if (!service::isLoopbackHost(o.host) && o.token.empty()) {
+    std::fprintf(stderr, "error: --host %s is reachable from other machines: give --token T (clients then send "
+                         "\"Authorization: Bearer T\")\n", o.host.c_str());
+    return BadInput;
+  }
+  service::ServiceOptions so;
+  so.templatesDir = o.templates;
+  so.scenesDir = o.scenes;
+  so.exportsDir = o.exports;
+  so.maxSessions = o.maxSessions;
+  so.historyCapBytes = size_t(o.historyCapMb * 1024 * 1024);
+  service::ServerOptions net;
+  net.host = o.host;
+  net.port = uint16_t(o.port);
+  net.webDir = o.web;
+  net.token = o.token;
+  net.allowOrigins = o.allowOrigins;
+  net.maxBodyBytes = size_t(o.maxBodyMb * 1024 * 1024);
+  net.ioThreads = o.ioThreads;
+  // The hub outlives the server: streams release their sessions first.
+  service::ServiceHub hub(so);
+  std::unique_ptr<service::HttpServer> server;
+  try {
+    server = std::make_unique<service::HttpServer>(hub, net);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "error: %s\n", e.what());
+    return Failure;
+  }
+  const std::string host = o.host.find(':') != std::string::npos ? "[" + o.host + "]" : o.host;
+  std::printf("flowclip serve: listening on http://%s:%u\n", host.c_str(), unsigned(server->port()));
+  std::fflush(stdout);
+  server->run();
+  server.reset();
+  std::printf("flowclip serve: stopped\n");
+  return Ok;
+}
+
+}  // namespace
+
+void addServeCommand(CLI::App& app) {
+  auto o = std::make_shared<ServeOptions>();
+  CLI::App* cmd = app.add_subcommand("serve", "run the simulation service: REST, WebSocket streams and the editor");
+  cmd->add_option("--host", o->host, "address to bind (default 127.0.0.1; another address requires --token)");
+  cmd->add_option("--port", o->port, "TCP port (default 8080; 0: any free port, printed)")->check(CLI::Range(0, 65535));
+  cmd->add_option("--templates", o->templates, "template directory (default: templates)");
+  cmd->add_option("--scenes", o->scenes, "scene directory (default: scenes)");
+  cmd->add_option("--exports", o->exports, "directory for HDF5/XDMF exports (default: exports)");
+  cmd->add_option("--web", o->web, "the built editor's files (default: web/dist)");
+  cmd->add_option("--token", o->token, "require \"Authorization: Bearer T\" (or WebSocket subprotocol flowclip-token.T)");
+  cmd->add_option("--allow-origin", o->allowOrigins, "a WebSocket Origin accepted besides same-origin (repeatable)");
+  cmd->add_option("--max-sessions", o->maxSessions, "sessions at once (default 8)")->check(CLI::Range(1, 1024));
+  cmd->add_option("--max-body-mb", o->maxBodyMb, "largest REST body or WebSocket message, MB (default 8)")
+      ->check(CLI::Range(0.001, 1024.0));
+  cmd->add_option("--history-cap-mb", o->historyCapMb, "replay history per session, MB (default 256)")
+      ->check(CLI::Range(1.0, 1e6));
+  cmd->add_option("--io-threads", o->ioThreads, "network threads (default 2)")->check(CLI::Range(1, 64));
+  cmd->callback([o] { throw ExitCode(serve(*o)); });
+}
+
+}  // namespace fc::app

@@ -1,0 +1,929 @@
+#include "service/rest_api.h"
+
+#include "io/scene.h"
+#include "io/stats_json.h"
+#include "io/template_file.h"
+#include "service/frame_encoding.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <unistd.h>
+
+namespace fc::service {
+
+using json = nlohmann::json;
+namespace fs = std::filesystem;
+
+// ---- errors --------------------------------------------------------------------
+
+ApiError::ApiError(int s, std::string message, std::string p)
+    : std::runtime_error(std::move(message)), status(s), path(std::move(p)) {}
+
+const char* errorCode(int status) {
+  switch (status) {
+    case 400: return "bad_request";
+    case 401: return "unauthorized";
+    case 403: return "forbidden";
+    case 404: return "not_found";
+    case 405: return "method_not_allowed";
+    case 409: return "conflict";
+    case 413: return "payload_too_large";
+    case 422: return "unprocessable";
+    case 429: return "too_many_sessions";
+    case 500: return "internal_error";
+    case 503: return "unavailable";
+    default: return status < 500 ? "bad_request" : "internal_error";
+  }
+}
+
+HttpResponse errorResponse(int status, const std::string& message, const std::string& path) {
+  json e = {{"status", status}, {"code", errorCode(status)}, {"message", message}};
+  if (!path.empty()) e["path"] = path;
+  HttpResponse r;
+  r.status = status;
+  r.body = json{{"error", e}}.dump();
+  return r;
+}
+
+namespace {
+
+HttpResponse jsonResponse(const json& j, int status = 200) {
+  HttpResponse r;
+  r.status = status;
+  // Replace rather than throw on invalid UTF-8 from file names or scene text.
+  r.body = j.dump(-1, ' ', false, json::error_handler_t::replace);
+  return r;
+}
+
+std::string percentDecode(const std::string& s) {
+  std::string out;
+  out.reserve(s.size());
+  for (size_t i = 0; i < s.size(); ++i) {
+    if (s[i] == '%' && i + 2 < s.size() && std::isxdigit(uint8_t(s[i + 1])) && std::isxdigit(uint8_t(s[i + 2]))) {
+      out.push_back(char(std::stoi(s.substr(i + 1, 2), nullptr, 16)));
+      i += 2;
+    } else {
+      out.push_back(s[i]);
+    }
+  }
+  return out;
+}
+
+std::vector<std::string> splitPath(const std::string& path) {
+  std::vector<std::string> parts;
+  size_t i = 0;
+  while (i < path.size()) {
+    if (path[i] == '/') {
+      ++i;
+      continue;
+    }
+    const size_t j = path.find('/', i);
+    parts.push_back(percentDecode(path.substr(i, j == std::string::npos ? std::string::npos : j - i)));
+    if (j == std::string::npos) break;
+    i = j;
+  }
+  return parts;
+}
+
+std::string queryValue(const std::string& query, const std::string& key) {
+  std::istringstream in(query);
+  std::string kv;
+  while (std::getline(in, kv, '&')) {
+    const size_t eq = kv.find('=');
+    if (percentDecode(kv.substr(0, eq)) == key) return eq == std::string::npos ? "" : percentDecode(kv.substr(eq + 1));
+  }
+  return {};
+}
+
+// Names in URLs and bodies share the template database's rule, so no name
+// can reach outside its directory ("..", "/", "%2F" are all refused).
+void checkName(const std::string& name, const std::string& what) {
+  if (!isValidTemplateName(name))
+    throw ApiError(400, what + " name \"" + name.substr(0, 80) +
+                            "\" is invalid: names are 1 to 64 characters from A-Z a-z 0-9 _ -",
+                   what);
+}
+
+json parseBody(const HttpRequest& req, bool required = true) {
+  if (req.body.empty()) {
+    if (required) throw ApiError(400, "the request needs a JSON body");
+    return json::object();
+  }
+  try {
+    return json::parse(req.body);
+  } catch (const json::parse_error& e) {
+    throw ApiError(400, std::string("malformed JSON body: ") + e.what());
+  }
+}
+
+json requireObject(const json& body) {
+  if (!body.is_object()) throw ApiError(400, std::string("the body must be a JSON object, not ") + body.type_name());
+  return body;
+}
+
+void onlyKeys(const json& body, std::initializer_list<const char*> keys) {
+  for (auto it = body.begin(); it != body.end(); ++it) {
+    bool known = false;
+    for (const char* k : keys) known = known || it.key() == k;
+    if (!known) {
+      std::string list;
+      for (const char* k : keys) list += (list.empty() ? "" : ", ") + std::string(k);
+      throw ApiError(400, "unknown key \"" + it.key() + "\" (expected: " + list + ")", it.key());
+    }
+  }
+}
+
+std::string getString(const json& body, const char* key, bool required, const std::string& fallback = {}) {
+  if (!body.contains(key)) {
+    if (required) throw ApiError(400, std::string("\"") + key + "\" is required", key);
+    return fallback;
+  }
+  if (!body[key].is_string())
+    throw ApiError(400, std::string("\"") + key + "\" must be a string, not " + body[key].type_name(), key);
+  return body[key].get<std::string>();
+}
+
+int64_t getInt(const json& body, const char* key, bool required, int64_t fallback, int64_t min, int64_t max) {
+  if (!body.contains(key)) {
+    if (required) throw ApiError(400, std::string("\"") + key + "\" is required", key);
+    return fallback;
+  }
+  const json& v = body[key];
+  if (!v.is_number_integer())
+    throw ApiError(400, std::string("\"") + key + "\" must be an integer, not " + v.type_name(), key);
+  const int64_t x = v.get<int64_t>();
+  if (x < min || x > max)
+    throw ApiError(400, std::string("\"") + key + "\" must be in [" + std::to_string(min) + ", " + std::to_string(max) +
+                            "], got " + std::to_string(x),
+                   key);
+  return x;
+}
+
+double getNumber(const json& body, const char* key, bool required, double fallback, double min, double max) {
+  if (!body.contains(key)) {
+    if (required) throw ApiError(400, std::string("\"") + key + "\" is required", key);
+    return fallback;
+  }
+  const json& v = body[key];
+  if (!v.is_number()) throw ApiError(400, std::string("\"") + key + "\" must be a number, not " + v.type_name(), key);
+  const double x = v.get<double>();
+  if (!std::isfinite(x) || x < min || x > max) {
+    char buf[160];
+    std::snprintf(buf, sizeof buf, "\"%s\" must be in [%g, %g], got %g", key, min, max, x);
+    throw ApiError(400, buf, key);
+  }
+  return x;
+}
+
+bool getBool(const json& body, const char* key, bool fallback) {
+  if (!body.contains(key)) return fallback;
+  if (!body[key].is_boolean())
+    throw ApiError(400, std::string("\"") + key + "\" must be true or false, not " + body[key].type_name(), key);
+  return body[key].get<bool>();
+}
+
+json templateEntryJson(const TemplateEntry& e) {
+  json j = {{"name", e.name}};
+  if (!e.error.empty()) {
+    j["error"] = e.error;
+    return j;
+  }
+  j.update({{"dimension", e.dimension},
+            {"frames", e.frames},
+            {"frame_rate", e.frameRate},
+            {"duration", e.duration},
+            {"avg_particles", e.avgParticles},
+            {"region_min", e.regionMin},
+            {"region_max", e.regionMax},
+            {"bytes", e.bytesOnDisk}});
+  return j;
+}
+
+json instancesOf(const json& scene) {
+  return scene.contains("instances") && scene["instances"].is_array() ? scene["instances"] : json::array();
+}
+
+json findInstance(const json& scene, const std::string& name) {
+  for (const json& inst : instancesOf(scene))
+    if (inst.value("name", "") == name) return inst;
+  return nullptr;
+}
+
+// Writes `text` to `path` through a temporary file in the same directory:
+// readers see the old file or the new one, never a part. Without `replace`
+// the final link fails if the name exists (even if it appeared meanwhile).
+void writeFileAtomically(const fs::path& path, const std::string& text, bool replace) {
+  std::error_code ec;
+  fs::create_directories(path.parent_path(), ec);
+  const fs::path tmp = path.parent_path() / ("." + path.filename().string() + ".tmp-" + std::to_string(::getpid()));
+  {
+    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+    out << text;
+    out.flush();
+    if (!out) {
+      fs::remove(tmp, ec);
+      throw std::runtime_error("cannot write " + path.string());
+    }
+  }
+  if (replace) {
+    fs::rename(tmp, path, ec);
+  } else if (::link(tmp.c_str(), path.c_str()) != 0) {
+    const int err = errno;
+    fs::remove(tmp, ec);
+    if (err == EEXIST) throw ApiError(409, path.filename().string() + " already exists (send \"force\": true to replace it)", "name");
+    throw std::runtime_error("cannot write " + path.string() + ": " + std::strerror(err));
+  } else {
+    fs::remove(tmp, ec);
+  }
+  if (ec) {
+    fs::remove(tmp, ec);
+    throw std::runtime_error("cannot write " + path.string() + ": " + ec.message());
+  }
+}
+
+json instanceSnapshotJson(const InstanceSnapshot& s) {
+  return {{"name", s.name},
+          {"template", s.templateName},
+          {"phase", s.phase},
+          {"active", s.active},
+          {"template_frame", s.templateFrame},
+          {"fidelity", s.fidelity},
+          {"world_matrix", s.toWorld},
+          {"region_min", s.regionMin},
+          {"region_max", s.regionMax},
+          {"falloff_width", s.falloffWidth}};
+}
+
+json frameStatsEntry(const FrameSnapshot& f) {
+  json j = frameStatsToJson(f.stats, !f.instances.empty());
+  j["frame"] = f.frame;
+  j["time"] = f.time;
+  return j;
+}
+
+}  // namespace
+
+void encodeSnapshot(const FrameSnapshot& f, const std::string& sessionId, const wire::LayerFlags& layers,
+                    flatbuffers::FlatBufferBuilder& fbb) {
+  // Records are views into the snapshot, which outlives the call.
+  std::vector<wire::InstanceRecord> records(f.instances.size());
+  for (size_t i = 0; i < records.size(); ++i) {
+    const InstanceSnapshot& src = f.instances[i];
+    wire::InstanceRecord& r = records[i];
+    r.name = src.name;
+    r.templateName = src.templateName;
+    r.active = src.active;
+    r.templateFrame = src.templateFrame;
+    r.phase = src.phase;
+    r.setWorldFromColumnMajor4x4(src.toWorld, f.dimension);
+    r.templateMin = src.regionMin;
+    r.templateMax = src.regionMax;
+    r.falloffWidth = src.falloffWidth;
+    r.fidelity = src.fidelity;
+  }
+  wire::QuantizedFrame q;
+  q.sessionId = sessionId;
+  q.dimension = f.dimension;
+  q.domainMin = f.domainMin;
+  q.domainMax = f.domainMax;
+  q.positions = f.positions;
+  q.kind = f.kind;
+  q.phase = f.phase;
+  q.stats = &f.stats;
+  q.instances = records;
+  wire::encodeQuantizedFrame(q, layers, fbb);
+}
+
+wire::StateChangeInfo stateChangeInfo(const json& state, uint32_t requestId) {
+  static const std::map<std::string, wire::fb::SessionStatus> statuses = {
+      {"paused", wire::fb::SessionStatus::Paused},
+      {"playing", wire::fb::SessionStatus::Playing},
+      {"stepping", wire::fb::SessionStatus::Stepping},
+      {"error", wire::fb::SessionStatus::Error}};
+  wire::StateChangeInfo info;
+  info.sessionId = state.value("id", "");
+  auto st = statuses.find(state.value("status", "paused"));
+  info.status = st == statuses.end() ? wire::fb::SessionStatus::Paused : st->second;
+  info.frame = state.value("frame", 0);
+  info.time = state.value("time", 0.0);
+  if (state.contains("shown")) {
+    info.shownFrame = state["shown"].value("frame", 0);
+    info.live = state["shown"].value("live", true);
+  }
+  info.playbackSpeed = state.value("playback_speed", 0.0);
+  if (state.contains("history")) {
+    const json& h = state["history"];
+    info.historyFirstFrame = h["first"].is_number() ? h["first"].get<int>() : 0;
+    info.historyLastFrame = h["last"].is_number() ? h["last"].get<int>() : 0;
+    info.historyDroppedFrames = h.value("dropped", 0u);
+  }
+  if (state.contains("error")) info.message = state["error"].value("message", "");
+  info.requestId = requestId;
+  info.stateJson = state.dump(-1, ' ', false, json::error_handler_t::replace);
+  return info;
+}
+
+double currentRssMb() {
+  std::ifstream f("/proc/self/statm");
+  long pages = 0, resident = 0;
+  f >> pages >> resident;
+  return double(resident) * double(::sysconf(_SC_PAGESIZE)) / (1024.0 * 1024.0);
+}
+
+// ---- the hub -------------------------------------------------------------------
+
+ServiceHub::ServiceHub(ServiceOptions options)
+    : options_(std::move(options)), database_(options_.templatesDir), started_(std::chrono::steady_clock::now()) {}
+
+ServiceHub::~ServiceHub() {
+  std::map<std::string, std::shared_ptr<Session>> sessions;
+  {
+    std::lock_guard lk(mutex_);
+    sessions.swap(sessions_);
+  }
+  for (auto& [id, s] : sessions) s->pause();
+}
+
+const std::vector<ServiceHub::Route>& ServiceHub::routes() {
+  static const std::vector<Route> table = {
+      {"GET", "/api/health", &ServiceHub::health},
+      {"GET", "/api/templates", &ServiceHub::listTemplates},
+      {"GET", "/api/templates/{name}", &ServiceHub::getTemplate},
+      {"DELETE", "/api/templates/{name}", &ServiceHub::deleteTemplate},
+      {"GET", "/api/scenes", &ServiceHub::listScenes},
+      {"POST", "/api/scenes", &ServiceHub::saveScene},
+      {"GET", "/api/scenes/{name}", &ServiceHub::getScene},
+      {"GET", "/api/sessions", &ServiceHub::listSessions},
+      {"POST", "/api/sessions", &ServiceHub::createSession},
+      {"GET", "/api/sessions/{id}", &ServiceHub::getSession},
+      {"DELETE", "/api/sessions/{id}", &ServiceHub::deleteSession},
+      {"GET", "/api/sessions/{id}/stats", &ServiceHub::sessionStats},
+      {"GET", "/api/sessions/{id}/scene", &ServiceHub::sessionScene},
+      {"POST", "/api/sessions/{id}/templates", &ServiceHub::recordTemplate},
+      {"GET", "/api/sessions/{id}/instances", &ServiceHub::listInstances},
+      {"POST", "/api/sessions/{id}/instances", &ServiceHub::addInstance},
+      {"GET", "/api/sessions/{id}/instances/{name}", &ServiceHub::getInstance},
+      {"PATCH", "/api/sessions/{id}/instances/{name}", &ServiceHub::patchInstance},
+      {"DELETE", "/api/sessions/{id}/instances/{name}", &ServiceHub::removeInstance},
+      {"PATCH", "/api/sessions/{id}/settings", &ServiceHub::patchSettings},
+      {"GET", "/api/sessions/{id}/edits/{edit}", &ServiceHub::getEdit},
+      {"POST", "/api/sessions/{id}/transport", &ServiceHub::transport},
+      {"GET", "/api/sessions/{id}/frames/{frame}", &ServiceHub::getFrame},
+      {"POST", "/api/sessions/{id}/export", &ServiceHub::exportFrames},
+      {"GET", "/api/exports/{file}", &ServiceHub::getExport},
+  };
+  return table;
+}
+
+HttpResponse ServiceHub::handle(const HttpRequest& req) {
+  const std::vector<std::string> parts = splitPath(req.path);
+  std::vector<std::string> allowed;
+  for (const Route& route : routes()) {
+    const std::vector<std::string> pattern = splitPath(route.pattern);
+    if (pattern.size() != parts.size()) continue;
+    Params params;
+    bool match = true;
+    for (size_t i = 0; i < parts.size() && match; ++i) {
+      if (pattern[i].front() == '{') params.push_back(parts[i]);
+      else match = pattern[i] == parts[i];
+    }
+    if (!match) continue;
+    if (req.method != route.method && !(req.method == "HEAD" && std::string(route.method) == "GET")) {
+      allowed.push_back(route.method);
+      continue;
+    }
+    try {
+      return (this->*route.handler)(req, params);
+    } catch (const ApiError& e) {
+      return errorResponse(e.status, e.what(), e.path);
+    } catch (const SceneError& e) {
+      return errorResponse(422, e.what(), e.path);
+    } catch (const SessionError& e) {
+      return errorResponse(409, e.what());
+    } catch (const DatabaseError& e) {
+      return errorResponse(404, e.what());
+    } catch (const TemplateError& e) {
+      return errorResponse(422, e.what());
+    } catch (const std::out_of_range& e) {
+      return errorResponse(422, e.what());
+    } catch (const std::invalid_argument& e) {
+      return errorResponse(422, e.what());
+    } catch (const std::exception& e) {
+      return errorResponse(500, std::string("internal error: ") + e.what());
+    }
+  }
+  if (!allowed.empty()) {
+    std::string allow;
+    for (const auto& m : allowed) allow += (allow.empty() ? "" : ", ") + m;
+    HttpResponse r = errorResponse(405, req.method + " is not allowed on " + req.path + " (allowed: " + allow + ")");
+    r.headers.emplace_back("Allow", allow);
+    return r;
+  }
+  return errorResponse(404, "no such endpoint: " + req.method + " " + req.path);
+}
+
+std::shared_ptr<Session> ServiceHub::session(const std::string& id) const {
+  std::lock_guard lk(mutex_);
+  auto it = sessions_.find(id);
+  return it == sessions_.end() ? nullptr : it->second;
+}
+
+std::shared_ptr<Session> ServiceHub::requireSession(const std::string& id) const {
+  auto s = session(id);
+  if (!s) throw ApiError(404, "no session \"" + id.substr(0, 80) + "\"", "id");
+  return s;
+}
+
+size_t ServiceHub::sessionCount() const {
+  std::lock_guard lk(mutex_);
+  return sessions_.size();
+}
+
+void ServiceHub::adoptSession(std::shared_ptr<Session> session) {
+  std::lock_guard lk(mutex_);
+  if (sessions_.count(session->id())) throw ApiError(409, "session id " + session->id() + " is taken");
+  sessions_[session->id()] = std::move(session);
+}
+
+uint64_t ServiceHub::onSessionDeleted(const std::string& id, std::function<void()> callback) {
+  {
+    std::lock_guard lk(mutex_);
+    if (sessions_.count(id)) {
+      const uint64_t hook = nextHook_++;
+      deletionHooks_.emplace(id, std::make_pair(hook, std::move(callback)));
+      return hook;
+    }
+  }
+  callback();
+  return 0;
+}
+
+void ServiceHub::cancelOnSessionDeleted(uint64_t hook) {
+  std::lock_guard lk(mutex_);
+  for (auto it = deletionHooks_.begin(); it != deletionHooks_.end(); ++it)
+    if (it->second.first == hook) {
+      deletionHooks_.erase(it);
+      return;
+    }
+}
+
+// ---- health, templates, scenes ----------------------------------------------------
+
+HttpResponse ServiceHub::health(const HttpRequest&, const Params&) {
+  const double uptime = std::chrono::duration<double>(std::chrono::steady_clock::now() - started_).count();
+  return jsonResponse({{"status", "ok"},
+                       {"version", FLOWCLIP_VERSION},
+                       {"sessions", sessionCount()},
+                       {"max_sessions", options_.maxSessions},
+                       {"uptime_s", uptime},
+                       {"rss_mb", currentRssMb()}});
+}
+
+HttpResponse ServiceHub::listTemplates(const HttpRequest&, const Params&) {
+  json list = json::array();
+  for (const TemplateEntry& e : database_.list()) list.push_back(templateEntryJson(e));
+  return jsonResponse({{"templates", list}});
+}
+
+HttpResponse ServiceHub::getTemplate(const HttpRequest&, const Params& p) {
+  checkName(p[0], "template");
+  if (!database_.contains(p[0])) throw ApiError(404, "no template \"" + p[0] + "\" in " + database_.directory(), "name");
+  return jsonResponse(templateEntryJson(database_.entry(p[0])));
+}
+
+HttpResponse ServiceHub::deleteTemplate(const HttpRequest&, const Params& p) {
+  checkName(p[0], "template");
+  if (!database_.contains(p[0])) throw ApiError(404, "no template \"" + p[0] + "\" in " + database_.directory(), "name");
+  database_.remove(p[0]);
+  return jsonResponse({{"deleted", p[0]}});
+}
+
+HttpResponse ServiceHub::recordTemplate(const HttpRequest& req, const Params& p) {
+  auto s = requireSession(p[0]);
+  const json body = requireObject(parseBody(req));
+  onlyKeys(body, {"name", "region_min", "region_max", "first_frame", "last_frame", "force"});
+  const std::string name = getString(body, "name", true);
+  checkName(name, "template");
+  auto box = [&](const char* key) {
+    if (!body.contains(key)) throw ApiError(400, std::string("\"") + key + "\" is required", key);
+    const json& v = body[key];
+    if (!v.is_array() || v.size() != size_t(s->dimension()))
+      throw ApiError(400, std::string("\"") + key + "\" must be an array of " + std::to_string(s->dimension()) + " numbers",
+                     key);
+    std::vector<double> out;
+    for (const json& x : v) {
+      if (!x.is_number() || !std::isfinite(x.get<double>()))
+        throw ApiError(400, std::string("\"") + key + "\" must hold finite numbers", key);
+      out.push_back(x.get<double>());
+    }
+    return out;
+  };
+  const std::vector<double> lo = box("region_min"), hi = box("region_max");
+  const int first = int(getInt(body, "first_frame", true, 0, 0, INT32_MAX));
+  const int last = int(getInt(body, "last_frame", true, 0, 0, INT32_MAX));
+  const bool force = getBool(body, "force", false);
+  if (!force && database_.contains(name))
+    throw ApiError(409, "template \"" + name + "\" already exists (send \"force\": true to replace it)", "name");
+  try {
+    const TemplateEntry e = s->recordTemplate(database_, name, lo, hi, first, last, force);
+    return jsonResponse(templateEntryJson(e), 201);
+  } catch (const DatabaseError& e) {
+    throw ApiError(409, e.what(), "name");
+  }
+}
+
+HttpResponse ServiceHub::listScenes(const HttpRequest&, const Params&) {
+  json list = json::array();
+  std::vector<fs::path> files;
+  std::error_code ec;
+  for (const auto& entry : fs::directory_iterator(options_.scenesDir, ec))
+    if (entry.is_regular_file() && entry.path().extension() == ".json" &&
+        isValidTemplateName(entry.path().stem().string()))
+      files.push_back(entry.path());
+  std::sort(files.begin(), files.end());
+  for (const fs::path& f : files) {
+    json e = {{"name", f.stem().string()}};
+    try {
+      const json scene = loadSceneJson(f.string());
+      e["dimension"] = sceneDimension(scene);
+      e["instances"] = instancesOf(scene).size();
+    } catch (const std::exception& err) {
+      e["dimension"] = nullptr;
+      e["instances"] = 0;
+      e["error"] = err.what();
+    }
+    list.push_back(e);
+  }
+  return jsonResponse({{"scenes", list}});
+}
+
+HttpResponse ServiceHub::getScene(const HttpRequest&, const Params& p) {
+  checkName(p[0], "scene");
+  const fs::path file = fs::path(options_.scenesDir) / (p[0] + ".json");
+  if (!fs::is_regular_file(file)) throw ApiError(404, "no scene \"" + p[0] + "\" in " + options_.scenesDir, "name");
+  return jsonResponse(loadSceneJson(file.string()));
+}
+
+HttpResponse ServiceHub::saveScene(const HttpRequest& req, const Params&) {
+  const json body = requireObject(parseBody(req));
+  onlyKeys(body, {"name", "session", "force"});
+  const std::string name = getString(body, "name", true);
+  checkName(name, "scene");
+  auto s = requireSession(getString(body, "session", true));
+  const bool force = getBool(body, "force", false);
+  const fs::path file = fs::path(options_.scenesDir) / (name + ".json");
+  std::lock_guard lk(fileMutex_);
+  writeFileAtomically(file, s->sceneJson().dump(2) + "\n", force);
+  return jsonResponse({{"name", name}, {"path", file.string()}}, 201);
+}
+
+// ---- sessions -----------------------------------------------------------------------
+
+HttpResponse ServiceHub::listSessions(const HttpRequest&, const Params&) {
+  std::vector<std::shared_ptr<Session>> all;
+  {
+    std::lock_guard lk(mutex_);
+    for (auto& [id, s] : sessions_) all.push_back(s);
+  }
+  json list = json::array();
+  for (auto& s : all) list.push_back(s->state());
+  return jsonResponse({{"sessions", list}});
+}
+
+HttpResponse ServiceHub::createSession(const HttpRequest& req, const Params&) {
+  const json body = requireObject(parseBody(req));
+  onlyKeys(body, {"scene", "name", "history_cap_mb", "playback_speed", "threads"});
+  if (!body.contains("scene")) throw ApiError(400, "\"scene\" is required: a scene name or an inline scene object", "scene");
+  json scene;
+  std::string sceneName;
+  if (body["scene"].is_string()) {
+    sceneName = body["scene"].get<std::string>();
+    checkName(sceneName, "scene");
+    const fs::path file = fs::path(options_.scenesDir) / (sceneName + ".json");
+    if (!fs::is_regular_file(file)) throw ApiError(404, "no scene \"" + sceneName + "\" in " + options_.scenesDir, "scene");
+    scene = loadSceneJson(file.string());
+  } else if (body["scene"].is_object()) {
+    scene = body["scene"];
+  } else {
+    throw ApiError(400, std::string("\"scene\" must be a scene name or a scene object, not ") + body["scene"].type_name(),
+                   "scene");
+  }
+  std::string name = getString(body, "name", false);
+  if (!name.empty()) checkName(name, "session");
+  SessionOptions so;
+  so.historyCapBytes = body.contains("history_cap_mb")
+                           ? size_t(getNumber(body, "history_cap_mb", false, 0, 1e-3, 1e6) * 1024 * 1024)
+                           : options_.historyCapBytes;
+  so.playbackSpeed = getNumber(body, "playback_speed", false, 0, 0, 1e6);
+  so.threads = int(getInt(body, "threads", false, 0, 0, 1024));
+
+  std::string id;
+  {
+    std::lock_guard lk(mutex_);
+    if (int(sessions_.size()) + creating_ >= options_.maxSessions)
+      throw ApiError(429, "the server runs at most " + std::to_string(options_.maxSessions) +
+                              " sessions (--max-sessions); delete one first");
+    ++creating_;
+    id = "s" + std::to_string(nextSession_++);
+  }
+  std::shared_ptr<Session> s;
+  try {
+    s = fc::service::createSession(id, name, scene, database_, so);
+  } catch (const SceneError& e) {
+    std::lock_guard lk(mutex_);
+    --creating_;
+    // Scene file errors name the file; inline ones the key inside "scene".
+    const std::string path = e.path.empty() ? "scene" : "scene." + e.path;
+    throw ApiError(422, sceneName.empty() ? std::string(e.what()) : sceneName + ".json: " + e.what(), path);
+  } catch (...) {
+    std::lock_guard lk(mutex_);
+    --creating_;
+    throw;
+  }
+  {
+    std::lock_guard lk(mutex_);
+    --creating_;
+    sessions_[id] = s;
+  }
+  return jsonResponse(s->state(), 201);
+}
+
+HttpResponse ServiceHub::getSession(const HttpRequest&, const Params& p) {
+  return jsonResponse(requireSession(p[0])->state());
+}
+
+HttpResponse ServiceHub::deleteSession(const HttpRequest&, const Params& p) {
+  std::shared_ptr<Session> s;
+  std::vector<std::function<void()>> hooks;
+  {
+    std::lock_guard lk(mutex_);
+    auto it = sessions_.find(p[0]);
+    if (it == sessions_.end()) throw ApiError(404, "no session \"" + p[0].substr(0, 80) + "\"", "id");
+    s = it->second;
+    sessions_.erase(it);
+    auto range = deletionHooks_.equal_range(p[0]);
+    for (auto h = range.first; h != range.second; ++h) hooks.push_back(std::move(h->second.second));
+    deletionHooks_.erase(range.first, range.second);
+  }
+  s->pause();
+  for (auto& h : hooks) h();
+  s.reset();  // the last owner (once streams let go) stops the thread and frees the history
+  return jsonResponse({{"deleted", p[0]}});
+}
+
+HttpResponse ServiceHub::sessionStats(const HttpRequest&, const Params& p) {
+  auto s = requireSession(p[0]);
+  json frames = json::array();
+  for (const FramePtr& f : s->history()) frames.push_back(frameStatsEntry(*f));
+  return jsonResponse({{"frames", frames}});
+}
+
+HttpResponse ServiceHub::sessionScene(const HttpRequest&, const Params& p) {
+  return jsonResponse(requireSession(p[0])->sceneJson());
+}
+
+// ---- instances and edits ----------------------------------------------------------------
+
+HttpResponse ServiceHub::runEdit(Session& s, Edit edit, int okStatus) {
+  const EditKind kind = edit.kind;
+  const EditTicket ticket = s.submit(std::move(edit));
+  if (ticket.result.wait_for(options_.editWait) != std::future_status::ready) {
+    return jsonResponse({{"edit", {{"id", ticket.id}, {"type", editKindName(kind)}, {"pending", true}}}}, 202);
+  }
+  const EditResult r = ticket.result.get();
+  if (!r.accepted) throw ApiError(422, r.message, r.path);
+  json out = {{"edit", r.toJson()}};
+  if (r.kind == EditKind::AddInstance || r.kind == EditKind::UpdateInstance) {
+    json inst = findInstance(s.sceneJson(), r.instance);
+    if (!inst.is_null()) out["instance"] = inst;
+  }
+  return jsonResponse(out, okStatus);
+}
+
+HttpResponse ServiceHub::listInstances(const HttpRequest&, const Params& p) {
+  return jsonResponse({{"instances", instancesOf(requireSession(p[0])->sceneJson())}});
+}
+
+HttpResponse ServiceHub::getInstance(const HttpRequest&, const Params& p) {
+  auto s = requireSession(p[0]);
+  checkName(p[1], "instance");
+  json inst = findInstance(s->sceneJson(), p[1]);
+  if (inst.is_null()) throw ApiError(404, "session " + p[0] + " has no instance \"" + p[1] + "\"", "name");
+  return jsonResponse(inst);
+}
+
+HttpResponse ServiceHub::addInstance(const HttpRequest& req, const Params& p) {
+  auto s = requireSession(p[0]);
+  json body = parseBody(req);
+  if (!body.is_object()) throw ApiError(400, std::string("the body must be an instance object, not ") + body.type_name());
+  Edit e;
+  e.kind = EditKind::AddInstance;
+  e.payload = std::move(body);
+  return runEdit(*s, std::move(e), 201);
+}
+
+HttpResponse ServiceHub::patchInstance(const HttpRequest& req, const Params& p) {
+  auto s = requireSession(p[0]);
+  checkName(p[1], "instance");
+  json body = parseBody(req);
+  if (!body.is_object()) throw ApiError(400, std::string("the body must be a JSON merge patch object, not ") + body.type_name());
+  if (findInstance(s->sceneJson(), p[1]).is_null())
+    throw ApiError(404, "session " + p[0] + " has no instance \"" + p[1] + "\"", "name");
+  Edit e;
+  e.kind = EditKind::UpdateInstance;
+  e.instance = p[1];
+  e.payload = std::move(body);
+  return runEdit(*s, std::move(e), 200);
+}
+
+HttpResponse ServiceHub::removeInstance(const HttpRequest&, const Params& p) {
+  auto s = requireSession(p[0]);
+  checkName(p[1], "instance");
+  if (findInstance(s->sceneJson(), p[1]).is_null())
+    throw ApiError(404, "session " + p[0] + " has no instance \"" + p[1] + "\"", "name");
+  Edit e;
+  e.kind = EditKind::RemoveInstance;
+  e.instance = p[1];
+  return runEdit(*s, std::move(e), 200);
+}
+
+HttpResponse ServiceHub::patchSettings(const HttpRequest& req, const Params& p) {
+  auto s = requireSession(p[0]);
+  json body = requireObject(parseBody(req));
+  onlyKeys(body, {"settings", "solver", "control"});
+  if (body.empty()) throw ApiError(400, "the body must name at least one of \"settings\", \"solver\", \"control\"");
+  body["type"] = "settings";
+  return runEdit(*s, Edit::fromJson(body), 200);
+}
+
+HttpResponse ServiceHub::getEdit(const HttpRequest&, const Params& p) {
+  auto s = requireSession(p[0]);
+  uint64_t id = 0;
+  try {
+    size_t used = 0;
+    id = std::stoull(p[1], &used);
+    if (used != p[1].size()) throw std::invalid_argument("trailing characters");
+  } catch (const std::exception&) {
+    throw ApiError(400, "edit id \"" + p[1].substr(0, 40) + "\" is not a number", "edit");
+  }
+  const auto r = s->editResult(id);
+  if (r) return jsonResponse(r->toJson());
+  // Ids are handed out in order; a known id without a result is still queued.
+  const json state = s->state();
+  if (state.value("pending_edits", 0) > 0)
+    return jsonResponse({{"id", id}, {"pending", true}}, 202);
+  throw ApiError(404, "session " + p[0] + " has no edit " + p[1] + " (results of the last 1024 edits are kept)", "edit");
+}
+
+// ---- transport, frames, export ----------------------------------------------------------
+
+HttpResponse ServiceHub::transport(const HttpRequest& req, const Params& p) {
+  auto s = requireSession(p[0]);
+  const json body = requireObject(parseBody(req));
+  const std::string command = getString(body, "command", true);
+  if (command == "play") {
+    onlyKeys(body, {"command"});
+    s->play();
+  } else if (command == "pause") {
+    onlyKeys(body, {"command"});
+    s->pause();
+  } else if (command == "step") {
+    onlyKeys(body, {"command", "frames"});
+    s->step(int(getInt(body, "frames", false, 1, 1, 1000000)));
+  } else if (command == "reset") {
+    onlyKeys(body, {"command"});
+    s->reset();
+  } else if (command == "seek") {
+    onlyKeys(body, {"command", "frame"});
+    const int frame = int(getInt(body, "frame", true, 0, 0, INT32_MAX));
+    try {
+      s->seek(frame);
+    } catch (const std::out_of_range& e) {
+      throw ApiError(422, e.what(), "frame");
+    }
+  } else if (command == "speed") {
+    onlyKeys(body, {"command", "speed"});
+    s->setPlaybackSpeed(getNumber(body, "speed", true, 0, 0, 1e6));
+  } else {
+    throw ApiError(400, "\"command\" must be one of play, pause, step, reset, seek, speed; got \"" +
+                            command.substr(0, 40) + "\"",
+                   "command");
+  }
+  return jsonResponse(s->state());
+}
+
+HttpResponse ServiceHub::getFrame(const HttpRequest& req, const Params& p) {
+  auto s = requireSession(p[0]);
+  FramePtr f;
+  if (p[1] == "latest") {
+    f = s->latestFrame();
+  } else {
+    int n = -1;
+    try {
+      size_t used = 0;
+      n = std::stoi(p[1], &used);
+      if (used != p[1].size() || n < 0) throw std::invalid_argument("");
+    } catch (const std::exception&) {
+      throw ApiError(400, "frame \"" + p[1].substr(0, 40) + "\" must be a frame number >= 0 or \"latest\"", "frame");
+    }
+    f = s->frame(n);
+    if (!f) {
+      const json h = s->state()["history"];
+      throw ApiError(404, "frame " + p[1] + " is not in session " + p[0] + "'s history (frames " + h["first"].dump() +
+                              " to " + h["last"].dump() + " are kept)",
+                     "frame");
+    }
+  }
+  std::string format = queryValue(req.query, "format");
+  if (format.empty()) format = req.header("accept").find("application/x-flowclip-frame") != std::string::npos ? "binary" : "json";
+  if (format == "binary") {
+    flatbuffers::FlatBufferBuilder fbb(f->positions.size() * 2 + f->kind.size() * 2 + 1024);
+    encodeSnapshot(*f, s->id(), wire::LayerFlags{}, fbb);
+    HttpResponse r;
+    r.contentType = "application/x-flowclip-frame";
+    r.body.assign(reinterpret_cast<const char*>(fbb.GetBufferPointer()), fbb.GetSize());
+    return r;
+  }
+  if (format != "json") throw ApiError(400, "format must be json or binary, got \"" + format.substr(0, 40) + "\"", "format");
+  const size_t n = f->particles();
+  const int D = f->dimension;
+  json positions = json::array(), velocities = json::array(), kind = json::array(), phase = json::array();
+  for (size_t i = 0; i < n; ++i) {
+    for (int d = 0; d < D; ++d) {
+      positions.push_back(f->position(i, d));
+      velocities.push_back(f->velocity(i, d));
+    }
+    kind.push_back(f->kind[i]);
+    phase.push_back(f->phase[i]);
+  }
+  json instances = json::array();
+  for (const InstanceSnapshot& inst : f->instances) instances.push_back(instanceSnapshotJson(inst));
+  return jsonResponse({{"frame", f->frame},
+                       {"time", f->time},
+                       {"dimension", D},
+                       {"domain_min", f->domainMin},
+                       {"domain_max", f->domainMax},
+                       {"count", n},
+                       {"positions", std::move(positions)},
+                       {"velocities", std::move(velocities)},
+                       {"kind", std::move(kind)},
+                       {"phase", std::move(phase)},
+                       {"instances", std::move(instances)},
+                       {"stats", frameStatsEntry(*f)}});
+}
+
+HttpResponse ServiceHub::exportFrames(const HttpRequest& req, const Params& p) {
+  auto s = requireSession(p[0]);
+  const json body = requireObject(parseBody(req));
+  onlyKeys(body, {"name", "first_frame", "last_frame", "force"});
+  const std::string name = getString(body, "name", true);
+  checkName(name, "export");
+  const int first = int(getInt(body, "first_frame", false, -1, 0, INT32_MAX));
+  const int last = int(getInt(body, "last_frame", false, -1, 0, INT32_MAX));
+  const bool force = getBool(body, "force", false);
+  const fs::path h5 = fs::path(options_.exportsDir) / (name + ".h5");
+  std::lock_guard lk(fileMutex_);
+  if (!force && (fs::exists(h5) || fs::exists(fs::path(options_.exportsDir) / (name + ".xdmf"))))
+    throw ApiError(409, "export \"" + name + "\" already exists in " + options_.exportsDir +
+                            " (send \"force\": true to replace it)",
+                   "name");
+  std::error_code ec;
+  fs::create_directories(options_.exportsDir, ec);
+  HistoryExport e;
+  try {
+    e = s->exportHistory(h5.string(), first, last);
+  } catch (const std::invalid_argument& err) {
+    throw ApiError(422, err.what(), "first_frame");
+  }
+  return jsonResponse({{"name", name},
+                       {"h5", name + ".h5"},
+                       {"xdmf", name + ".xdmf"},
+                       {"frames", e.frames},
+                       {"particle_rows", e.particleRows},
+                       {"bytes", e.bytes}},
+                      201);
+}
+
+HttpResponse ServiceHub::getExport(const HttpRequest&, const Params& p) {
+  const std::string& file = p[0];
+  const size_t dot = file.rfind('.');
+  const std::string stem = dot == std::string::npos ? file : file.substr(0, dot);
+  const std::string ext = dot == std::string::npos ? "" : file.substr(dot);
+  if (ext != ".h5" && ext != ".xdmf")
+    throw ApiError(400, "export file \"" + file.substr(0, 80) + "\" must be NAME.h5 or NAME.xdmf", "file");
+  checkName(stem, "export");
+  const fs::path path = fs::path(options_.exportsDir) / file;
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw ApiError(404, "no export file \"" + file + "\" in " + options_.exportsDir, "file");
+  HttpResponse r;
+  r.contentType = ext == ".h5" ? "application/x-hdf5" : "application/xml";
+  r.body.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  r.headers.emplace_back("Content-Disposition", "attachment; filename=\"" + file + "\"");
+  return r;
+}
+
+}  // namespace fc::service

@@ -1,0 +1,272 @@
+// The REST API (service/rest_api.h) without networking: routing, the JSON
+// error contract (status, code, message, path) for bad input, sessions,
+// instances and edits, transport, frames as JSON and flatbuffers, scene
+// saving, history export and templates recorded from the history.
+#include "service/rest_api.h"
+
+#include "service/frame_encoding.h"
+#include "tests/hdf5_test_util.h"
+#include "tests/template_test_util.h"
+
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+
+namespace fc::service {
+namespace {
+
+using nlohmann::json;
+using fc::test::TempDir;
+using namespace std::chrono_literals;
+
+json smallScene() {
+  return json::parse(R"({
+    "name": "box", "dimension": 2, "particle_radius": 0.02,
+    "domain": {"min": [0, 0], "max": [1, 1]},
+    "fluid_blocks": [{"min": [0, 0], "max": [0.4, 0.4]}]
+  })");
+}
+
+struct Api {
+  TempDir tmp;
+  ServiceHub hub;
+  explicit Api(int maxSessions = 4) : hub(options(maxSessions)) {
+    fc::test::writeSmallTemplate<2>(tmp.file("templates"), "blob", 13, {0.05, 0.05}, {0.35, 0.35});
+    std::filesystem::create_directories(tmp.file("scenes"));
+    std::ofstream(tmp.file("scenes/box.json")) << smallScene().dump(2);
+  }
+  ServiceOptions options(int maxSessions) {
+    ServiceOptions o;
+    o.templatesDir = tmp.file("templates");
+    o.scenesDir = tmp.file("scenes");
+    o.exportsDir = tmp.file("exports");
+    o.maxSessions = maxSessions;
+    return o;
+  }
+  HttpResponse call(const std::string& method, const std::string& target, const std::string& body = "") {
+    HttpRequest r;
+    r.method = method;
+    const size_t q = target.find('?');
+    r.path = target.substr(0, q);
+    if (q != std::string::npos) r.query = target.substr(q + 1);
+    r.body = body;
+    return hub.handle(r);
+  }
+  json callJson(const std::string& method, const std::string& target, const json& body, int expectStatus) {
+    const HttpResponse r = call(method, target, body.is_null() ? "" : body.dump());
+    EXPECT_EQ(r.status, expectStatus) << method << " " << target << ": " << r.body;
+    return json::parse(r.body);
+  }
+  std::string createSession() {
+    const json s = callJson("POST", "/api/sessions", {{"scene", "box"}}, 201);
+    return s.at("id").get<std::string>();
+  }
+  void settle(const std::string& id) { ASSERT_TRUE(hub.session(id)->waitIdle(10s)); }
+};
+
+// Every error is {"error": {"status", "code", "message"[, "path"]}}.
+void expectError(const HttpResponse& r, int status, const std::string& code, const std::string& path = "") {
+  EXPECT_EQ(r.status, status) << r.body;
+  const json j = json::parse(r.body);
+  ASSERT_TRUE(j.contains("error")) << r.body;
+  EXPECT_EQ(j["error"]["status"], status);
+  EXPECT_EQ(j["error"]["code"], code);
+  EXPECT_FALSE(j["error"]["message"].get<std::string>().empty());
+  if (!path.empty()) {
+    EXPECT_EQ(j["error"].value("path", ""), path) << r.body;
+  }
+}
+
+TEST(RestApi, RoutesAnswerUnknownPathsAndMethodsWithJsonErrors) {
+  Api api;
+  const json health = api.callJson("GET", "/api/health", nullptr, 200);
+  EXPECT_EQ(health["status"], "ok");
+  EXPECT_EQ(health["sessions"], 0);
+  EXPECT_GT(health["rss_mb"].get<double>(), 0.0);
+  expectError(api.call("GET", "/api/nothing"), 404, "not_found");
+  const HttpResponse r = api.call("PUT", "/api/sessions");
+  expectError(r, 405, "method_not_allowed");
+  ASSERT_EQ(r.headers.size(), 1u);
+  EXPECT_EQ(r.headers[0].second, "GET, POST");
+}
+
+TEST(RestApi, BadInputGetsTheRightStatusAndNamesWhatWasWrong) {
+  Api api;
+  expectError(api.call("POST", "/api/sessions", "{\"scene\": "), 400, "bad_request");
+  expectError(api.call("POST", "/api/sessions", "[1, 2]"), 400, "bad_request");
+  expectError(api.call("POST", "/api/sessions", R"({"scene": 5})"), 400, "bad_request", "scene");
+  expectError(api.call("POST", "/api/sessions", R"({"scene": "box", "history_cap_mb": "big"})"), 400, "bad_request",
+              "history_cap_mb");
+  expectError(api.call("POST", "/api/sessions", R"({"scene": "box", "colour": 1})"), 400, "bad_request", "colour");
+  expectError(api.call("POST", "/api/sessions", R"({"scene": "nowhere"})"), 404, "not_found", "scene");
+  // Traversal never reaches the filesystem: the name rule refuses it.
+  expectError(api.call("GET", "/api/templates/..%2F..%2Fetc%2Fpasswd"), 400, "bad_request");
+  expectError(api.call("GET", "/api/scenes/.."), 400, "bad_request");
+  expectError(api.call("POST", "/api/sessions", R"({"scene": "../scenes/box"})"), 400, "bad_request", "scene");
+  expectError(api.call("GET", "/api/exports/..%2Fbox.h5"), 400, "bad_request");
+  expectError(api.call("GET", "/api/templates/missing"), 404, "not_found");
+  expectError(api.call("GET", "/api/sessions/s99"), 404, "not_found");
+  // An invalid inline scene is understood but cannot be simulated: 422 with the key.
+  json scene = smallScene();
+  scene["particle_radius"] = -1;
+  expectError(api.call("POST", "/api/sessions", json{{"scene", scene}}.dump()), 422, "unprocessable",
+              "scene.particle_radius");
+  EXPECT_EQ(api.hub.sessionCount(), 0u);
+}
+
+TEST(RestApi, SessionsAreCreatedListedCappedAndDeleted) {
+  Api api(2);
+  const std::string a = api.createSession();
+  const json b = api.callJson("POST", "/api/sessions", {{"scene", smallScene()}, {"name", "inline"}}, 201);
+  EXPECT_NE(a, b["id"]);
+  EXPECT_EQ(b["name"], "inline");
+  EXPECT_EQ(b["status"], "paused");
+  EXPECT_EQ(b["particles"]["liquid"], 100);
+  expectError(api.call("POST", "/api/sessions", R"({"scene": "box"})"), 429, "too_many_sessions");
+  EXPECT_EQ(api.callJson("GET", "/api/sessions", nullptr, 200)["sessions"].size(), 2u);
+  std::weak_ptr<Session> weak = api.hub.session(a);
+  api.callJson("DELETE", "/api/sessions/" + a, nullptr, 200);
+  EXPECT_TRUE(weak.expired()) << "a deleted session with no stream must be freed";
+  expectError(api.call("GET", "/api/sessions/" + a), 404, "not_found");
+  api.createSession();  // room again
+}
+
+TEST(RestApi, InstanceEditsAreAcknowledgedWithTheirFrameAndInvalidOnesChangeNothing) {
+  Api api;
+  const std::string id = api.createSession();
+  const std::string base = "/api/sessions/" + id;
+  api.callJson("POST", base + "/transport", {{"command", "step"}, {"frames", 2}}, 200);
+  api.settle(id);
+  const json added = api.callJson(
+      "POST", base + "/instances", {{"name", "drop"}, {"template", "blob"}, {"transform", json::array({{{"time", 0}, {"translation", {0.5, 0.5}}}})}},
+      201);
+  EXPECT_TRUE(added["edit"]["accepted"]);
+  EXPECT_EQ(added["edit"]["frame"], 3) << "a paused session at frame 2 applies the edit to frame 3";
+  EXPECT_EQ(added["instance"]["name"], "drop");
+  EXPECT_EQ(api.callJson("GET", base + "/instances", nullptr, 200)["instances"].size(), 1u);
+
+  const json before = api.callJson("GET", base + "/instances/drop", nullptr, 200);
+  expectError(api.call("PATCH", base + "/instances/drop", R"({"speed": -2})"), 422, "unprocessable");
+  EXPECT_EQ(api.callJson("GET", base + "/instances/drop", nullptr, 200), before);
+  const json patched = api.callJson("PATCH", base + "/instances/drop", {{"speed", 2.0}}, 200);
+  EXPECT_EQ(patched["instance"]["speed"], 2.0);
+  expectError(api.call("POST", base + "/instances", R"({"name": "x", "template": "missing"})"), 422, "unprocessable");
+  expectError(api.call("PATCH", base + "/instances/ghost", "{}"), 404, "not_found");
+  const json edit = api.callJson("GET", base + "/edits/" + std::to_string(patched["edit"]["id"].get<int>()), nullptr, 200);
+  EXPECT_EQ(edit["accepted"], true);
+  api.callJson("DELETE", base + "/instances/drop", nullptr, 200);
+  EXPECT_TRUE(api.callJson("GET", base + "/instances", nullptr, 200)["instances"].empty());
+  const json settings = api.callJson("PATCH", base + "/settings", {{"settings", {{"cfl_factor", 0.5}}}}, 200);
+  EXPECT_TRUE(settings["edit"]["accepted"]);
+}
+
+TEST(RestApi, TransportFramesAndSeekAgreeInJsonAndBinary) {
+  Api api;
+  const std::string id = api.createSession();
+  const std::string base = "/api/sessions/" + id;
+  const json stepped = api.callJson("POST", base + "/transport", {{"command", "step"}, {"frames", 3}}, 200);
+  EXPECT_NE(stepped["status"], "error");
+  api.settle(id);
+  const json f = api.callJson("GET", base + "/frames/3", nullptr, 200);
+  ASSERT_EQ(f["frame"], 3);
+  ASSERT_EQ(f["count"], 100);
+  ASSERT_EQ(f["positions"].size(), 200u);
+  ASSERT_EQ(f["velocities"].size(), 200u);
+  for (const json& x : f["positions"]) EXPECT_TRUE(x.get<double>() >= 0 && x.get<double>() <= 1);
+  const HttpResponse bin = api.call("GET", base + "/frames/3?format=binary");
+  ASSERT_EQ(bin.status, 200);
+  EXPECT_EQ(bin.contentType, "application/x-flowclip-frame");
+  const wire::DecodedFrame d = wire::decodeFrame(reinterpret_cast<const uint8_t*>(bin.body.data()), bin.body.size());
+  EXPECT_EQ(d.frame, 3);
+  ASSERT_EQ(d.particles.x.size(), 100u);
+  for (size_t i = 0; i < 100; ++i)
+    for (int k = 0; k < 2; ++k)
+      EXPECT_NEAR(d.particles.x[i][size_t(k)], f["positions"][2 * i + size_t(k)].get<double>(), 1e-5);
+  expectError(api.call("GET", base + "/frames/9"), 404, "not_found", "frame");
+  expectError(api.call("GET", base + "/frames/abc"), 400, "bad_request", "frame");
+  expectError(api.call("GET", base + "/frames/3?format=xml"), 400, "bad_request", "format");
+
+  const json sought = api.callJson("POST", base + "/transport", {{"command", "seek"}, {"frame", 1}}, 200);
+  EXPECT_EQ(sought["shown"]["frame"], 1);
+  EXPECT_EQ(sought["shown"]["live"], false);
+  EXPECT_EQ(api.callJson("GET", base + "/frames/latest", nullptr, 200)["frame"], 1);
+  expectError(api.call("POST", base + "/transport", R"({"command": "seek", "frame": 40})"), 422, "unprocessable", "frame");
+  expectError(api.call("POST", base + "/transport", R"({"command": "jump"})"), 400, "bad_request", "command");
+  expectError(api.call("POST", base + "/transport", R"({"command": "step", "frames": 0})"), 400, "bad_request",
+              "frames");
+  const json stats = api.callJson("GET", base + "/stats", nullptr, 200);
+  ASSERT_EQ(stats["frames"].size(), 4u);
+  EXPECT_EQ(stats["frames"][3]["frame"], 3);
+  EXPECT_GT(stats["frames"][3]["substeps"].get<int>(), 0);
+}
+
+TEST(RestApi, SavedScenesReloadAndAreNotOverwrittenWithoutForce) {
+  Api api;
+  const std::string id = api.createSession();
+  api.callJson("POST", "/api/sessions/" + id + "/instances", {{"name", "drop"}, {"template", "blob"}}, 201);
+  const json saved = api.callJson("POST", "/api/scenes", {{"name", "mine"}, {"session", id}}, 201);
+  EXPECT_EQ(saved["name"], "mine");
+  const json scene = api.callJson("GET", "/api/scenes/mine", nullptr, 200);
+  EXPECT_EQ(scene["instances"][0]["name"], "drop");
+  expectError(api.call("POST", "/api/scenes", json{{"name", "mine"}, {"session", id}}.dump()), 409, "conflict");
+  api.callJson("POST", "/api/scenes", {{"name", "mine"}, {"session", id}, {"force", true}}, 201);
+  const json list = api.callJson("GET", "/api/scenes", nullptr, 200);
+  ASSERT_EQ(list["scenes"].size(), 2u);
+  EXPECT_EQ(list["scenes"][1]["name"], "mine");
+  EXPECT_EQ(list["scenes"][1]["instances"], 1);
+  // The saved scene starts a session with its instance.
+  const json s = api.callJson("POST", "/api/sessions", {{"scene", "mine"}}, 201);
+  EXPECT_EQ(s["instances"], 1);
+  EXPECT_EQ(api.tmp.entries().size(), 2u);  // templates, scenes: nothing else written
+  for (auto& e : std::filesystem::directory_iterator(api.tmp.file("scenes")))
+    EXPECT_EQ(e.path().filename().string().find(".tmp"), std::string::npos);
+}
+
+TEST(RestApi, ExportAndTemplateRecordingFromTheHistory) {
+  Api api;
+  const std::string id = api.createSession();
+  const std::string base = "/api/sessions/" + id;
+  api.callJson("POST", base + "/transport", {{"command", "step"}, {"frames", 4}}, 200);
+  api.settle(id);
+  const json e = api.callJson("POST", base + "/export", {{"name", "run1"}}, 201);
+  EXPECT_EQ(e["frames"], 5);
+  EXPECT_EQ(e["particle_rows"], 500);
+  EXPECT_TRUE(std::filesystem::exists(api.tmp.file("exports/run1.h5")));
+  EXPECT_TRUE(std::filesystem::exists(api.tmp.file("exports/run1.xdmf")));
+  expectError(api.call("POST", base + "/export", json{{"name", "run1"}}.dump()), 409, "conflict", "name");
+  const HttpResponse xdmf = api.call("GET", "/api/exports/run1.xdmf");
+  EXPECT_EQ(xdmf.status, 200);
+  EXPECT_NE(xdmf.body.find("run1.h5"), std::string::npos);
+  expectError(api.call("GET", "/api/exports/run2.h5"), 404, "not_found");
+
+  const json t = api.callJson("POST", base + "/templates",
+                              {{"name", "pool"}, {"region_min", {0.0, 0.0}}, {"region_max", {0.5, 0.5}},
+                               {"first_frame", 1}, {"last_frame", 4}},
+                              201);
+  EXPECT_EQ(t["frames"], 4);
+  EXPECT_EQ(t["dimension"], 2);
+  EXPECT_NEAR(t["avg_particles"].get<double>(), 100, 1e-9);
+  EXPECT_EQ(api.callJson("GET", "/api/templates/pool", nullptr, 200)["frames"], 4);
+  expectError(api.call("POST", base + "/templates",
+                       json{{"name", "pool"}, {"region_min", {0.0, 0.0}}, {"region_max", {0.5, 0.5}},
+                            {"first_frame", 1}, {"last_frame", 4}}
+                           .dump()),
+              409, "conflict", "name");
+  expectError(api.call("POST", base + "/templates",
+                       json{{"name", "late"}, {"region_min", {0.0, 0.0}}, {"region_max", {0.5, 0.5}},
+                            {"first_frame", 2}, {"last_frame", 40}}
+                           .dump()),
+              422, "unprocessable");
+  expectError(api.call("POST", base + "/templates",
+                       json{{"name", "flat"}, {"region_min", {0.0}}, {"region_max", {0.5, 0.5}},
+                            {"first_frame", 0}, {"last_frame", 1}}
+                           .dump()),
+              400, "bad_request", "region_min");
+  api.callJson("DELETE", "/api/templates/pool", nullptr, 200);
+  expectError(api.call("GET", "/api/templates/pool"), 404, "not_found");
+}
+
+}  // namespace
+}  // namespace fc::service
