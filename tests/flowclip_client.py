@@ -318,12 +318,16 @@ class Client:
     def session_scene(self, sid):
         return self.call("GET", "/api/sessions/{id}/scene", id=sid)
 
-    def wait_paused(self, sid, timeout=30.0):
-        """Polls the state until the session is paused (or in error) with nothing pending."""
-        deadline = time.monotonic() + timeout
+    def wait_paused(self, sid, timeout=30.0, settle=0.15):
+        """Polls the state until the session is paused (or in error) with nothing pending and its
+        frame unchanged for `settle` seconds (a pause lets the frame in progress finish)."""
+        deadline, last, since = time.monotonic() + timeout, None, 0.0
         while True:
             st = self.session(sid)
-            if st["status"] in ("paused", "error") and not st["pending_edits"] and not st["steps_left"]:
+            idle = st["status"] in ("paused", "error") and not st["pending_edits"] and not st["steps_left"]
+            if not idle or last is None or st["frame"] != last["frame"]:
+                last, since = (st if idle else None), time.monotonic()
+            elif time.monotonic() - since >= settle:
                 return st
             if time.monotonic() > deadline:
                 raise TimeoutError(f"session {sid} still {st['status']} at frame {st['frame']}")

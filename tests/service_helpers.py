@@ -16,12 +16,12 @@ def small_scene(name="box", particles_per_side=10, radius=0.02):
 
 
 def heavy_frames_scene(name="heavy"):
-    """20 000 particles at rest, one cheap WCSPH frame after another (~8 ms a frame on one
-    thread): 120 kB a frame, ~15 MB of frames per second."""
-    return {"name": name, "dimension": 2, "particle_radius": 0.005,
-            "domain": {"min": [0, 0], "max": [2, 1]},
-            "fluid_blocks": [{"min": [0, 0], "max": [2, 0.5]}],
-            "solver": {"method": "wcsph"},
+    """20 000 particles settling under weak gravity, one cheap WCSPH substep a frame (~4 ms a
+    frame on one thread): 120 kB a frame, ~30 MB of frames per second."""
+    return {"name": name, "dimension": 2, "particle_radius": 0.005, "gravity": [0, -1],
+            "domain": {"min": [0, 0], "max": [2, 1.2]},
+            "fluid_blocks": [{"min": [0, 0], "max": [2, 1]}],
+            "solver": {"method": "wcsph", "stiffness": 1000},
             "settings": {"frame_rate": 1000, "dt_max": 0.001}}
 
 

@@ -145,7 +145,7 @@ def test_edits_the_simulation_rejects_are_422_and_change_nothing(client, sid):
                                 id=sid), 422, "unprocessable")
     e = expect_error(client.request("POST", "/api/sessions", json_body={"scene": {**small_scene(), "dimension": 4}}),
                      422, "unprocessable")
-    assert e["path"] == "dimension", e
+    assert e["path"].endswith("dimension"), e
 
 
 def _ack_from_client():

@@ -73,6 +73,8 @@ def test_a_client_that_stops_reading_costs_no_server_memory(server, client):
     # A server queueing frames for the stalled client would have held this much:
     assert simulated * frame_mb > 2 * bound, f"only {simulated} frames: too slow for the memory check to mean anything"
     growth = max(rss) - rss0
+    print(f"stalled client: {simulated} frames of {frame_mb:.3f} MB simulated, server RSS {rss0:.1f} -> "
+          f"max {max(rss):.1f} MB (bound +{bound} MB)")
     assert growth < bound, f"server RSS grew {growth:.1f} MB (from {rss0:.1f}) with a stalled client; " \
                            f"{simulated} frames of {frame_mb:.2f} MB were simulated"
     assert client.session(hid)["history"]["bytes"] <= CAP_MB * 2**20
@@ -94,6 +96,7 @@ def test_a_client_that_stops_reading_costs_no_server_memory(server, client):
         if m["type"] == "frame":
             late.append(m["frame"])
     stalled.close()
+    print(f"stalled client read {len(late)} frames after resuming, the last {late[-1:]}")
     assert late and late[-1] == newest, f"the stalled client's last frame {late[-1:]} is not the newest {newest}"
     assert len(late) < simulated / 2, f"{len(late)} of {simulated} frames were queued for the stalled client"
 
