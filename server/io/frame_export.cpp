@@ -126,7 +126,8 @@ FrameExporter<D>::FrameExporter(const std::string& path, const ExportHeader& hea
       writeArray(file_, "domain_max", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, D, header.domainMax.data()) &&
       writeString(file_, "created_by", header.createdBy) && writeStrings(file_, "phase_names", phaseNames) &&
       writeArray(file_, "phase_rest_density", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, restDensity.size(),
-                 restDensity.data());
+                 restDensity.data()) &&
+      (header.source.empty() || writeString(file_, "source", header.source));
   if (!attrsOk) fail("cannot write the header attributes");
 
   {
@@ -151,6 +152,7 @@ FrameExporter<D>::FrameExporter(const std::string& path, const ExportHeader& hea
   // Empty; the filter pipeline is the one packChunk() reproduces (chunks
   // written with H5Dwrite_chunk declare it applied).
   for (const Spec& s : specs) {
+    if (!header.solverColumns && (s.ds == Density || s.ds == Pressure || s.ds == Id)) continue;
     datasets_[s.ds] =
         hdf5::createDataset(file_, datasetName(s.ds), s.type, 0, s.cols, s.chunkRows, unsigned(kDeflateLevel));
     if (datasets_[s.ds] < 0) fail(std::string("cannot create ") + datasetName(s.ds));
@@ -294,6 +296,39 @@ void FrameExporter<D>::writeReadyChunks() {
 }
 
 template <int D>
+void FrameExporter<D>::checkFrame(int frameIndex, size_t n) {
+  if (!open_) throw std::runtime_error("cannot export frames to '" + path_ + "': the exporter is closed");
+  if (frameIndex < 0)
+    throw std::runtime_error("cannot export frames to '" + path_ + "': negative frame index " +
+                             std::to_string(frameIndex));
+  if (n > UINT32_MAX)
+    throw std::runtime_error("cannot export frames to '" + path_ + "': more than 2^32 particles in one frame");
+}
+
+// Extents first: every chunk written afterwards lies inside the dataset.
+template <int D>
+void FrameExporter<D>::extendParticleDatasets(uint64_t end) {
+  for (int ds = 0; ds < NumParticleDs; ++ds) {
+    if (datasets_[ds] < 0) continue;  // left out by the header
+    const hsize_t extent[2] = {end, hsize_t(D)};
+    if (checked(H5Dset_extent(datasets_[ds], extent)) < 0) fail(std::string("cannot extend ") + datasetName(ds));
+  }
+}
+
+template <int D>
+void FrameExporter<D>::finishFrame(int frameIndex, double time, size_t n) {
+  const uint64_t end = rows_ + n;
+  const uint32_t index = uint32_t(frameIndex);
+  const uint32_t count = uint32_t(n);
+  append(FrameIndex, &index, H5T_NATIVE_UINT32, 1);
+  append(FrameTime, &time, H5T_NATIVE_DOUBLE, 1);
+  append(FrameOffset, &end, H5T_NATIVE_UINT64, 1);
+  append(FrameCount, &count, H5T_NATIVE_UINT32, 1);
+  rows_ = end;
+  ++frames_;
+}
+
+template <int D>
 void FrameExporter<D>::writeFrame(int frameIndex, double time, const FluidParticles<D>& fluid) {
   static_assert(sizeof(Vec<D>) == D * sizeof(Real), "Vec<D> must be D packed Reals");
   static_assert(PhaseDs == 4 && Kind == 5, "elementSize() knows the uint8 columns by number");
@@ -303,20 +338,11 @@ void FrameExporter<D>::writeFrame(int frameIndex, double time, const FluidPartic
       fluid.kind.size() != n || fluid.id.size() != n)
     throw std::runtime_error("cannot export frames to '" + path_ + "': frame " + std::to_string(frameIndex) +
                              " has particle arrays of different lengths");
-  if (frameIndex < 0)
-    throw std::runtime_error("cannot export frames to '" + path_ + "': negative frame index " +
-                             std::to_string(frameIndex));
-  if (n > UINT32_MAX)
-    throw std::runtime_error("cannot export frames to '" + path_ + "': more than 2^32 particles in one frame");
+  checkFrame(frameIndex, n);
 
   hdf5::Quiet quiet;
-  const uint64_t end = rows_ + n;
   if (n > 0) {
-    // Extents first: every chunk written below lies inside the dataset.
-    for (int ds = 0; ds < NumParticleDs; ++ds) {
-      const hsize_t extent[2] = {end, hsize_t(D)};
-      if (checked(H5Dset_extent(datasets_[ds], extent)) < 0) fail(std::string("cannot extend ") + datasetName(ds));
-    }
+    extendParticleDatasets(rows_ + n);
     auto asFloat = [&](const auto* p, size_t count) -> const float* {  // generic: discards a branch
       if constexpr (std::is_same_v<std::remove_cv_t<std::remove_pointer_t<decltype(p)>>, float>) {
         return p;
@@ -327,21 +353,40 @@ void FrameExporter<D>::writeFrame(int frameIndex, double time, const FluidPartic
     };
     stage(Position, asFloat(fluid.x.data()->data(), n * D), n);
     stage(Velocity, asFloat(fluid.v.data()->data(), n * D), n);
-    stage(Density, asFloat(fluid.density.data(), n), n);
-    stage(Pressure, asFloat(fluid.pressure.data(), n), n);
+    if (datasets_[Density] >= 0) stage(Density, asFloat(fluid.density.data(), n), n);
+    if (datasets_[Pressure] >= 0) stage(Pressure, asFloat(fluid.pressure.data(), n), n);
     stage(PhaseDs, fluid.phase.data(), n);
     stage(Kind, fluid.kind.data(), n);
-    stage(Id, fluid.id.data(), n);
+    if (datasets_[Id] >= 0) stage(Id, fluid.id.data(), n);
     writeReadyChunks();
   }
-  const uint32_t index = uint32_t(frameIndex);
-  const uint32_t count = uint32_t(n);
-  append(FrameIndex, &index, H5T_NATIVE_UINT32, 1);
-  append(FrameTime, &time, H5T_NATIVE_DOUBLE, 1);
-  append(FrameOffset, &end, H5T_NATIVE_UINT64, 1);
-  append(FrameCount, &count, H5T_NATIVE_UINT32, 1);
-  rows_ = end;
-  ++frames_;
+  finishFrame(frameIndex, time, n);
+}
+
+template <int D>
+void FrameExporter<D>::writeFrame(int frameIndex, double time, const ExportColumns& c) {
+  const size_t n = c.count;
+  checkFrame(frameIndex, n);
+  if (n > 0) {
+    const bool solver = datasets_[Density] >= 0;
+    if (!c.position || !c.velocity || !c.phase || !c.kind ||
+        (solver && (!c.density || !c.pressure || !c.id)))
+      throw std::runtime_error("cannot export frames to '" + path_ + "': frame " + std::to_string(frameIndex) +
+                               " lacks a column the file holds");
+  }
+  hdf5::Quiet quiet;
+  if (n > 0) {
+    extendParticleDatasets(rows_ + n);
+    stage(Position, c.position, n);
+    stage(Velocity, c.velocity, n);
+    if (datasets_[Density] >= 0) stage(Density, c.density, n);
+    if (datasets_[Pressure] >= 0) stage(Pressure, c.pressure, n);
+    stage(PhaseDs, c.phase, n);
+    stage(Kind, c.kind, n);
+    if (datasets_[Id] >= 0) stage(Id, c.id, n);
+    writeReadyChunks();
+  }
+  finishFrame(frameIndex, time, n);
 }
 
 template <int D>
@@ -358,6 +403,7 @@ void FrameExporter<D>::close() {
   // discard cleanly, and the closes that follow have little left to write.
   if (checked(H5Fflush(file_, H5F_SCOPE_LOCAL)) < 0) fail("cannot write the temporary file '" + tempPath_ + "'");
   for (int ds = 0; ds < NumDatasets; ++ds) {
+    if (datasets_[ds] < 0) continue;  // left out by the header
     if (checked(H5Dclose(datasets_[ds])) < 0) fail(std::string("cannot finish ") + datasetName(ds));
     datasets_[ds] = -1;
   }

@@ -13,6 +13,9 @@
 //   /particles/density  float32 [N]     /particles/pressure float32 [N]
 //   /particles/phase    uint8   [N]     /particles/kind     uint8   [N]
 //   /particles/id       uint32  [N]
+// A header may leave out density, pressure and id (solverColumns = false,
+// for data that does not hold them: a session's replay history) and add a
+// root attribute "source" saying where the frames come from.
 // Every dataset is extendible and chunked (65536 rows for particle columns)
 // with shuffle + deflate. Particle chunks are compressed in parallel by the
 // exporter itself (same bytes as HDF5's filters) and written directly.
@@ -38,6 +41,21 @@ struct ExportHeader {
   std::vector<double> domainMin;      // D values
   std::vector<double> domainMax;      // D values
   std::string createdBy;              // e.g. "flowclip 0.1.0"
+  std::string source;                 // root attribute "source" when not empty
+  bool solverColumns = true;          // the density, pressure and id datasets
+};
+
+// One frame as columns of `count` rows, already in the file's types.
+struct ExportColumns {
+  size_t count = 0;
+  const float* position = nullptr;    // count × D
+  const float* velocity = nullptr;    // count × D
+  const uint8_t* phase = nullptr;
+  const uint8_t* kind = nullptr;
+  // Only with header.solverColumns (ignored otherwise):
+  const float* density = nullptr;
+  const float* pressure = nullptr;
+  const uint32_t* id = nullptr;
 };
 
 template <int D>
@@ -61,6 +79,9 @@ class FrameExporter {
   // closed exporter or a write error; after a write error the temporary file
   // is removed and the exporter is closed.
   void writeFrame(int frameIndex, double time, const FluidParticles<D>& fluid);
+  // The same from columns (every pointer the header's datasets need must be
+  // set when count > 0).
+  void writeFrame(int frameIndex, double time, const ExportColumns& columns);
 
   // Finalises the file and renames it to <path> (replacing any existing
   // file). Idempotent. Throws std::runtime_error naming the path on error,
@@ -99,6 +120,9 @@ class FrameExporter {
   void append(Ds ds, const void* data, int64_t memType, uint64_t rows);
   void stage(Ds ds, const void* rowsData, uint64_t rows);
   void writeReadyChunks();
+  void checkFrame(int frameIndex, size_t n);
+  void extendParticleDatasets(uint64_t end);
+  void finishFrame(int frameIndex, double time, size_t n);
 
   std::string path_;
   std::string tempPath_;

@@ -1,15 +1,11 @@
 #include "io/recipe.h"
+#include "io/staged_files.h"
 #include "io/template_database.h"
 #include "io/template_file.h"
 
-#include <unistd.h>
 #include <algorithm>
-#include <atomic>
-#include <cerrno>
 #include <chrono>
 #include <cmath>
-#include <cstdio>
-#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -225,101 +221,48 @@ std::vector<Template<D>> captureTemplates(const Recipe& recipe, const RecordOpti
 
 namespace {
 
-// DIR/.NAME<suffix> for DIR/NAME: a hidden file next to `path`, never listed
-// as a template (its extension is not .h5).
-std::string hiddenSibling(const std::string& path, const std::string& suffix) {
-  const std::filesystem::path p(path);
-  std::string name = ".";
-  name += p.filename().string();
-  name += suffix;
-  return (p.parent_path() / name).string();
+// The "exists" check of a template about to be written without force.
+void checkTemplateAbsent(const std::string& name, const std::string& path, const std::string& forceHint) {
+  if (std::filesystem::exists(path))
+    throw DatabaseError("template '" + name + "' already exists ('" + path + "'); use " + forceHint +
+                        " to overwrite it");
 }
 
-// Moves the staged files to their final names, all or nothing (see recordRecipe).
-class Commit {
- public:
-  explicit Commit(bool force) : force_(force) {}
-  Commit(const Commit&) = delete;
-  Commit& operator=(const Commit&) = delete;
-  ~Commit() {
-    if (!done_) rollback();
-  }
-  // A staged file, removed on rollback until committed.
-  void stage(const std::string& staged, const std::string& final) {
-    Entry e;
-    e.staged = staged;
-    e.final = final;
-    entries_.push_back(std::move(e));
-  }
-  void commitAll() {
-    namespace fs = std::filesystem;
-    static std::atomic<int> counter{0};
-    for (Entry& e : entries_) {
-      std::error_code ec;
-      if (!force_) {
-        // A hard link fails if the final name exists: never replaces a file
-        // that appeared while recording.
-        fs::create_hard_link(e.staged, e.final, ec);
-        std::error_code ec2;
-        if (ec == std::errc::file_exists || (ec && fs::exists(e.final, ec2)))
-          throw DatabaseError("template file '" + e.final +
-                              "' was created while recording; use --force to overwrite it");
-        if (!ec) {
-          e.created = true;
-          fs::remove(e.staged, ec);
-          continue;
-        }
-        // No hard links here (some filesystems): the name was free a moment
-        // ago, rename.
-      } else if (fs::exists(e.final, ec)) {
-        // Keep the replaced file under a hidden name until every template is in place.
-        e.replaced = true;
-        e.backup = backupName(e.final, counter++);
-        fs::create_hard_link(e.final, e.backup, ec);
-        if (ec) e.backup.clear();
-      }
-      if (std::rename(e.staged.c_str(), e.final.c_str()) != 0)
-        throw TemplateError("template file '" + e.final + "': cannot rename '" + e.staged +
-                            "' to the final name: " + std::strerror(errno));
-      e.created = true;
-    }
-    done_ = true;
-    for (Entry& e : entries_) {
-      std::error_code ec;
-      if (!e.backup.empty()) fs::remove(e.backup, ec);
-    }
-  }
+void createTemplatesDir(const std::string& dir) {
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) throw DatabaseError("cannot create template directory '" + dir + "': " + ec.message());
+}
 
-  static std::string backupName(const std::string& final, int k) {
-    return hiddenSibling(final, ".old-" + std::to_string(::getpid()) + "-" + std::to_string(k));
+// Moves the staged templates to their names (StagedFiles), in the
+// database's error types.
+void commitTemplates(StagedFiles& staged, const std::string& forceHint) {
+  try {
+    staged.commit();
+  } catch (const PublishError& e) {
+    if (e.exists)
+      throw DatabaseError("template file '" + e.path + "' was created while recording; use " + forceHint +
+                          " to overwrite it");
+    throw TemplateError("template file '" + e.path + "': " + e.what());
   }
-
- private:
-  struct Entry {
-    std::string staged, final, backup;
-    bool created = false;   // the final name now holds the new file
-    bool replaced = false;  // ... in place of an existing one (force)
-  };
-  void rollback() noexcept {
-    namespace fs = std::filesystem;
-    for (auto it = entries_.rbegin(); it != entries_.rend(); ++it) {
-      std::error_code ec;
-      fs::remove(it->staged, ec);
-      if (!it->created) {
-        if (!it->backup.empty()) fs::remove(it->backup, ec);
-        continue;
-      }
-      if (!it->backup.empty()) fs::rename(it->backup, it->final, ec);
-      else if (!it->replaced) fs::remove(it->final, ec);
-      // Replaced without a backup (no hard links): the old file is gone, the new one stays.
-    }
-  }
-  bool force_;
-  bool done_ = false;
-  std::vector<Entry> entries_;
-};
+}
 
 }  // namespace
+
+template <int D>
+std::string publishTemplate(const std::string& templatesDir, const Template<D>& tpl, bool force,
+                            const std::string& forceHint) {
+  const TemplateDatabase db(templatesDir);
+  const std::string path = db.pathFor(tpl.header.name);
+  if (!force) checkTemplateAbsent(tpl.header.name, path, forceHint);
+  createTemplatesDir(templatesDir);
+  StagedFiles staged(force);
+  const std::string tmp = stagingPath(path, "rec");
+  staged.stage(tmp, path);
+  writeTemplate<D>(tmp, tpl);
+  commitTemplates(staged, forceHint);
+  return path;
+}
 
 RecordResult recordRecipe(const Recipe& recipe, const RecordOptions& options) {
   namespace fs = std::filesystem;
@@ -327,13 +270,9 @@ RecordResult recordRecipe(const Recipe& recipe, const RecordOptions& options) {
   std::vector<std::string> paths;
   for (const CaptureSpec& c : recipe.captures) {
     paths.push_back(db.pathFor(c.name));
-    if (!options.force && fs::exists(paths.back()))
-      throw DatabaseError("template '" + c.name + "' already exists ('" + paths.back() +
-                          "'); use --force to overwrite it");
+    if (!options.force) checkTemplateAbsent(c.name, paths.back(), "--force");
   }
-  std::error_code ec;
-  fs::create_directories(options.templatesDir, ec);
-  if (ec) throw DatabaseError("cannot create template directory '" + options.templatesDir + "': " + ec.message());
+  createTemplatesDir(options.templatesDir);
 
   RecordResult res;
   res.dimension = recipe.dimension;
@@ -349,12 +288,10 @@ RecordResult recordRecipe(const Recipe& recipe, const RecordOptions& options) {
         if (fs::exists(paths[k]))
           throw DatabaseError("template '" + recipe.captures[k].name + "' was created while recording ('" +
                               paths[k] + "'); use --force to overwrite it");
-    static std::atomic<int> counter{0};
-    Commit commit(options.force);
+    StagedFiles commit(options.force);
     for (size_t k = 0; k < tpls.size(); ++k) {
       const auto w0 = std::chrono::steady_clock::now();
-      const std::string staged =
-          hiddenSibling(paths[k], ".rec-" + std::to_string(::getpid()) + "-" + std::to_string(counter++));
+      const std::string staged = stagingPath(paths[k], "rec");
       commit.stage(staged, paths[k]);
       writeTemplate<D>(staged, tpls[k]);
       RecordedTemplate t;
@@ -368,7 +305,7 @@ RecordResult recordRecipe(const Recipe& recipe, const RecordOptions& options) {
       t.writeSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count();
       res.templates.push_back(std::move(t));
     }
-    commit.commitAll();
+    commitTemplates(commit, "--force");
     res.writeSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
     if (options.keepTemplate)
       for (size_t k = 0; k < tpls.size(); ++k) {
@@ -383,5 +320,7 @@ RecordResult recordRecipe(const Recipe& recipe, const RecordOptions& options) {
 
 template std::vector<Template<2>> captureTemplates<2>(const Recipe&, const RecordOptions&);
 template std::vector<Template<3>> captureTemplates<3>(const Recipe&, const RecordOptions&);
+template std::string publishTemplate<2>(const std::string&, const Template<2>&, bool, const std::string&);
+template std::string publishTemplate<3>(const std::string&, const Template<3>&, bool, const std::string&);
 
 }  // namespace fc

@@ -114,4 +114,16 @@ std::vector<Template<D>> captureTemplates(const Recipe& recipe, const RecordOpti
 // write failures.
 RecordResult recordRecipe(const Recipe& recipe, const RecordOptions& options = {});
 
+// Writes one template made elsewhere (a session's history) as
+// templatesDir/NAME.h5, NAME = tpl.header.name, the way recordRecipe writes
+// each of its templates: to a hidden temporary file, then moved to its name
+// (io/staged_files.h). Without force, throws DatabaseError (its message ends
+// "use <forceHint> to overwrite it") if the template exists, checked before
+// writing and again, race-free, when moving. Throws DatabaseError for an
+// invalid name or an uncreatable directory and TemplateError on write
+// failures; nothing is left behind. Returns the path written.
+template <int D>
+std::string publishTemplate(const std::string& templatesDir, const Template<D>& tpl, bool force,
+                            const std::string& forceHint = "--force");
+
 }  // namespace fc

@@ -103,6 +103,10 @@ class Simulation {
   const std::vector<std::string>& pipelineStages() const { return stageNames_; }
   size_t totalSubsteps() const { return totalSubsteps_; }
   Real restDensity(size_t i) const { return restDensity_[fluid.phase[i]]; }
+  // The mass of a liquid particle of `phase` (the fluid blocks' lattice
+  // particles; temporary particles copy theirs): rest density times the
+  // lattice volume.
+  Real particleMass(int phase) const { return restDensity_.at(size_t(phase)) * latticeVolume_; }
 
   // State shared with solvers and effects.
   FluidParticles<D> fluid;
