@@ -3,6 +3,8 @@
 
 #include "control/control.h"
 #include "io/instance_binding.h"
+#include "io/recipe.h"
+#include "service/history_export.h"
 
 #include <omp.h>
 
@@ -30,7 +32,7 @@ constexpr size_t kSharedOverhead = 16;
 
 size_t FrameSnapshot::bytes() const {
   size_t b = sizeof(FrameSnapshot) + kSharedOverhead;
-  b += positions.capacity() * sizeof(uint16_t) + kind.capacity() + phase.capacity();
+  b += (positions.capacity() + velocities.capacity()) * sizeof(uint16_t) + kind.capacity() + phase.capacity();
   b += stats.instances.capacity() * sizeof(InstanceFrameStats);
   for (const auto& i : stats.instances) b += heapBytes(i.name);
   b += instances.capacity() * sizeof(InstanceSnapshot);
@@ -39,7 +41,7 @@ size_t FrameSnapshot::bytes() const {
 }
 
 size_t FrameSnapshot::estimateBytes(int dimension, size_t particles, size_t instances) {
-  return sizeof(FrameSnapshot) + kSharedOverhead + particles * (size_t(dimension) * sizeof(uint16_t) + 2) +
+  return sizeof(FrameSnapshot) + kSharedOverhead + particles * (2 * size_t(dimension) * sizeof(uint16_t) + 2) +
          instances * (sizeof(InstanceFrameStats) + sizeof(InstanceSnapshot));
 }
 
@@ -275,12 +277,7 @@ class SessionImpl final : public Session {
     {
       std::lock_guard lk(mutex_);
       f = findFrame(frame);
-      if (!f) {
-        std::string kept = history_.empty() ? std::string("the history is empty")
-                                            : "frames " + std::to_string(history_.front()->frame) + " to " +
-                                                  std::to_string(history_.back()->frame) + " are kept";
-        throw std::out_of_range("frame " + std::to_string(frame) + " is not in the history (" + kept + ")");
-      }
+      if (!f) throw std::out_of_range("frame " + std::to_string(frame) + " is not in the history (" + keptText() + ")");
       if (status_ != SessionStatus::Error) status_ = SessionStatus::Paused;
       stepsLeft_ = 0;
       replay_ = f;
@@ -337,6 +334,104 @@ class SessionImpl final : public Session {
   std::vector<FramePtr> history() const override {
     std::lock_guard lk(mutex_);
     return {history_.begin(), history_.end()};
+  }
+
+  HistoryExport exportHistory(const std::string& h5Path, int firstFrame, int lastFrame) const override {
+    std::vector<FramePtr> frames;
+    ExportHeader header;
+    {
+      std::lock_guard lk(mutex_);
+      // Empty only when one frame exceeds the history's cap.
+      if (history_.empty()) throw std::invalid_argument("no recorded frame: the history is empty");
+      const int first = firstFrame < 0 ? history_.front()->frame : firstFrame;
+      const int last = lastFrame < 0 ? history_.back()->frame : lastFrame;
+      if (first > last)
+        throw std::invalid_argument("the first frame (" + std::to_string(first) + ") is after the last frame (" +
+                                    std::to_string(last) + ")");
+      for (const FramePtr& f : history_)
+        if (f->frame >= first && f->frame <= last) frames.push_back(f);
+      if (frames.empty())
+        throw std::invalid_argument("no recorded frame in frames " + std::to_string(first) + " to " +
+                                    std::to_string(last) + " (" + keptText() + ")");
+      header.sceneName = info_.sceneName;
+      header.dimension = D;
+      header.particleRadius = info_.particleRadius;
+      header.frameRate = info_.frameRate;
+      header.phases = info_.phases;
+      header.domainMin = info_.domainMin;
+      header.domainMax = info_.domainMax;
+      header.createdBy = createdBy();
+    }
+    return writeHistoryExport(h5Path, frames, std::move(header));
+  }
+
+  TemplateEntry recordTemplate(TemplateDatabase& db, const std::string& name, const std::vector<double>& regionMin,
+                               const std::vector<double>& regionMax, int firstFrame, int lastFrame,
+                               bool force) const override {
+    checkTemplateName(name);
+    for (const auto* r : {&regionMin, &regionMax}) {
+      const char* key = r == &regionMin ? "region_min" : "region_max";
+      if (r->size() != size_t(D))
+        throw std::invalid_argument(std::string(key) + " must have " + std::to_string(D) + " values (dimension " +
+                                    std::to_string(D) + "), got " + std::to_string(r->size()));
+      for (int d = 0; d < D; ++d)
+        if (!std::isfinite((*r)[size_t(d)]))
+          throw std::invalid_argument(std::string(key) + "[" + std::to_string(d) + "] must be finite");
+    }
+    for (int d = 0; d < D; ++d)
+      if (!(regionMin[size_t(d)] < regionMax[size_t(d)]))
+        throw std::invalid_argument("region_max[" + std::to_string(d) + "] must be greater than region_min[" +
+                                    std::to_string(d) + "]");
+    if (firstFrame > lastFrame)
+      throw std::invalid_argument("the first frame (" + std::to_string(firstFrame) + ") is after the last frame (" +
+                                  std::to_string(lastFrame) + ")");
+    if (!force && db.contains(name))
+      throw DatabaseError("template '" + name + "' already exists ('" + db.pathFor(name) +
+                          "'); use force to overwrite it");
+
+    std::vector<FramePtr> frames;
+    SceneInfo info;
+    std::string recipe;
+    {
+      std::lock_guard lk(mutex_);
+      auto it = std::lower_bound(history_.begin(), history_.end(), firstFrame,
+                                 [](const FramePtr& f, int n) { return f->frame < n; });
+      for (long long f = firstFrame; f <= lastFrame; ++f, ++it) {
+        if (it == history_.end() || (*it)->frame != f)
+          throw std::out_of_range("frame " + std::to_string(f) + " is not in the history (" + keptText() + ")");
+        frames.push_back(*it);
+      }
+      info = info_;
+      recipe = sceneShared_.dump();
+    }
+    // A frame-rate edit in or after the range: the frames are not 1/frameRate apart.
+    const double dt = 1 / info.frameRate;
+    for (size_t k = 1; k < frames.size(); ++k)
+      if (std::abs(frames[k]->time - frames[k - 1]->time - dt) > 1e-3 * dt)
+        throw std::invalid_argument("frames " + std::to_string(firstFrame) + " to " + std::to_string(lastFrame) +
+                                    " were not all recorded at the scene's frame rate (" +
+                                    std::to_string(info.frameRate) + " frames/s): a settings edit changed it");
+
+    Template<D> tpl;
+    TemplateHeader& h = tpl.header;
+    h.name = name;
+    h.dimension = D;
+    h.frameRate = info.frameRate;
+    h.particleRadius = info.particleRadius;
+    h.supportRadius = info.supportRadius;
+    h.restDensity = double(info.phases.at(0).restDensity);  // as the recipe capture
+    h.regionMin = regionMin;
+    h.regionMax = regionMax;
+    h.recipe = std::move(recipe);
+    h.createdBy = createdBy();
+    captureFrames(frames, regionMin, regionMax, info.phaseMass, tpl.frames);
+    size_t captured = 0;
+    for (const auto& f : tpl.frames) captured += f.size();
+    if (captured == 0)
+      throw std::invalid_argument("no liquid particle lies in the region (region_min, region_max) in frames " +
+                                  std::to_string(firstFrame) + " to " + std::to_string(lastFrame));
+    publishTemplate<D>(db.directory(), tpl, force, "force");
+    return db.entry(name);
   }
 
   json sceneJson() const override {
@@ -415,6 +510,66 @@ class SessionImpl final : public Session {
 
   int nextFrame() const { return frameBase_ + sim_->frame() + 1; }
 
+  std::string createdBy() const { return std::string("flowclip ") + FLOWCLIP_VERSION + " session " + id_; }
+
+  // With mutex_ held: which frames the history keeps, for error messages.
+  std::string keptText() const {
+    return history_.empty() ? std::string("the history is empty")
+                            : "frames " + std::to_string(history_.front()->frame) + " to " +
+                                  std::to_string(history_.back()->frame) + " are kept";
+  }
+
+  // One template frame per history frame: the liquid particles (Liquid and
+  // Temporary) whose dequantized position lies in the closed box [lo, hi].
+  // Frames in parallel; counted first so that nothing allocates in a
+  // parallel region.
+  static void captureFrames(const std::vector<FramePtr>& frames, const std::vector<double>& lo,
+                            const std::vector<double>& hi, const std::vector<Real>& phaseMass,
+                            std::vector<TemplateFrame<D>>& out) {
+    const long nf = long(frames.size());
+    auto inside = [&](const FrameSnapshot& f, size_t i) {
+      if (f.kind[i] != uint8_t(ParticleKind::Liquid) && f.kind[i] != uint8_t(ParticleKind::Temporary)) return false;
+      for (int d = 0; d < D; ++d) {
+        const double x = f.position(i, d);
+        if (x < lo[size_t(d)] || x > hi[size_t(d)]) return false;
+      }
+      return true;
+    };
+    std::vector<size_t> counts(size_t(nf), 0);
+#pragma omp parallel for schedule(dynamic, 1)
+    for (long k = 0; k < nf; ++k) {
+      const FrameSnapshot& f = *frames[size_t(k)];
+      size_t c = 0;
+      for (size_t i = 0; i < f.particles(); ++i) c += inside(f, i);
+      counts[size_t(k)] = c;
+    }
+    out.assign(size_t(nf), TemplateFrame<D>{});
+    for (long k = 0; k < nf; ++k) {
+      TemplateFrame<D>& t = out[size_t(k)];
+      t.x.resize(counts[size_t(k)]);
+      t.v.resize(counts[size_t(k)]);
+      t.mass.resize(counts[size_t(k)]);
+      t.phase.resize(counts[size_t(k)]);
+    }
+    const size_t phases = phaseMass.size();
+#pragma omp parallel for schedule(dynamic, 1)
+    for (long k = 0; k < nf; ++k) {
+      const FrameSnapshot& f = *frames[size_t(k)];
+      TemplateFrame<D>& t = out[size_t(k)];
+      size_t j = 0;
+      for (size_t i = 0; i < f.particles(); ++i) {
+        if (!inside(f, i)) continue;
+        for (int d = 0; d < D; ++d) {
+          t.x[j][d] = Real(f.position(i, d));
+          t.v[j][d] = Real(f.velocity(i, d));
+        }
+        t.phase[j] = f.phase[i];
+        t.mass[j] = f.phase[i] < phases ? phaseMass[f.phase[i]] : Real(0);
+        ++j;
+      }
+    }
+  }
+
   FramePtr makeSnapshot(const FrameStats& fs) const {
     auto s = std::make_shared<FrameSnapshot>();
     s->dimension = D;
@@ -438,6 +593,24 @@ class SessionImpl final : public Session {
       for (int d = 0; d < D; ++d) {
         const double v = (double(f.x[size_t(i)][d]) - lo[size_t(d)]) * scale[size_t(d)];
         q[size_t(i) * D + size_t(d)] = uint16_t(std::lround(std::clamp(v, 0.0, FrameSnapshot::kQuantizationLevels)));
+      }
+    // Velocities: the frame's largest |v| per axis is the box (see FrameSnapshot).
+    double vmax[D] = {};
+#pragma omp parallel for schedule(static) reduction(max : vmax[:D]) if (n >= 16384)
+    for (long i = 0; i < n; ++i)
+      for (int d = 0; d < D; ++d) vmax[d] = std::max(vmax[d], std::abs(double(f.v[size_t(i)][d])));
+    double vscale[D];
+    for (int d = 0; d < D; ++d) {
+      s->velocityMax[size_t(d)] = vmax[d];
+      vscale[d] = vmax[d] > 0 ? 1 / vmax[d] : 0;  // an axis at rest: every value 32768
+    }
+    s->velocities.resize(size_t(n) * D);
+    uint16_t* qv = s->velocities.data();
+#pragma omp parallel for schedule(static) if (n >= 16384)
+    for (long i = 0; i < n; ++i)
+      for (int d = 0; d < D; ++d) {
+        const double u = (double(f.v[size_t(i)][d]) * vscale[d] + 1) * 0.5 * FrameSnapshot::kQuantizationLevels;
+        qv[size_t(i) * D + size_t(d)] = uint16_t(std::lround(std::clamp(u, 0.0, FrameSnapshot::kQuantizationLevels)));
       }
     s->kind = f.kind;
     s->phase = f.phase;
@@ -512,8 +685,27 @@ class SessionImpl final : public Session {
     simBytes_ = simulationBytes();
   }
 
+  // With mutex_ held: what exports and templates recorded from the history
+  // need to know of the scene (read by the callers' threads).
+  void publishSceneInfoLocked() {
+    info_.sceneName = setup_.name;
+    info_.particleRadius = double(sim_->particleRadius());
+    info_.supportRadius = double(sim_->supportRadius());
+    info_.frameRate = 1.0 / sim_->frameDuration();
+    info_.phases = setup_.phases;
+    info_.phaseMass.clear();
+    for (size_t p = 0; p < setup_.phases.size(); ++p) info_.phaseMass.push_back(sim_->particleMass(int(p)));
+    info_.domainMin.assign(D, 0);
+    info_.domainMax.assign(D, 0);
+    for (int d = 0; d < D; ++d) {
+      info_.domainMin[size_t(d)] = double(setup_.domain.min[d]);
+      info_.domainMax[size_t(d)] = double(setup_.domain.max[d]);
+    }
+  }
+
   // With mutex_ held: history cleared, frame 0 (or the current state) recorded and shown.
   void recordInitialFrame() {
+    publishSceneInfoLocked();
     history_.clear();
     historyBytes_ = 0;
     dropped_ = 0;
@@ -674,6 +866,7 @@ class SessionImpl final : public Session {
       if (r.accepted) {
         sceneShared_ = scene_;
         publishCountsLocked();
+        publishSceneInfoLocked();
       }
     }
     op.promise->set_value(r);
@@ -949,6 +1142,13 @@ class SessionImpl final : public Session {
   FramePtr live_;            // newest simulated frame
   FramePtr replay_;          // frame selected by seek (null: live)
   json sceneShared_;
+  struct SceneInfo {
+    std::string sceneName;
+    double particleRadius = 0, supportRadius = 0, frameRate = 0;
+    std::vector<Phase> phases;
+    std::vector<Real> phaseMass;  // Simulation::particleMass per phase
+    std::vector<double> domainMin, domainMax;
+  } info_;
   std::string errorMessage_;
   int errorFrame_ = -1;
   size_t liquid_ = 0, temporary_ = 0, boundary_ = 0, instances_ = 0, simBytes_ = 0;

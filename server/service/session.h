@@ -61,7 +61,8 @@ struct InstanceSnapshot {
 };
 
 // One recorded frame, immutable once published (shared by the history, the
-// latest-frame slot and every consumer).
+// latest-frame slot and every consumer). Per particle it holds 4·D + 2 bytes
+// (10 in 2D, 14 in 3D): 16-bit position and velocity per axis, kind, phase.
 struct FrameSnapshot {
   static constexpr double kQuantizationLevels = 65535.0;
 
@@ -70,14 +71,21 @@ struct FrameSnapshot {
   double time = 0;                // scene time at the frame's end, s
   // Quantization box: the scene's domain (z = 0 in 2D). Axis d of particle i
   // is positions[i * dimension + d] = round((x − min) / (max − min) · 65535),
-  // clamped to [0, 65535].
+  // clamped to [0, 65535]: error <= (max − min) / 131070.
   std::array<double, 3> domainMin{}, domainMax{};
-  std::vector<uint16_t> positions;  // liquid particles (all kinds), dimension values each
-  std::vector<uint8_t> kind;        // ParticleKind (Liquid, Temporary)
-  std::vector<uint8_t> phase;       // index into the scene's phases
-  FrameStats stats;                 // of the frame (frame 0: counts only)
+  // Velocities in a symmetric box per frame and axis, velocityMax[d] =
+  // max_i |v_id| (m/s, 0 in 2D's z): axis d of particle i is
+  // velocities[i * dimension + d] = round((v / velocityMax[d] + 1) / 2 · 65535),
+  // error <= velocityMax[d] / 65535. An axis at rest in the whole frame
+  // (velocityMax 0) stores 32768 and decodes to exactly 0.
+  std::array<double, 3> velocityMax{};
+  std::vector<uint16_t> positions;   // liquid particles (all kinds), dimension values each
+  std::vector<uint16_t> velocities;  // same particles, dimension values each
+  std::vector<uint8_t> kind;         // ParticleKind (Liquid, Temporary)
+  std::vector<uint8_t> phase;        // index into the scene's phases
+  FrameStats stats;                  // of the frame (frame 0: counts only)
   std::vector<InstanceSnapshot> instances;
-  size_t byteSize = 0;              // bytes() at publication
+  size_t byteSize = 0;               // bytes() at publication
 
   size_t particles() const { return kind.size(); }
   // Dequantized coordinate (m).
@@ -85,14 +93,28 @@ struct FrameSnapshot {
     return domainMin[size_t(axis)] + double(positions[particle * size_t(dimension) + size_t(axis)]) /
                                          kQuantizationLevels * (domainMax[size_t(axis)] - domainMin[size_t(axis)]);
   }
+  // Dequantized velocity component (m/s).
+  double velocity(size_t particle, int axis) const {
+    return (double(velocities[particle * size_t(dimension) + size_t(axis)]) * (2 / kQuantizationLevels) - 1) *
+           velocityMax[size_t(axis)];
+  }
   // Memory held by this snapshot (what the history cap counts).
   size_t bytes() const;
   // What a frame of `particles` particles and `instances` instances holds in
   // the history (instance names not counted): memory per 1000 frames is
-  // 1000 · estimateBytes(...).
+  // 1000 · estimateBytes(...), i.e. (4·D + 2) bytes per particle-frame plus
+  // a fixed part per frame.
   static size_t estimateBytes(int dimension, size_t particles, size_t instances);
 };
 using FramePtr = std::shared_ptr<const FrameSnapshot>;
+
+// What Session::exportHistory wrote.
+struct HistoryExport {
+  std::string h5Path, xdmfPath;
+  int frames = 0;               // frames written
+  uint64_t particleRows = 0;    // particle rows over all frames
+  uint64_t bytes = 0;           // size of both files on disk
+};
 
 
 // ---- edits -----------------------------------------------------------------
@@ -205,6 +227,43 @@ class Session {
   virtual FramePtr frame(int frame) const = 0;
   // The whole history, oldest first (shared snapshots, no copies).
   virtual std::vector<FramePtr> history() const = 0;
+
+  // Writes the recorded frames firstFrame..lastFrame (-1: the oldest / the
+  // newest kept; frames of the range no longer kept are skipped) to h5Path
+  // in the frame-export layout of `flowclip run --export`
+  // (docs/export-format.md) without density, pressure and id, which the
+  // history does not hold, with positions and velocities as recorded
+  // (16-bit quantized); plus an XDMF sidecar (h5Path with the extension
+  // .xdmf) that opens the frames in ParaView as a time series. Both files
+  // are written under temporary names and moved to their names together
+  // (replacing existing ones) only when complete: a failure leaves neither
+  // a partial file nor a changed one. Runs on the caller's thread; the
+  // session goes on meanwhile. Throws std::invalid_argument if
+  // firstFrame > lastFrame or the range holds no recorded frame, and
+  // std::runtime_error naming the path if a file cannot be written.
+  virtual HistoryExport exportHistory(const std::string& h5Path, int firstFrame = -1, int lastFrame = -1) const = 0;
+
+  // Records a template from the history (issue 5, "templates: record from a
+  // session region over a frame range"): template frame k is history frame
+  // firstFrame + k; it holds the liquid particles (kinds Liquid and
+  // Temporary) whose recorded position lies in the closed box
+  // [regionMin, regionMax] (world coordinates, which become the template's
+  // own space), with their recorded positions, velocities and phases and the
+  // mass the scene gives their phase. The header is the recipe capture's
+  // (io/recipe.h): frame rate, particle and support radius of the scene,
+  // rest density of its first phase, the region; the recipe is the session's
+  // scene (sceneJson()). Written into db's directory as NAME.h5 as
+  // recordRecipe writes templates (publishTemplate). Runs on the caller's
+  // thread. Throws DatabaseError (invalid name; the template exists and
+  // !force), std::invalid_argument (region: D finite values each with min <
+  // max, the message naming region_min or region_max; firstFrame >
+  // lastFrame; no liquid in the region; frames recorded at another frame
+  // rate than the scene's current one), std::out_of_range naming the first
+  // frame of the range not in the history, TemplateError on write failures
+  // (no file left behind). Returns db.entry(name).
+  virtual TemplateEntry recordTemplate(TemplateDatabase& db, const std::string& name,
+                                       const std::vector<double>& regionMin, const std::vector<double>& regionMax,
+                                       int firstFrame, int lastFrame, bool force) const = 0;
 
   // The scene with every accepted edit: sceneToJson + sceneControlToJson,
   // every key written; parseScene/parseSceneControl read it back.

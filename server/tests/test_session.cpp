@@ -12,6 +12,7 @@
 #include "tests/hdf5_test_util.h"
 
 #include <gtest/gtest.h>
+#include <omp.h>
 
 #include <atomic>
 #include <chrono>
@@ -156,7 +157,7 @@ TEST(SessionCreate, StartsPausedAtFrameZeroWithState) {
   double minX = 1;
   for (size_t i = 0; i < f->particles(); ++i) minX = std::min(minX, f->position(i, 0));
   EXPECT_NEAR(minX, 0.02, 2.0 / 65535);
-  // Memory per frame: 100 particles × (2 × 2 + 2) bytes plus a fixed part.
+  // Memory per frame: 100 particles × (2 × 2 + 2 × 2 + 2) bytes plus a fixed part.
   EXPECT_EQ(f->bytes(), FrameSnapshot::estimateBytes(2, 100, 0));
   EXPECT_EQ(st["memory"]["history_bytes_per_1000_frames"], 1000 * f->bytes());
   // The scene as saved parses back.
@@ -544,6 +545,50 @@ TEST(SessionHistory, SeekShowsTheRecordedFrameAsPublished) {
   st = s->state();
   EXPECT_TRUE(st["shown"]["live"].get<bool>());
   EXPECT_EQ(s->latestFrame()->frame, 7);
+}
+
+TEST(SessionHistory, VelocitiesMatchTheSimulationWithinQuantization) {
+  Fixture fx;
+  SessionOptions opt;
+  opt.threads = 1;  // the reference below runs on one thread too: same frames
+  auto s = createSession("v", "", smallScene(), fx.db, opt);
+  // Frame 0: at rest, every axis's box is 0 and decodes to exactly 0.
+  const FramePtr f0 = s->frame(0);
+  ASSERT_TRUE(f0);
+  ASSERT_EQ(f0->velocities.size(), 200u);
+  EXPECT_EQ(f0->velocityMax[0], 0);
+  EXPECT_EQ(f0->velocityMax[1], 0);
+  EXPECT_EQ(f0->velocities[0], 32768);
+  EXPECT_EQ(f0->velocity(0, 1), 0);
+  s->step(5);
+  ASSERT_TRUE(s->waitIdle(kWait));
+
+  const int threads = omp_get_max_threads();
+  omp_set_num_threads(1);
+  Simulation<2> sim(parseScene<2>(smallScene()));
+  for (int k = 0; k < 5; ++k) sim.advanceFrame();
+  omp_set_num_threads(threads);
+
+  const FramePtr f = s->frame(5);
+  ASSERT_TRUE(f);
+  ASSERT_EQ(f->particles(), sim.fluid.size());
+  ASSERT_EQ(f->velocities.size(), 2 * f->particles());
+  double vmax[2] = {0, 0};
+  for (size_t i = 0; i < sim.fluid.size(); ++i)
+    for (int d = 0; d < 2; ++d) vmax[d] = std::max(vmax[d], std::abs(double(sim.fluid.v[i][d])));
+  EXPECT_GT(vmax[1], 0.1);  // falling under gravity for 5 frames
+  for (int d = 0; d < 2; ++d) EXPECT_DOUBLE_EQ(f->velocityMax[size_t(d)], vmax[d]);
+  for (size_t i = 0; i < f->particles(); ++i)
+    for (int d = 0; d < 2; ++d) {
+      // Half a quantization step, plus float rounding of the simulation's value.
+      EXPECT_NEAR(f->velocity(i, d), sim.fluid.v[i][d], vmax[d] / 65535 + 1e-6) << "particle " << i << " axis " << d;
+      EXPECT_NEAR(f->position(i, d), sim.fluid.x[i][d], 0.5 / 65535 + 1e-6);
+    }
+  // The velocity box is symmetric: the fastest particle decodes to ±vmax.
+  bool extreme = false;
+  for (size_t i = 0; i < f->particles(); ++i)
+    extreme = extreme || f->velocities[2 * i + 1] == 0 || f->velocities[2 * i + 1] == 65535;
+  EXPECT_TRUE(extreme);
 }
 
 // ----------------------------------------------------- parallel and errors ---
