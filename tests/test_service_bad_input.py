@@ -234,3 +234,14 @@ def test_the_server_still_serves(client):
     sid = client.create_session(small_scene())["id"]
     client.step(sid, 2)
     assert client.wait_paused(sid)["frame"] == 2
+
+
+@pytest.mark.xfail(strict=True, reason="server bug: POST instances accepts names outside [A-Za-z0-9_-]{1,64}, "
+                                       "which no URL can address afterwards")
+def test_instance_names_outside_the_url_alphabet_are_refused(client, sid):
+    before = client.instances(sid)
+    for name in ("../x", "a b", "x" * 65):
+        r = client.request("POST", "/api/sessions/{id}/instances", id=sid,
+                           json_body={"name": name, "template": "drop2d", "start": 10})
+        assert r.status_code in (400, 422), (name, r.status_code)
+    assert client.instances(sid) == before

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from flowclip_client import ApiError, decode
+from flowclip_client import ApiError, FlowClipServer, decode
 from openapi_check import OpenApiChecker
 from service_helpers import drop_scene_without_instances
 
@@ -135,3 +135,26 @@ def test_tour_of_every_endpoint(server, client, openapi):
     missing = tour.operations() - tour.exercised
     assert not missing, f"operations of proto/openapi.yaml the tour did not exercise: {sorted(missing)}"
     assert tour.checked >= len(tour.operations())
+
+
+def test_unreadable_templates_and_scenes_are_listed_with_their_error(template_dir, tmp_path, openapi):
+    templates, scenes = tmp_path / "templates", tmp_path / "scenes"
+    templates.mkdir()
+    scenes.mkdir()
+    (templates / "drop2d.h5").write_bytes((template_dir / "drop2d.h5").read_bytes())
+    (templates / "broken.h5").write_text("not HDF5")
+    (scenes / "broken.json").write_text('{"dimension": ')
+    with FlowClipServer(templates, scenes) as server:
+        client = server.client()
+        client.observers.append(openapi.observe)
+        listed = {t["name"]: t for t in client.templates()}
+        assert set(listed) == {"drop2d", "broken"} and listed["broken"]["error"] and "error" not in listed["drop2d"]
+        (scene,) = client.scenes()
+        assert scene["name"] == "broken" and scene["dimension"] is None and "broken.json" in scene["error"]
+        with pytest.raises(ApiError) as unreadable:
+            client.scene("broken")
+        assert unreadable.value.status == 422 and "broken.json" in unreadable.value.message
+        with pytest.raises(ApiError) as invalid:
+            client.create_session("broken")
+        assert invalid.value.status == 422
+    assert server.returncode == 0
