@@ -191,7 +191,8 @@ def test_invalid_websocket_messages_are_answered_and_the_connection_stays_open(s
 
 def test_requests_without_the_token_are_401(template_dir, scene_dir, openapi):
     token = "s3cret-token"
-    with FlowClipServer(template_dir, scene_dir, token=token) as server:
+    with FlowClipServer(template_dir, scene_dir, token=token,
+                        extra_args=["--allow-origin", "http://editor.example:5173"]) as server:
         anonymous, wrong, right = server.client(token=""), server.client(token="wrong"), server.client()
         anonymous.http.headers.pop("Authorization", None)
         for c in (anonymous, wrong, right):
@@ -216,8 +217,9 @@ def test_requests_without_the_token_are_401(template_dir, scene_dir, openapi):
         with pytest.raises(InvalidStatus) as foreign:
             server.stream(sid, origin="http://evil.example").close()
         assert foreign.value.response.status_code == 403
-        with server.stream(sid, origin=server.url) as stream:
-            assert stream.wait("frame")["frame"] == 0
+        for origin in (server.url, "http://editor.example:5173"):
+            with server.stream(sid, origin=origin) as stream:
+                assert stream.wait("frame")["frame"] == 0
         assert right.sessions()[0]["id"] == sid
     assert server.returncode == 0
 
