@@ -147,6 +147,8 @@ class PumpSession final : public Session {
   }
   bool waitIdle(std::chrono::milliseconds) const override { return true; }
   bool waitForFrame(int, std::chrono::milliseconds) const override { return true; }
+  void demandLayers(const wire::LayerFlags&, int) override {}
+  std::shared_ptr<const LayeredFrame> layeredFrame() const override { return nullptr; }
   HistoryExport exportHistory(const std::string&, int, int) const override {
     throw std::invalid_argument("the benchmark's pump session keeps no history");
   }

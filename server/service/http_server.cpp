@@ -251,8 +251,14 @@ class StreamConnection : public std::enable_shared_from_this<StreamConnection> {
       }
     } else if (const auto* s = std::get_if<wire::SubscribeRequest>(&message)) {
       maxFrameRate_ = s->maxFrameRate;
+      session_->demandLayers(s->layers, +1);
+      session_->demandLayers(layers_, -1);
       layers_ = s->layers;
-      lastSent_ = nullptr;  // resend the current frame with the new layers
+      // The current frame again with the new layers: optional layers come
+      // from the session (at once if encoded, else once it has encoded them:
+      // no plain copy first), the rest is encoded here.
+      layeredSent_ = nullptr;
+      if (!(layers_.control || layers_.repulsion || layers_.boundary)) lastSent_ = nullptr;
       framePending_ = true;
       pump();
     }
@@ -318,15 +324,33 @@ class StreamConnection : public std::enable_shared_from_this<StreamConnection> {
     }
     framePending_ = false;
     FramePtr f = session_->latestFrame();
-    if (!f || f == lastSent_) return;
+    if (!f) return;
+    // With optional layers: the bytes the session encoded for this frame
+    // (the union of every stream's layers). Frame numbers identify it: a
+    // replayed older frame never matches, a reset clears the history. The
+    // layered version may arrive after the plain one was sent (a paused
+    // session asked for a layer): it is sent then.
+    std::shared_ptr<const LayeredFrame> layered;
+    if (layers_.control || layers_.repulsion || layers_.boundary) {
+      layered = session_->layeredFrame();
+      if (layered && (layered->frame != f->frame || layered == layeredSent_)) layered.reset();
+    }
+    if (f == lastSent_ && !layered) return;
+    if (maxFrameRate_ > 0) nextFrameAt_ = now + std::chrono::microseconds(int64_t(1e6 / maxFrameRate_));
+    if (layered) {
+      lastSent_ = f;
+      layeredSent_ = std::move(layered);
+      write(net::buffer(layeredSent_->envelope.data(), layeredSent_->envelope.size()));
+      return;
+    }
     try {
       encodeSnapshot(*f, session_->id(), layers_, frameBuffer_);
     } catch (const std::exception& e) {
-      queueError(wire::fb::ErrorCode::Internal, std::string("frame ") + std::to_string(f->frame) + " cannot be encoded: " + e.what(), 0);
+      queueError(wire::fb::ErrorCode::Internal,
+                 "frame " + std::to_string(f->frame) + " cannot be encoded: " + e.what(), 0);
       return;
     }
     lastSent_ = f;
-    if (maxFrameRate_ > 0) nextFrameAt_ = now + std::chrono::microseconds(int64_t(1e6 / maxFrameRate_));
     write(net::buffer(frameBuffer_.GetBufferPointer(), frameBuffer_.GetSize()));
   }
 
@@ -355,6 +379,7 @@ class StreamConnection : public std::enable_shared_from_this<StreamConnection> {
     closed_ = true;
     timer_.cancel();
     if (session_) {
+      session_->demandLayers(layers_, -1);
       session_->unsubscribe(listenerId_);
       server_.hub.cancelOnSessionDeleted(deletionHook_);
       session_.reset();
@@ -376,6 +401,7 @@ class StreamConnection : public std::enable_shared_from_this<StreamConnection> {
   uint32_t pendingRequest_ = 0;
   std::unordered_map<uint64_t, uint32_t> editIds_;  // session edit id → the client's Edit.edit_id
   FramePtr lastSent_;
+  std::shared_ptr<const LayeredFrame> layeredSent_;  // held while its bytes are written
   bool framePending_ = false, writing_ = false, closed_ = false, timerArmed_ = false;
   double maxFrameRate_ = 0;
   std::chrono::steady_clock::time_point nextFrameAt_{};

@@ -142,6 +142,7 @@ constexpr size_t kKeptResults = 1024;
 
 struct Op {
   bool reset = false;
+  bool layers = false;  // re-encode the current frame with the demanded layers
   uint64_t id = 0;
   Edit edit;
   std::shared_ptr<std::promise<EditResult>> promise;
@@ -737,6 +738,8 @@ class SessionImpl final : public Session {
         lk.unlock();
         if (op.reset)
           doReset();
+        else if (op.layers)
+          doLayers();
         else
           doEdit(op);
         lk.lock();
@@ -779,7 +782,10 @@ class SessionImpl final : public Session {
     fs.frame += frameBase_;
     fs.time += timeBase_;
     FramePtr snap;
-    if (fs.finite) snap = makeSnapshot(fs);
+    if (fs.finite) {
+      snap = makeSnapshot(fs);
+      encodeLayers(fs);
+    }
     lk.lock();
     computing_ = false;
     bool frameChanged = false, stateChanged = false;
@@ -839,8 +845,80 @@ class SessionImpl final : public Session {
       stepsLeft_ = 0;
       replay_ = nullptr;
     }
+    if (failure.empty()) {
+      FrameStats stats;
+      {
+        std::lock_guard lk(mutex_);
+        stats = live_->stats;
+      }
+      encodeLayers(stats);
+    }
     notifyFrame();
     notifyState();
+  }
+
+  // ---- optional layers ----
+
+  void demandLayers(const wire::LayerFlags& layers, int delta) override {
+    bool rose = false;
+    {
+      std::lock_guard lk(mutex_);
+      auto change = [&](bool wanted, int& count) {
+        if (!wanted) return;
+        rose = rose || (delta > 0 && count == 0);
+        count = std::max(0, count + delta);
+      };
+      change(layers.control, layerDemand_[0]);
+      change(layers.repulsion, layerDemand_[1]);
+      change(layers.boundary, layerDemand_[2]);
+      if (rose) {
+        Op op;
+        op.layers = true;
+        ops_.push_back(std::move(op));
+        ++signal_;
+      }
+    }
+    if (rose) wake();
+  }
+
+  std::shared_ptr<const LayeredFrame> layeredFrame() const override {
+    std::lock_guard lk(mutex_);
+    return layered_;
+  }
+
+  // Session thread: encodes the simulation's current state with the layers
+  // wanted now, if any (the encoding is the frame's; an encode failure, a
+  // non-finite α say, leaves the streams on the plain snapshot).
+  void encodeLayers(const FrameStats& stats) {
+    wire::LayerFlags want;
+    {
+      std::lock_guard lk(mutex_);
+      want.control = layerDemand_[0] > 0;
+      want.repulsion = layerDemand_[1] > 0;
+      want.boundary = layerDemand_[2] > 0;
+    }
+    if (!want.control && !want.repulsion && !want.boundary) return;
+    auto out = std::make_shared<LayeredFrame>();
+    out->frame = stats.frame;
+    out->layers = want;
+    try {
+      wire::encodeFrame<D>(*sim_, stats, controlStage_, id_, want, layerBuilder_);
+    } catch (const wire::EncodeError&) {
+      return;
+    }
+    out->envelope.assign(layerBuilder_.GetBufferPointer(), layerBuilder_.GetBufferPointer() + layerBuilder_.GetSize());
+    std::lock_guard lk(mutex_);
+    layered_ = std::move(out);
+  }
+
+  void doLayers() {
+    FrameStats stats;
+    {
+      std::lock_guard lk(mutex_);
+      stats = live_->stats;
+    }
+    encodeLayers(stats);
+    notifyFrame();
   }
 
   void doEdit(Op& op) {
@@ -1134,6 +1212,9 @@ class SessionImpl final : public Session {
   bool notifying_ = false;   // listeners are hearing of the last frame
   std::deque<Op> ops_;
   size_t pendingEdits_ = 0;
+  int layerDemand_[3] = {0, 0, 0};              // streams wanting control, repulsion, boundary
+  std::shared_ptr<const LayeredFrame> layered_;  // the newest frame with those layers
+  flatbuffers::FlatBufferBuilder layerBuilder_{1 << 16};  // session thread only
   uint64_t lastEditId_ = 0;
   std::map<uint64_t, EditResult> results_;
   std::deque<FramePtr> history_;

@@ -27,6 +27,7 @@
 #include "io/scene.h"
 #include "io/stats_json.h"
 #include "io/template_database.h"
+#include "service/frame_encoding.h"
 #include "sph/simulation.h"
 
 #include <nlohmann/json.hpp>
@@ -166,6 +167,13 @@ struct EditTicket {
   std::shared_future<EditResult> result;
 };
 
+// The newest frame encoded with optional layers (Session::demandLayers).
+struct LayeredFrame {
+  int frame = 0;
+  wire::LayerFlags layers;            // layers encoded (Frame.layers may hold fewer: none without instances)
+  std::vector<uint8_t> envelope;      // a finished Envelope{Frame}
+};
+
 // ---- the session -------------------------------------------------------------
 
 enum class SessionStatus { Paused, Playing, Stepping, Error };
@@ -264,6 +272,19 @@ class Session {
   virtual TemplateEntry recordTemplate(TemplateDatabase& db, const std::string& name,
                                        const std::vector<double>& regionMin, const std::vector<double>& regionMax,
                                        int firstFrame, int lastFrame, bool force) const = 0;
+
+  // Optional frame layers (control particles with α, repulsion particles,
+  // boundary particles) exist only while the simulation is at that frame,
+  // so they are never in the history. While any stream wants a layer
+  // (demandLayers(+1)), the session's thread encodes each new frame once,
+  // with the union of the wanted layers, as a complete Envelope{Frame}
+  // (wire::encodeFrame); streams send those bytes instead of encoding the
+  // snapshot. A rise in demand re-encodes the current frame at once (a
+  // paused session shows the layer without stepping). Replayed frames have
+  // no layers.
+  virtual void demandLayers(const wire::LayerFlags& layers, int delta) = 0;
+  // The newest frame with the demanded layers (nullptr: none demanded yet).
+  virtual std::shared_ptr<const LayeredFrame> layeredFrame() const = 0;
 
   // The scene with every accepted edit: sceneToJson + sceneControlToJson,
   // every key written; parseScene/parseSceneControl read it back.

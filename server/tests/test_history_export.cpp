@@ -72,7 +72,9 @@ std::vector<T> readAll(hid_t file, const char* name, hid_t fileType, hid_t memTy
   EXPECT_GT(H5Tequal(type.id, fileType), 0) << name << " has the wrong stored type";
   H5 space{H5Dget_space(ds.id), H5Sclose};
   std::vector<T> out(size_t(H5Sget_simple_extent_npoints(space.id)));
-  if (!out.empty()) EXPECT_GE(H5Dread(ds.id, memType, H5S_ALL, H5S_ALL, H5P_DEFAULT, out.data()), 0) << name;
+  if (!out.empty()) {
+    EXPECT_GE(H5Dread(ds.id, memType, H5S_ALL, H5S_ALL, H5P_DEFAULT, out.data()), 0) << name;
+  }
   return out;
 }
 
