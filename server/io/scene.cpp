@@ -501,6 +501,9 @@ InstanceSpec<D> parseInstance(const json& j, const std::string& p, const std::ve
   if (const json* m = member(o, "name")) {
     s.name = getString(*m, key(p, "name"));
     if (s.name.empty()) fail(key(p, "name"), "must not be empty (omit it for a name derived from the template)");
+    // Instances are addressed by name in URLs (/api/sessions/{id}/instances/{name}).
+    if (!isValidTemplateName(s.name))
+      fail(key(p, "name"), "'" + s.name.substr(0, 80) + "' must be 1 to 64 characters from A-Z a-z 0-9 _ -");
   }
   const std::string tp = key(p, "template");
   s.templateName = getString(required(o, p, "template", "name of a template in the template database"), tp);

@@ -482,6 +482,12 @@ TEST(InstanceSceneErrors, ParamsOutOfRange) {
                  {"outside the allowed range"});
 }
 
+// Names appear in URLs: nothing outside [A-Za-z0-9_-]{1,64}.
+TEST(InstanceSceneErrors, NamesOutsideTheUrlAlphabet) {
+  for (const std::string name : {"../x", "a b", std::string(65, 'x'), std::string("caf\xc3\xa9")})
+    expectError(json{{"instances", json::array({with(minimal2D(), "name", name)})}}, "instances[0].name");
+}
+
 TEST(InstanceSceneErrors, LaterInstanceIsNamed) {
   const json j = {{"instances", json::array({minimal2D(), with(minimal2D(), "speed", 0)})}};
   expectError(j, "instances[1].speed");
