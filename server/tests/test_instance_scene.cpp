@@ -484,7 +484,7 @@ TEST(InstanceSceneErrors, ParamsOutOfRange) {
 
 // Names appear in URLs: nothing outside [A-Za-z0-9_-]{1,64}.
 TEST(InstanceSceneErrors, NamesOutsideTheUrlAlphabet) {
-  for (const std::string name : {"../x", "a b", std::string(65, 'x'), std::string("caf\xc3\xa9")})
+  for (const std::string& name : std::vector<std::string>{"../x", "a b", std::string(65, 'x'), "caf\xc3\xa9"})
     expectError(json{{"instances", json::array({with(minimal2D(), "name", name)})}}, "instances[0].name");
 }
 
