@@ -791,6 +791,9 @@ HttpResponse ServiceHub::transport(const HttpRequest& req, const Params& p) {
   } else if (command == "pause") {
     onlyKeys(body, {"command"});
     s->pause();
+    // The answer shows the session stopped when the frame in progress ends
+    // soon; a long frame answers at once with "computing": true.
+    s->waitIdle(std::chrono::seconds(2));
   } else if (command == "step") {
     onlyKeys(body, {"command", "frames"});
     s->step(int(getInt(body, "frames", false, 1, 1, 1000000)));

@@ -1125,6 +1125,7 @@ class SessionImpl final : public Session {
               {"instances", instances_},
               {"pending_edits", pendingEdits_},
               {"steps_left", stepsLeft_},
+              {"computing", computing_},
               {"memory",
                {{"history_bytes", historyBytes_},
                 {"frame_bytes", frameBytes},

@@ -293,7 +293,8 @@ class Session {
   //  shown: {live, frame}, history: {first, last, frames, bytes, cap, dropped},
   //  stats (last frame's), error: {message, frame} (error state only),
   //  particles: {liquid, temporary, boundary}, instances, pending_edits,
-  //  steps_left, memory: {history_bytes, frame_bytes, history_bytes_per_1000_frames,
+  //  steps_left, computing (a frame is being simulated: after pause() until
+  //  it ends), memory: {history_bytes, frame_bytes, history_bytes_per_1000_frames,
   //  simulation_bytes, total_bytes}}
   virtual nlohmann::json state() const = 0;
   virtual SessionStatus status() const = 0;

@@ -13,6 +13,7 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <thread>
 
 namespace fc::service {
 namespace {
@@ -200,6 +201,21 @@ TEST(RestApi, TransportFramesAndSeekAgreeInJsonAndBinary) {
   ASSERT_EQ(stats["frames"].size(), 4u);
   EXPECT_EQ(stats["frames"][3]["frame"], 3);
   EXPECT_GT(stats["frames"][3]["substeps"].get<int>(), 0);
+}
+
+// The pause answer is the state after the frame in progress: the frame it
+// names is the one the session stays at.
+TEST(RestApi, PauseAnswersWithTheFrameTheSessionStopsAt) {
+  Api api;
+  const std::string id = api.createSession();
+  const std::string base = "/api/sessions/" + id;
+  api.callJson("POST", base + "/transport", {{"command", "play"}}, 200);
+  ASSERT_TRUE(api.hub.session(id)->waitForFrame(3, 10s));
+  const json paused = api.callJson("POST", base + "/transport", {{"command", "pause"}}, 200);
+  EXPECT_EQ(paused["status"], "paused");
+  EXPECT_EQ(paused["computing"], false);
+  std::this_thread::sleep_for(200ms);
+  EXPECT_EQ(api.callJson("GET", base, nullptr, 200)["frame"], paused["frame"]);
 }
 
 TEST(RestApi, SavedScenesReloadAndAreNotOverwrittenWithoutForce) {
