@@ -9,7 +9,7 @@
 
 #include "service/frame_encoding.h"
 #include "tests/hdf5_test_util.h"
-#include "tests/template_test_util.h"
+#include "tests/test_fixtures.h"
 
 #include <gtest/gtest.h>
 
@@ -23,13 +23,7 @@ using nlohmann::json;
 using fc::test::TempDir;
 namespace fb = wire::fb;
 
-json smallScene() {
-  return json::parse(R"({
-    "name": "box", "dimension": 2, "particle_radius": 0.02,
-    "domain": {"min": [0, 0], "max": [1, 1]},
-    "fluid_blocks": [{"min": [0, 0], "max": [0.4, 0.4]}]
-  })");
-}
+using fc::test::smallTankScene;
 
 struct Served {
   TempDir tmp;
@@ -42,7 +36,7 @@ struct Served {
     HttpRequest r;
     r.method = "POST";
     r.path = "/api/sessions";
-    json scene = smallScene();
+    json scene = smallTankScene();
     scene["instances"] = json::array({{{"name", "drop"}, {"template", "blob"}}});
     r.body = json{{"scene", scene}}.dump();
     const HttpResponse res = hub.handle(r);

@@ -8,7 +8,7 @@
 #include "io/template_database.h"
 #include "io/template_file.h"
 #include "tests/hdf5_test_util.h"
-#include "tests/template_test_util.h"
+#include "tests/test_fixtures.h"
 
 #include <gtest/gtest.h>
 

@@ -6,7 +6,7 @@
 
 #include "service/frame_encoding.h"
 #include "tests/hdf5_test_util.h"
-#include "tests/template_test_util.h"
+#include "tests/test_fixtures.h"
 
 #include <gtest/gtest.h>
 
@@ -22,13 +22,7 @@ using nlohmann::json;
 using fc::test::TempDir;
 using namespace std::chrono_literals;
 
-json smallScene() {
-  return json::parse(R"({
-    "name": "box", "dimension": 2, "particle_radius": 0.02,
-    "domain": {"min": [0, 0], "max": [1, 1]},
-    "fluid_blocks": [{"min": [0, 0], "max": [0.4, 0.4]}]
-  })");
-}
+using fc::test::smallTankScene;
 
 struct Api {
   TempDir tmp;
@@ -36,7 +30,7 @@ struct Api {
   explicit Api(int maxSessions = 4) : hub(options(maxSessions)) {
     fc::test::writeSmallTemplate<2>(tmp.file("templates"), "blob", 13, {0.05, 0.05}, {0.35, 0.35});
     std::filesystem::create_directories(tmp.file("scenes"));
-    std::ofstream(tmp.file("scenes/box.json")) << smallScene().dump(2);
+    std::ofstream(tmp.file("scenes/box.json")) << smallTankScene().dump(2);
   }
   ServiceOptions options(int maxSessions) {
     ServiceOptions o;
@@ -110,7 +104,7 @@ TEST(RestApi, BadInputGetsTheRightStatusAndNamesWhatWasWrong) {
   expectError(api.call("GET", "/api/templates/missing"), 404, "not_found");
   expectError(api.call("GET", "/api/sessions/s99"), 404, "not_found");
   // An invalid inline scene is understood but cannot be simulated: 422 with the key.
-  json scene = smallScene();
+  json scene = smallTankScene();
   scene["particle_radius"] = -1;
   expectError(api.call("POST", "/api/sessions", json{{"scene", scene}}.dump()), 422, "unprocessable",
               "scene.particle_radius");
@@ -120,7 +114,7 @@ TEST(RestApi, BadInputGetsTheRightStatusAndNamesWhatWasWrong) {
 TEST(RestApi, SessionsAreCreatedListedCappedAndDeleted) {
   Api api(2);
   const std::string a = api.createSession();
-  const json b = api.callJson("POST", "/api/sessions", {{"scene", smallScene()}, {"name", "inline"}}, 201);
+  const json b = api.callJson("POST", "/api/sessions", {{"scene", smallTankScene()}, {"name", "inline"}}, 201);
   EXPECT_NE(a, b["id"]);
   EXPECT_EQ(b["name"], "inline");
   EXPECT_EQ(b["status"], "paused");

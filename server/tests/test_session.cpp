@@ -10,6 +10,7 @@
 #include "io/template_database.h"
 #include "io/template_file.h"
 #include "tests/hdf5_test_util.h"
+#include "tests/test_fixtures.h"
 
 #include <gtest/gtest.h>
 #include <omp.h>
@@ -31,54 +32,14 @@ using namespace std::chrono_literals;
 
 constexpr auto kWait = 4000ms;
 
-// 100 particles (a 10 × 10 block) in a 1 m tank.
-json smallScene(const std::string& name = "box") {
-  json j = json::parse(R"({
-    "dimension": 2, "particle_radius": 0.02,
-    "domain": {"min": [0, 0], "max": [1, 1]},
-    "fluid_blocks": [{"min": [0, 0], "max": [0.4, 0.4]}]
-  })");
-  j["name"] = name;
-  return j;
-}
-
-// A small template (4 × 4 particles rising slowly; 13 frames at 60 fps =
-// 0.2 s) captured in [lo, hi], as test_instance_scene.cpp writes them.
-void writeSmallTemplate(const std::string& dir, const std::string& name, int frames, const std::vector<double>& lo,
-                        const std::vector<double>& hi) {
-  Template<2> t;
-  TemplateHeader& h = t.header;
-  h.name = name;
-  h.dimension = 2;
-  h.frameRate = 60;
-  h.particleRadius = 0.01;
-  h.supportRadius = 0.04;
-  h.restDensity = 1000;
-  h.regionMin = lo;
-  h.regionMax = hi;
-  h.recipe = "{}";
-  h.createdBy = "flowclip tests";
-  const double dx = 2 * h.particleRadius;
-  for (int f = 0; f < frames; ++f) {
-    TemplateFrame<2> fr;
-    for (int i = 0; i < 4; ++i)
-      for (int j = 0; j < 4; ++j) {
-        fr.x.push_back(Vec<2>(Real(lo[0] + dx + i * dx), Real(lo[1] + dx + j * dx + 0.001 * f)));
-        fr.v.push_back(Vec<2>(0, Real(0.06)));
-        fr.mass.push_back(Real(1000 * dx * dx));
-        fr.phase.push_back(0);
-      }
-    t.frames.push_back(std::move(fr));
-  }
-  std::filesystem::create_directories(dir);
-  writeTemplate<2>((std::filesystem::path(dir) / (name + ".h5")).string(), t);
-}
+using fc::test::smallTankScene;
+using fc::test::writeSmallTemplate;
 
 struct Fixture {
   TempDir tmp;
   std::string dir = tmp.file("templates");
   TemplateDatabase db{dir};
-  Fixture() { writeSmallTemplate(dir, "blob", 13, {0.05, 0.05}, {0.35, 0.35}); }
+  Fixture() { writeSmallTemplate<2>(dir, "blob", 13, {0.05, 0.05}, {0.35, 0.35}); }
 };
 
 EditResult resultOf(const EditTicket& t) {
@@ -92,7 +53,7 @@ int historyFrames(const Session& s) { return s.state()["history"]["frames"].get<
 
 TEST(SessionCreate, InvalidSceneThrowsWithKeyPath) {
   Fixture fx;
-  json bad = smallScene();
+  json bad = smallTankScene();
   bad["settings"] = {{"cfl_factor", 7}};
   try {
     createSession("s", "", bad, fx.db);
@@ -100,7 +61,7 @@ TEST(SessionCreate, InvalidSceneThrowsWithKeyPath) {
   } catch (const SceneError& e) {
     EXPECT_EQ(e.path, "settings.cfl_factor");
   }
-  json unknown = smallScene();
+  json unknown = smallTankScene();
   unknown["instances"] = json::array({{{"template", "nope"}}});
   try {
     createSession("s", "", unknown, fx.db);
@@ -132,7 +93,7 @@ TEST(SessionCreate, ThreeDimensionalScene) {
 
 TEST(SessionCreate, StartsPausedAtFrameZeroWithState) {
   Fixture fx;
-  auto s = createSession("abc", "", smallScene("tank"), fx.db);
+  auto s = createSession("abc", "", smallTankScene("tank"), fx.db);
   EXPECT_EQ(s->id(), "abc");
   EXPECT_EQ(s->name(), "tank");
   EXPECT_EQ(s->dimension(), 2);
@@ -171,7 +132,7 @@ TEST(SessionCreate, StartsPausedAtFrameZeroWithState) {
 
 TEST(SessionTransport, StepPlayPauseReset) {
   Fixture fx;
-  auto s = createSession("t", "", smallScene(), fx.db);
+  auto s = createSession("t", "", smallTankScene(), fx.db);
   s->step(3);
   ASSERT_TRUE(s->waitIdle(kWait));
   EXPECT_EQ(s->currentFrame(), 3);
@@ -206,7 +167,7 @@ TEST(SessionTransport, StepPlayPauseReset) {
 
 TEST(SessionTransport, PlaybackSpeedCapsTheFrameRate) {
   Fixture fx;
-  auto s = createSession("t", "", smallScene(), fx.db);
+  auto s = createSession("t", "", smallTankScene(), fx.db);
   s->setPlaybackSpeed(20);  // 50 ms per frame at most
   EXPECT_EQ(s->state()["playback_speed"], 20.0);
   const auto t0 = std::chrono::steady_clock::now();
@@ -222,7 +183,7 @@ TEST(SessionTransport, FrameListenersSeeEveryFrameInOrder) {
   std::mutex m;  // listener state outlives the session
   std::vector<int> seen;
   std::vector<std::string> states;
-  auto s = createSession("t", "", smallScene(), fx.db);
+  auto s = createSession("t", "", smallTankScene(), fx.db);
   const uint64_t id = s->subscribe({[&](const FramePtr& f) {
                                       std::lock_guard lk(m);
                                       seen.push_back(f->frame);
@@ -278,7 +239,7 @@ TEST(SessionEdits, FromJsonNamesTheBadKey) {
 // it carry no instance.
 TEST(SessionEdits, FirstInstanceAddsControlAtTheAcknowledgedFrame) {
   Fixture fx;
-  auto s = createSession("e", "", smallScene(), fx.db);
+  auto s = createSession("e", "", smallTankScene(), fx.db);
   s->step(2);
   ASSERT_TRUE(s->waitIdle(kWait));
   EXPECT_FALSE(s->latestFrame()->stats.instances.size());
@@ -329,7 +290,7 @@ TEST(SessionEdits, FirstInstanceAddsControlAtTheAcknowledgedFrame) {
 // edit: the frame before it has no instance, that frame has one.
 TEST(SessionEdits, AppliedAtAFrameBoundaryWhilePlaying) {
   Fixture fx;
-  auto s = createSession("e", "", smallScene(), fx.db);
+  auto s = createSession("e", "", smallTankScene(), fx.db);
   s->play();
   ASSERT_TRUE(s->waitForFrame(2, kWait));
   const EditResult r =
@@ -347,7 +308,7 @@ TEST(SessionEdits, AppliedAtAFrameBoundaryWhilePlaying) {
 
 TEST(SessionEdits, InvalidEditsAreRejectedNamingTheFieldAndNotApplied) {
   Fixture fx;
-  json scene = smallScene();
+  json scene = smallTankScene();
   scene["instances"] = json::array({{{"template", "blob"}, {"name", "a"}}});
   std::mutex m;
   std::vector<EditResult> heard;
@@ -403,7 +364,7 @@ TEST(SessionEdits, InvalidEditsAreRejectedNamingTheFieldAndNotApplied) {
 // none lost, none moved back to the initial block, the clock continues.
 TEST(SessionEdits, SettingsChangeKeepsParticlesAndClock) {
   Fixture fx;
-  auto s = createSession("e", "", smallScene(), fx.db);
+  auto s = createSession("e", "", smallTankScene(), fx.db);
   s->step(5);
   ASSERT_TRUE(s->waitIdle(kWait));
   const FramePtr f5 = s->latestFrame();
@@ -460,7 +421,7 @@ TEST(SessionEdits, SettingsChangeKeepsParticlesAndClock) {
 // go on with the template frame they were at.
 TEST(SessionEdits, SettingsChangeKeepsInstancesOnTheSceneClock) {
   Fixture fx;
-  json scene = smallScene();
+  json scene = smallTankScene();
   scene["instances"] = json::array({{{"template", "blob"}}});
   auto s = createSession("e", "", scene, fx.db);
   s->step(3);
@@ -488,7 +449,7 @@ TEST(SessionHistory, CapDropsTheOldestFramesAndSaysSo) {
   const size_t frameBytes = FrameSnapshot::estimateBytes(2, 100, 0);
   SessionOptions opt;
   opt.historyCapBytes = frameBytes * 5 + frameBytes / 2;  // room for 5 frames
-  auto s = createSession("h", "", smallScene(), fx.db, opt);
+  auto s = createSession("h", "", smallTankScene(), fx.db, opt);
   s->step(10);
   ASSERT_TRUE(s->waitIdle(kWait));
   const json h = s->state()["history"];
@@ -514,7 +475,7 @@ TEST(SessionHistory, SeekShowsTheRecordedFrameAsPublished) {
   Fixture fx;
   std::mutex m;
   std::map<int, std::vector<uint16_t>> published;
-  auto s = createSession("h", "", smallScene(), fx.db);
+  auto s = createSession("h", "", smallTankScene(), fx.db);
   s->subscribe({[&](const FramePtr& f) {
                   std::lock_guard lk(m);
                   published[f->frame] = f->positions;
@@ -551,7 +512,7 @@ TEST(SessionHistory, VelocitiesMatchTheSimulationWithinQuantization) {
   Fixture fx;
   SessionOptions opt;
   opt.threads = 1;  // the reference below runs on one thread too: same frames
-  auto s = createSession("v", "", smallScene(), fx.db, opt);
+  auto s = createSession("v", "", smallTankScene(), fx.db, opt);
   // Frame 0: at rest, every axis's box is 0 and decodes to exactly 0.
   const FramePtr f0 = s->frame(0);
   ASSERT_TRUE(f0);
@@ -565,7 +526,7 @@ TEST(SessionHistory, VelocitiesMatchTheSimulationWithinQuantization) {
 
   const int threads = omp_get_max_threads();
   omp_set_num_threads(1);
-  Simulation<2> sim(parseScene<2>(smallScene()));
+  Simulation<2> sim(parseScene<2>(smallTankScene()));
   for (int k = 0; k < 5; ++k) sim.advanceFrame();
   omp_set_num_threads(threads);
 
@@ -597,8 +558,8 @@ TEST(SessionParallel, TwoSessionsRunIndependently) {
   Fixture fx;
   SessionOptions opt;
   opt.threads = 1;  // identical scenes then give identical frames
-  auto a = createSession("a", "", smallScene(), fx.db, opt);
-  auto b = createSession("b", "", smallScene(), fx.db, opt);
+  auto a = createSession("a", "", smallTankScene(), fx.db, opt);
+  auto b = createSession("b", "", smallTankScene(), fx.db, opt);
   a->play();
   b->play();
   ASSERT_TRUE(a->waitForFrame(8, kWait));
@@ -623,12 +584,12 @@ TEST(SessionErrors, NonFiniteFramePausesWithErrorOtherSessionContinues) {
   Fixture fx;
   // Gravity near the float limit with 0.1 s substeps: velocities overflow
   // within a few substeps.
-  json blowup = smallScene("blowup");
+  json blowup = smallTankScene("blowup");
   blowup["gravity"] = {0, -3e38};
   blowup["settings"] = {{"frame_rate", 1}, {"dt_min", 0.1}, {"dt_max", 0.1}};
   std::atomic<bool> nonFinitePublished = false;
   auto bad = createSession("bad", "", blowup, fx.db);
-  auto good = createSession("good", "", smallScene(), fx.db);
+  auto good = createSession("good", "", smallTankScene(), fx.db);
   bad->subscribe({[&](const FramePtr& f) {
                     if (!f->stats.finite) nonFinitePublished = true;
                   },
@@ -664,7 +625,7 @@ TEST(SessionErrors, NonFiniteFramePausesWithErrorOtherSessionContinues) {
 
 TEST(SessionLifetime, DestructionDuringPlayIsPrompt) {
   Fixture fx;
-  auto s = createSession("d", "", smallScene(), fx.db);
+  auto s = createSession("d", "", smallTankScene(), fx.db);
   s->play();
   ASSERT_TRUE(s->waitForFrame(2, kWait));
   auto t0 = std::chrono::steady_clock::now();
@@ -677,7 +638,7 @@ TEST(SessionLifetime, DestructionDuringPlayIsPrompt) {
   EXPECT_FALSE(t.result.get().accepted);
 
   // Paced playback waiting for its next slot also stops at once.
-  auto p = createSession("p", "", smallScene(), fx.db);
+  auto p = createSession("p", "", smallTankScene(), fx.db);
   p->setPlaybackSpeed(0.2);  // one frame per 5 s
   p->play();
   ASSERT_TRUE(p->waitForFrame(1, kWait));

@@ -1,9 +1,11 @@
-// A small synthetic template for tests that need one in a database
-// (instances, sessions, the REST API).
+// Small fixtures shared by the instance, session and service tests: a
+// synthetic template written to a database directory and a small 2D tank.
 #pragma once
 
 #include "control/template.h"
 #include "io/template_file.h"
+
+#include <nlohmann/json.hpp>
 
 #include <cmath>
 #include <filesystem>
@@ -48,6 +50,18 @@ void writeSmallTemplate(const std::string& dir, const std::string& name, int fra
   }
   std::filesystem::create_directories(dir);
   writeTemplate<D>((std::filesystem::path(dir) / (name + ".h5")).string(), t);
+}
+
+// 100 particles (a 10 × 10 block at r = 0.02 m) in the corner of a 1 m 2D
+// tank: a scene that simulates a frame in milliseconds.
+inline nlohmann::json smallTankScene(const std::string& name = "box") {
+  nlohmann::json j = nlohmann::json::parse(R"({
+    "dimension": 2, "particle_radius": 0.02,
+    "domain": {"min": [0, 0], "max": [1, 1]},
+    "fluid_blocks": [{"min": [0, 0], "max": [0.4, 0.4]}]
+  })");
+  j["name"] = name;
+  return j;
 }
 
 }  // namespace fc::test
