@@ -1,0 +1,43 @@
+// Sets one key of an instance on the server (a JSON merge patch {key: value};
+// undo patches the old value back, or null, which removes the key so that the
+// server's default applies again). Successive changes of the same key merge.
+import { Command } from '../core/Command';
+import type { Editor } from '../core/Editor';
+
+export class SetInstanceValueCommand extends Command {
+  readonly name: string;
+  override readonly mergeKey: string;
+  private newValue: unknown;
+
+  constructor(
+    private readonly editor: Editor,
+    private readonly instance: string,
+    private readonly key: string,
+    newValue: unknown,
+    private readonly oldValue: unknown,
+  ) {
+    super();
+    this.name = `Set ${instance}.${key}`;
+    this.mergeKey = `value:${instance}.${key}`;
+    this.newValue = structuredClone(newValue);
+    this.oldValue = oldValue === undefined ? null : structuredClone(oldValue);
+  }
+
+  execute() {
+    return this.apply(this.newValue);
+  }
+
+  undo() {
+    return this.apply(this.oldValue);
+  }
+
+  override merge(newer: Command) {
+    this.newValue = (newer as SetInstanceValueCommand).newValue;
+  }
+
+  private async apply(value: unknown) {
+    const sid = this.editor.requireSession();
+    const res = await this.editor.api.patchInstance(sid, this.instance, { [this.key]: value });
+    this.editor.instanceUpdated(res.instance);
+  }
+}

@@ -1,0 +1,54 @@
+// The FlowClip editor: wires the hub, the viewport and the panels, then opens
+// a scene: ?scene=NAME (empty: none), ?session=ID attaches to an existing
+// session, default drop2d (or the first scene listed).
+import './styles.css';
+import { Editor } from './core/Editor';
+import { Viewport } from './viewport/Viewport';
+import { Toolbar } from './ui/Toolbar';
+import { StatusBar } from './ui/StatusBar';
+import { Messages } from './ui/Messages';
+import { installKeyboard } from './ui/Keyboard';
+import { el } from './ui/dom';
+
+const DEFAULT_SCENE = 'drop2d';
+
+const editor = new Editor();
+const app = document.getElementById('app')!;
+const toolbar = new Toolbar(editor);
+const viewportDom = el('main', { className: 'viewport', testid: 'viewport' });
+const messages = new Messages(editor);
+const statusBar = new StatusBar(editor);
+app.append(toolbar.dom, viewportDom, statusBar.dom);
+viewportDom.append(messages.dom);
+const viewport = new Viewport(viewportDom, editor);
+installKeyboard(editor);
+
+// For debugging from the console and for tests (never used by the editor itself).
+(window as unknown as { flowclip: unknown }).flowclip = { editor, viewport };
+
+// Sessions this editor created are deleted when the page goes away.
+window.addEventListener('pagehide', () => {
+  const s = editor.session;
+  if (s?.owned) {
+    const headers: Record<string, string> = editor.api.token ? { Authorization: `Bearer ${editor.api.token}` } : {};
+    void fetch(`/api/sessions/${encodeURIComponent(s.id)}`, { method: 'DELETE', keepalive: true, headers }).catch(() => undefined);
+  }
+});
+
+async function start() {
+  const params = new URLSearchParams(location.search);
+  const scenes = await editor.loadScenes();
+  const session = params.get('session');
+  if (session) {
+    await editor.attachSession(session);
+    return;
+  }
+  const wanted = params.has('scene') ? params.get('scene')! : DEFAULT_SCENE;
+  if (wanted === '') return;
+  const usable = scenes.filter((s) => !s.error);
+  const scene = usable.find((s) => s.name === wanted) ?? (params.has('scene') ? undefined : usable[0]);
+  if (scene) await editor.openScene(scene.name);
+  else editor.message('warning', `no scene ${wanted} on the server`);
+}
+
+void start();

@@ -1,0 +1,266 @@
+// Decodes the stream's Frame messages (proto/flowclip.fbs) without
+// per-particle allocations: positions are dequantized and colours looked up
+// straight into the float buffers of a ParticleTarget (the viewport's
+// BufferGeometry attributes), which grow by doubling; the frame's header,
+// counts and instance records go into objects reused from frame to frame.
+import { Frame, Instance, Points, Stats, Vec3 } from '@wire';
+
+/** Where decoded particles go: xyz positions and rgb colours, 3 floats per particle. */
+export interface ParticleTarget {
+  /** Buffers with room for at least n particles (the target grows them, keeping none of the old values). */
+  reserve(n: number): { positions: Float32Array; colors: Float32Array };
+  /** The first n particles of the buffers returned by reserve() are the new frame. */
+  commit(n: number): void;
+}
+
+/** A ParticleTarget of plain growable arrays (no viewport: tests, benchmarks). */
+export class ArrayParticleTarget implements ParticleTarget {
+  positions = new Float32Array(0);
+  colors = new Float32Array(0);
+  count = 0;
+  reserve(n: number) {
+    if (this.positions.length < 3 * n) {
+      let cap = Math.max(1024, this.positions.length / 3);
+      while (cap < n) cap *= 2;
+      this.positions = new Float32Array(3 * cap);
+      this.colors = new Float32Array(3 * cap);
+    }
+    return this;
+  }
+  commit(n: number) {
+    this.count = n;
+  }
+}
+
+export interface InstanceInfo {
+  name: string;
+  template: string;
+  active: boolean;
+  templateFrame: number;
+  phase: number;
+  /** Template space → world as a column-major 4×4 (three.js Matrix4.elements); 2D matrices are lifted. */
+  matrix: Float64Array;
+  templateMin: [number, number, number];
+  templateMax: [number, number, number];
+  falloffWidth: number;
+  fidelity: number;
+  controlled: number;
+}
+
+export interface FrameInfo {
+  sessionId: string;
+  frame: number;
+  time: number;
+  dimension: 2 | 3;
+  domainMin: [number, number, number];
+  domainMax: [number, number, number];
+  layers: number;
+  /** Particles decoded (liquid and temporary, then boundary when that layer is present). */
+  count: number;
+  liquid: number;
+  temporary: number;
+  boundary: number;
+  wallMs: number;
+  controlMs: number;
+  /** Instance records, instanceCount of them valid (the array is a pool). */
+  instances: InstanceInfo[];
+  instanceCount: number;
+  /** Wall time of the last decode, ms. */
+  decodeMs: number;
+  /** Wire bytes of the last frame message. */
+  bytes: number;
+}
+
+export const enum Kind {
+  Liquid = 0,
+  Temporary = 1,
+  Boundary = 2,
+}
+
+const Q = 1 / 65535;
+
+export class FrameDecoder {
+  target: ParticleTarget = new ArrayParticleTarget();
+  readonly info: FrameInfo = {
+    sessionId: '',
+    frame: -1,
+    time: 0,
+    dimension: 2,
+    domainMin: [0, 0, 0],
+    domainMax: [1, 1, 1],
+    layers: 0,
+    count: 0,
+    liquid: 0,
+    temporary: 0,
+    boundary: 0,
+    wallMs: 0,
+    controlMs: 0,
+    instances: [],
+    instanceCount: 0,
+    decodeMs: 0,
+    bytes: 0,
+  };
+
+  /** Linear RGB per scene phase (256 × 3); phases without a colour use the liquid colour. */
+  readonly phaseColors = new Float32Array(256 * 3);
+  readonly temporaryColor = new Float32Array(3);
+  readonly boundaryColor = new Float32Array(3);
+
+  // Flatbuffers accessors reused for every frame.
+  private readonly points = new Points();
+  private readonly stats = new Stats();
+  private readonly vec = new Vec3();
+  private readonly inst = new Instance();
+
+  constructor() {
+    this.setColors([0.45, 0.7, 1.0], [], [1.0, 0.62, 0.25], [0.55, 0.55, 0.6]);
+  }
+
+  /** Colours as linear RGB: liquid default, per-phase overrides, temporary, boundary. */
+  setColors(liquid: ArrayLike<number>, phases: (ArrayLike<number> | null)[], temporary: ArrayLike<number>, boundary: ArrayLike<number>) {
+    for (let p = 0; p < 256; p++) {
+      const c = phases[p] ?? liquid;
+      this.phaseColors[3 * p] = c[0]!;
+      this.phaseColors[3 * p + 1] = c[1]!;
+      this.phaseColors[3 * p + 2] = c[2]!;
+    }
+    this.temporaryColor.set([temporary[0]!, temporary[1]!, temporary[2]!]);
+    this.boundaryColor.set([boundary[0]!, boundary[1]!, boundary[2]!]);
+  }
+
+  /** Decodes `frame` into the target and `info`. Throws on a malformed frame (nothing committed). */
+  decode(frame: Frame, bytes: number): FrameInfo {
+    const t0 = performance.now();
+    const info = this.info;
+    const dim = frame.dimension() === 3 ? 3 : 2;
+    info.sessionId = frame.sessionId() ?? '';
+    info.frame = frame.frame();
+    info.time = frame.time();
+    info.dimension = dim;
+    info.layers = frame.layers();
+    info.bytes = bytes;
+    readVec(frame.domainMin(this.vec), info.domainMin);
+    readVec(frame.domainMax(this.vec), info.domainMax);
+
+    const pts = frame.particles(this.points);
+    const n = pts ? pts.count() : 0;
+    const q = pts ? pts.qArray() : null;
+    if (n > 0 && (!q || q.length < n * dim)) {
+      throw new Error(`frame ${info.frame}: ${n} particles but ${q ? q.length : 0} coordinates`);
+    }
+    const kinds = frame.kindArray();
+    const phases = frame.phaseArray();
+    const { positions, colors } = this.target.reserve(n);
+    if (n > 0 && pts && q) {
+      const bmin = pts.boxMin(this.vec);
+      const x0 = bmin ? bmin.x() : 0, y0 = bmin ? bmin.y() : 0, z0 = bmin ? bmin.z() : 0;
+      const bmax = pts.boxMax(this.vec);
+      const sx = ((bmax ? bmax.x() : 0) - x0) * Q;
+      const sy = ((bmax ? bmax.y() : 0) - y0) * Q;
+      const sz = ((bmax ? bmax.z() : 0) - z0) * Q;
+      if (dim === 3) {
+        for (let i = 0, j = 0, o = 0; i < n; i++, j += 3, o += 3) {
+          positions[o] = x0 + q[j]! * sx;
+          positions[o + 1] = y0 + q[j + 1]! * sy;
+          positions[o + 2] = z0 + q[j + 2]! * sz;
+        }
+      } else {
+        for (let i = 0, j = 0, o = 0; i < n; i++, j += 2, o += 3) {
+          positions[o] = x0 + q[j]! * sx;
+          positions[o + 1] = y0 + q[j + 1]! * sy;
+          positions[o + 2] = 0;
+        }
+      }
+      this.colorize(n, kinds, phases, colors);
+    }
+    this.target.commit(n);
+    info.count = n;
+
+    const st = frame.stats(this.stats);
+    info.liquid = st ? st.liquidParticles() : 0;
+    info.temporary = st ? st.temporaryParticles() : 0;
+    info.boundary = st ? st.boundaryParticles() : 0;
+    info.wallMs = st ? st.wallMs() : 0;
+    info.controlMs = st ? st.controlMs() : 0;
+
+    this.readInstances(frame, dim);
+    info.decodeMs = performance.now() - t0;
+    return info;
+  }
+
+  private colorize(n: number, kinds: Uint8Array | null, phases: Uint8Array | null, colors: Float32Array) {
+    const pc = this.phaseColors, tc = this.temporaryColor, bc = this.boundaryColor;
+    const haveKinds = kinds !== null && kinds.length >= n;
+    const havePhases = phases !== null && phases.length >= n;
+    for (let i = 0, o = 0; i < n; i++, o += 3) {
+      const kind = haveKinds ? kinds![i]! : Kind.Liquid;
+      if (kind === Kind.Liquid) {
+        const p = havePhases ? 3 * phases![i]! : 0;
+        colors[o] = pc[p]!;
+        colors[o + 1] = pc[p + 1]!;
+        colors[o + 2] = pc[p + 2]!;
+      } else if (kind === Kind.Temporary) {
+        colors[o] = tc[0]!;
+        colors[o + 1] = tc[1]!;
+        colors[o + 2] = tc[2]!;
+      } else {
+        colors[o] = bc[0]!;
+        colors[o + 1] = bc[1]!;
+        colors[o + 2] = bc[2]!;
+      }
+    }
+  }
+
+  private readInstances(frame: Frame, dim: 2 | 3) {
+    const info = this.info;
+    const count = frame.instancesLength();
+    const pool = info.instances;
+    while (pool.length < count) {
+      pool.push({
+        name: '', template: '', active: false, templateFrame: -1, phase: 0,
+        matrix: new Float64Array(16), templateMin: [0, 0, 0], templateMax: [0, 0, 0],
+        falloffWidth: 0, fidelity: -1, controlled: 0,
+      });
+    }
+    for (let k = 0; k < count; k++) {
+      const rec = frame.instances(k, this.inst)!;
+      const out = pool[k]!;
+      out.name = rec.name() ?? '';
+      out.template = rec.templateName() ?? '';
+      out.active = rec.active();
+      out.templateFrame = rec.templateFrame();
+      out.phase = rec.phase();
+      out.falloffWidth = rec.falloffWidth();
+      out.fidelity = rec.fidelity();
+      out.controlled = rec.controlled();
+      readVec(rec.templateMin(this.vec), out.templateMin);
+      readVec(rec.templateMax(this.vec), out.templateMax);
+      readWorldMatrix(rec, dim, out.matrix);
+    }
+    info.instanceCount = count;
+  }
+}
+
+function readVec(v: Vec3 | null, out: [number, number, number]) {
+  if (!v) {
+    out[0] = out[1] = out[2] = 0;
+    return;
+  }
+  out[0] = v.x();
+  out[1] = v.y();
+  out[2] = v.z();
+}
+
+/** Row-major 3×3 (2D) or 4×4 (3D) → column-major 4×4; identity when absent or malformed. */
+function readWorldMatrix(rec: Instance, dim: 2 | 3, m: Float64Array) {
+  m.fill(0);
+  m[0] = m[5] = m[10] = m[15] = 1;
+  const len = rec.worldMatrixLength();
+  if (dim === 2 && len >= 9) {
+    // [a b tx; c d ty; 0 0 1] → x' = a x + b y + tx, y' = c x + d y + ty, z' = z
+    m[0] = rec.worldMatrix(0)!; m[4] = rec.worldMatrix(1)!; m[12] = rec.worldMatrix(2)!;
+    m[1] = rec.worldMatrix(3)!; m[5] = rec.worldMatrix(4)!; m[13] = rec.worldMatrix(5)!;
+  } else if (dim === 3 && len >= 16) {
+    for (let r = 0; r < 4; r++) for (let c = 0; c < 4; c++) m[c * 4 + r] = rec.worldMatrix(r * 4 + c)!;
+  }
+}

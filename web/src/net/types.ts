@@ -1,0 +1,101 @@
+// JSON shapes of the REST API (proto/openapi.yaml), as far as the editor reads them.
+
+export type Vec = number[];
+
+export interface SceneSummary {
+  name: string;
+  dimension: 2 | 3 | null;
+  instances: number;
+  error?: string;
+}
+
+export interface TemplateInfo {
+  name: string;
+  dimension?: 2 | 3;
+  frames?: number;
+  frame_rate?: number;
+  duration?: number;
+  avg_particles?: number;
+  region_min?: Vec;
+  region_max?: Vec;
+  bytes?: number;
+  error?: string;
+}
+
+export type SessionStatusName = 'paused' | 'playing' | 'stepping' | 'error';
+
+export interface FrameStatsJson {
+  frame: number;
+  time: number;
+  wall_ms?: number;
+  liquid_particles?: number;
+  temporary_particles?: number;
+  [key: string]: unknown;
+}
+
+export interface SessionState {
+  id: string;
+  name: string;
+  dimension: 2 | 3;
+  status: SessionStatusName;
+  frame: number;
+  time: number;
+  playback_speed: number;
+  shown: { live: boolean; frame: number };
+  history: { first: number | null; last: number | null; frames: number; bytes: number; cap: number; dropped: number };
+  stats: FrameStatsJson;
+  particles: { liquid: number; temporary: number; boundary: number };
+  instances: number;
+  pending_edits: number;
+  steps_left: number;
+  computing?: boolean;
+  memory: Record<string, number>;
+  error?: { message: string; frame: number };
+}
+
+export interface TransformKey {
+  time?: number;
+  translation: Vec;
+  rotation?: number | Vec;
+  scale?: number | Vec;
+  reflect?: boolean[];
+}
+
+export interface InstanceJson {
+  name: string;
+  template: string;
+  phase?: string;
+  transform?: TransformKey[];
+  start?: number;
+  crop_begin?: number;
+  crop_end?: number;
+  speed?: number;
+  reverse?: boolean;
+  falloff_width?: number;
+  [key: string]: unknown;
+}
+
+export interface EditJson {
+  id: number;
+  type: string;
+  accepted: boolean;
+  frame?: number;
+  instance?: string;
+}
+
+export interface InstanceEditResponse {
+  edit: EditJson;
+  instance: InstanceJson;
+}
+
+export interface SceneJson {
+  name?: string;
+  dimension: 2 | 3;
+  particle_radius?: number;
+  domain?: { min: Vec; max: Vec };
+  phases?: { name: string; color?: number[] }[];
+  instances?: InstanceJson[];
+  [key: string]: unknown;
+}
+
+export type TransportName = 'play' | 'pause' | 'step' | 'reset' | 'seek' | 'speed';

@@ -1,0 +1,114 @@
+// The particles of the streamed frames as one THREE.Points. It is the frame
+// decoder's ParticleTarget: the decoder writes positions and colours straight
+// into this geometry's attribute arrays; they grow by doubling (a new
+// geometry, the old one's GPU buffers freed), and only the frame's range is
+// uploaded (setDrawRange, addUpdateRange, needsUpdate).
+//
+// Points are discs of the particles' world diameter in both cameras. Colours
+// are sRGB and written to the framebuffer as they are, so a liquid particle
+// shows exactly the phase colour (tests sample it from screenshots).
+import * as THREE from 'three';
+import type { ParticleTarget } from '../net/FrameDecoder';
+
+const vertexShader = /* glsl */ `
+uniform float pointScale;   // framebuffer pixels per metre (orthographic) or per metre at distance 1 (perspective)
+uniform float radius;       // m
+uniform float perspective;  // 1 or 0
+varying vec3 vColor;
+void main() {
+  vec4 mv = modelViewMatrix * vec4(position, 1.0);
+  gl_Position = projectionMatrix * mv;
+  float px = 2.0 * radius * pointScale;
+  if (perspective > 0.5) px /= max(-mv.z, 1e-4);
+  gl_PointSize = max(px, 2.0);
+  vColor = color;
+}`;
+
+const fragmentShader = /* glsl */ `
+varying vec3 vColor;
+void main() {
+  vec2 d = gl_PointCoord - vec2(0.5);
+  if (dot(d, d) > 0.25) discard;
+  gl_FragColor = vec4(vColor, 1.0);
+}`;
+
+export class ParticleLayer implements ParticleTarget {
+  readonly points: THREE.Points<THREE.BufferGeometry, THREE.ShaderMaterial>;
+  readonly material: THREE.ShaderMaterial;
+  private geometry: THREE.BufferGeometry;
+  private position!: THREE.BufferAttribute;
+  private color!: THREE.BufferAttribute;
+  private capacity = 0;
+  count = 0;
+
+  constructor() {
+    this.material = new THREE.ShaderMaterial({
+      vertexShader,
+      fragmentShader,
+      vertexColors: true,
+      uniforms: {
+        pointScale: { value: 100 },
+        radius: { value: 0.005 },
+        perspective: { value: 0 },
+      },
+    });
+    this.geometry = this.makeGeometry(0);
+    this.points = new THREE.Points(this.geometry, this.material);
+    this.points.frustumCulled = false;
+    this.points.name = 'particles';
+  }
+
+  reserve(n: number) {
+    if (n > this.capacity) {
+      let cap = Math.max(4096, this.capacity);
+      while (cap < n) cap *= 2;
+      const old = this.geometry;
+      this.geometry = this.makeGeometry(cap);
+      this.points.geometry = this.geometry;
+      old.dispose();
+    }
+    return { positions: this.position.array as Float32Array, colors: this.color.array as Float32Array };
+  }
+
+  commit(n: number) {
+    this.count = n;
+    this.geometry.setDrawRange(0, n);
+    for (const a of [this.position, this.color]) {
+      a.clearUpdateRanges();
+      a.addUpdateRange(0, 3 * n);
+      a.needsUpdate = true;
+    }
+  }
+
+  setRadius(r: number) {
+    this.material.uniforms['radius']!.value = r;
+  }
+
+  /** Called before each render with the camera that draws. */
+  updateScale(camera: THREE.Camera, drawingBufferHeight: number) {
+    const u = this.material.uniforms;
+    if (camera instanceof THREE.OrthographicCamera) {
+      u['pointScale']!.value = (drawingBufferHeight * camera.zoom) / (camera.top - camera.bottom);
+      u['perspective']!.value = 0;
+    } else if (camera instanceof THREE.PerspectiveCamera) {
+      u['pointScale']!.value = drawingBufferHeight / (2 * Math.tan(THREE.MathUtils.degToRad(camera.fov) / 2));
+      u['perspective']!.value = 1;
+    }
+  }
+
+  private makeGeometry(cap: number): THREE.BufferGeometry {
+    const g = new THREE.BufferGeometry();
+    this.capacity = cap;
+    this.position = new THREE.BufferAttribute(new Float32Array(3 * cap), 3).setUsage(THREE.DynamicDrawUsage);
+    this.color = new THREE.BufferAttribute(new Float32Array(3 * cap), 3).setUsage(THREE.DynamicDrawUsage);
+    g.setAttribute('position', this.position);
+    g.setAttribute('color', this.color);
+    g.setDrawRange(0, 0);
+    return g;
+  }
+
+  dispose() {
+    this.geometry.dispose();
+    this.material.dispose();
+  }
+}

@@ -1,0 +1,184 @@
+// The 3D view: streamed particles, the domain box, the instance and falloff
+// boxes. 2D scenes get an orthographic camera (pan and zoom), 3D scenes a
+// perspective one (orbit). It renders on demand only (a new frame, a camera
+// change, a resize), at most once per animation frame, never in a loop:
+// software GL would otherwise take the CPU the simulation and the stream need.
+import * as THREE from 'three';
+import { OrbitControls } from 'three/examples/jsm/controls/OrbitControls.js';
+import type { Editor, SessionInfo } from '../core/Editor';
+import type { FrameInfo } from '../net/FrameDecoder';
+import { Boxes } from './Boxes';
+import { ParticleLayer } from './ParticleLayer';
+
+export class Viewport {
+  readonly renderer: THREE.WebGLRenderer;
+  readonly scene = new THREE.Scene();
+  readonly particles = new ParticleLayer();
+  readonly boxes = new Boxes();
+  readonly ortho = new THREE.OrthographicCamera(-1, 1, 1, -1, -100, 100);
+  readonly persp = new THREE.PerspectiveCamera(45, 1, 0.01, 100);
+  camera: THREE.OrthographicCamera | THREE.PerspectiveCamera = this.ortho;
+  controls: OrbitControls;
+  /** Renders done (tests check that nothing renders while nothing changes). */
+  renders = 0;
+
+  private pending = false;
+  private orthoHeight = 1;
+  private dimension: 2 | 3 = 2;
+  private fitPending = true;
+  private readonly resizeObserver: ResizeObserver;
+
+  constructor(
+    readonly container: HTMLElement,
+    private readonly editor: Editor,
+  ) {
+    this.renderer = new THREE.WebGLRenderer({ antialias: false, powerPreference: 'low-power' });
+    this.renderer.setPixelRatio(Math.min(window.devicePixelRatio, 2));
+    this.renderer.setClearColor(0x15181d, 1);
+    this.renderer.domElement.dataset['testid'] = 'viewport-canvas';
+    container.appendChild(this.renderer.domElement);
+
+    this.scene.add(this.boxes.group, this.particles.points);
+    this.ortho.position.set(0.5, 0.5, 10);
+    this.controls = this.makeControls();
+    editor.decoder.target = this.particles;
+
+    editor.signals.frameDecoded.add((f) => this.onFrame(f));
+    editor.signals.sessionChanged.add((s) => this.onSession(s));
+
+    this.resizeObserver = new ResizeObserver(() => this.resize());
+    this.resizeObserver.observe(container);
+    this.resize();
+  }
+
+  /** Schedules one render at the next animation frame (coalesced). */
+  requestRender() {
+    if (this.pending) return;
+    this.pending = true;
+    requestAnimationFrame(() => {
+      this.pending = false;
+      this.render();
+    });
+  }
+
+  render() {
+    const h = this.renderer.getDrawingBufferSize(new THREE.Vector2()).y;
+    this.particles.updateScale(this.camera, h);
+    this.renderer.render(this.scene, this.camera);
+    this.renders++;
+  }
+
+  /** Frames the domain (called on the first frame of a session). */
+  fit(min: ArrayLike<number>, max: ArrayLike<number>) {
+    const cx = (min[0]! + max[0]!) / 2, cy = (min[1]! + max[1]!) / 2, cz = (min[2]! + max[2]!) / 2;
+    const w = max[0]! - min[0]!, h = max[1]! - min[1]!, d = max[2]! - min[2]!;
+    const aspect = this.aspect();
+    if (this.dimension === 2) {
+      this.orthoHeight = Math.max(h, w / aspect) * 1.08 || 1;
+      this.ortho.zoom = 1;
+      this.ortho.position.set(cx, cy, 10);
+      this.controls.target.set(cx, cy, 0);
+      this.updateOrtho();
+    } else {
+      const radius = 0.5 * Math.hypot(w, h, d) || 1;
+      const fov = THREE.MathUtils.degToRad(this.persp.fov);
+      const dist = (radius / Math.sin(fov / 2)) * 1.05;
+      const dir = new THREE.Vector3(0.55, 0.45, 1).normalize();
+      this.persp.position.set(cx, cy, cz).addScaledVector(dir, dist);
+      this.persp.near = dist / 100;
+      this.persp.far = dist * 10;
+      this.persp.updateProjectionMatrix();
+      this.controls.target.set(cx, cy, cz);
+    }
+    this.controls.update();
+    this.requestRender();
+  }
+
+  private onSession(s: SessionInfo | null) {
+    if (!s) {
+      this.particles.commit(0);
+      this.boxes.group.visible = false;
+      this.requestRender();
+      return;
+    }
+    this.boxes.group.visible = true;
+    this.setDimension(s.dimension);
+    const scene = s.sceneJson;
+    this.particles.setRadius(scene?.particle_radius ?? 0.005);
+    const phases = (scene?.phases ?? []).map((p) => (p.color && p.color.length >= 3 ? p.color : null));
+    const d = this.editor.decoder;
+    d.setColors([0.45, 0.7, 1.0], phases, d.temporaryColor, d.boundaryColor);
+    this.fitPending = true;
+    if (scene?.domain) {
+      const pad = (v: number[]) => [v[0] ?? 0, v[1] ?? 0, v[2] ?? 0];
+      this.fit(pad(scene.domain.min), pad(scene.domain.max));
+      this.fitPending = false;
+    }
+  }
+
+  private onFrame(f: FrameInfo) {
+    if (f.dimension !== this.dimension) this.setDimension(f.dimension);
+    this.boxes.update(f);
+    if (this.fitPending) {
+      this.fitPending = false;
+      this.fit(f.domainMin, f.domainMax);
+    }
+    this.requestRender();
+  }
+
+  private setDimension(dim: 2 | 3) {
+    if (dim === this.dimension && this.camera === (dim === 2 ? this.ortho : this.persp)) return;
+    this.dimension = dim;
+    this.camera = dim === 2 ? this.ortho : this.persp;
+    this.controls.dispose();
+    this.controls = this.makeControls();
+    this.resize();
+  }
+
+  private makeControls(): OrbitControls {
+    const c = new OrbitControls(this.camera, this.renderer.domElement);
+    c.enableDamping = false; // damping needs a render loop
+    if (this.camera === this.ortho) {
+      c.enableRotate = false;
+      c.screenSpacePanning = true;
+      c.mouseButtons = { LEFT: THREE.MOUSE.PAN, MIDDLE: THREE.MOUSE.DOLLY, RIGHT: THREE.MOUSE.PAN };
+      c.touches = { ONE: THREE.TOUCH.PAN, TWO: THREE.TOUCH.DOLLY_PAN };
+    }
+    c.addEventListener('change', () => this.requestRender());
+    return c;
+  }
+
+  private aspect(): number {
+    const w = this.container.clientWidth || 1, h = this.container.clientHeight || 1;
+    return w / h;
+  }
+
+  private updateOrtho() {
+    const aspect = this.aspect();
+    const h = this.orthoHeight;
+    this.ortho.left = (-h * aspect) / 2;
+    this.ortho.right = (h * aspect) / 2;
+    this.ortho.top = h / 2;
+    this.ortho.bottom = -h / 2;
+    this.ortho.updateProjectionMatrix();
+  }
+
+  private resize() {
+    const w = this.container.clientWidth || 1, h = this.container.clientHeight || 1;
+    this.renderer.setSize(w, h, false);
+    this.renderer.domElement.style.width = '100%';
+    this.renderer.domElement.style.height = '100%';
+    this.persp.aspect = w / h;
+    this.persp.updateProjectionMatrix();
+    this.updateOrtho();
+    this.requestRender();
+  }
+
+  dispose() {
+    this.resizeObserver.disconnect();
+    this.controls.dispose();
+    this.particles.dispose();
+    this.boxes.dispose();
+    this.renderer.dispose();
+  }
+}
