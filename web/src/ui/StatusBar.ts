@@ -10,7 +10,7 @@ export class StatusBar {
 
   constructor(editor: Editor) {
     const field = (id: string, label: string, title: string) => {
-      const value = el('span', { className: 'value', testid: id, text: '–' });
+      const value = el('span', { className: 'value', testid: id, text: '–', attrs: { 'data-value': '' } });
       this.fields[id] = value;
       return el('span', { className: 'field', title }, [el('span', { className: 'label', text: label }), value]);
     };

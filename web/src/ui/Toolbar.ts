@@ -24,8 +24,8 @@ export class Toolbar {
     this.buttons = {
       play: button('play', '▶ Play', 'Play (simulate frames at the playback speed)', () => void editor.transport('play')),
       pause: button('pause', '❚❚ Pause', 'Pause', () => void editor.transport('pause')),
-      step: button('step', '⏭ Step', 'Simulate one frame', () => void editor.transport('step', { frames: 1 })),
-      reset: button('reset', '⏮ Reset', 'Back to frame 0 (history cleared)', () => void editor.transport('reset')),
+      step: button('step', 'Step', 'Simulate one frame', () => void editor.transport('step', { frames: 1 })),
+      reset: button('reset', 'Reset', 'Back to frame 0 (history cleared)', () => void editor.transport('reset')),
       undo: button('undo', '↶', 'Undo (Ctrl+Z)', () => void editor.undo()),
       redo: button('redo', '↷', 'Redo (Ctrl+Shift+Z)', () => void editor.redo()),
     };

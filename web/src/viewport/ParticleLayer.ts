@@ -6,7 +6,8 @@
 //
 // Points are discs of the particles' world diameter in both cameras. Colours
 // are sRGB and written to the framebuffer as they are, so a liquid particle
-// shows exactly the phase colour (tests sample it from screenshots).
+// of a 2D scene shows exactly the phase colour (tests sample it from
+// screenshots).
 import * as THREE from 'three';
 import type { ParticleTarget } from '../net/FrameDecoder';
 
@@ -24,12 +25,21 @@ void main() {
   vColor = color;
 }`;
 
+// Discs; in perspective (3D) shaded as spheres lit from the viewer's upper
+// left, so that depth reads; orthographic (2D) discs are flat.
 const fragmentShader = /* glsl */ `
+uniform float perspective;
 varying vec3 vColor;
 void main() {
   vec2 d = gl_PointCoord - vec2(0.5);
-  if (dot(d, d) > 0.25) discard;
-  gl_FragColor = vec4(vColor, 1.0);
+  float r2 = dot(d, d);
+  if (r2 > 0.25) discard;
+  float shade = 1.0;
+  if (perspective > 0.5) {
+    vec3 n = vec3(2.0 * d.x, -2.0 * d.y, sqrt(max(1.0 - 4.0 * r2, 0.0)));
+    shade = 0.45 + 0.55 * max(dot(n, normalize(vec3(-0.4, 0.5, 0.77))), 0.0);
+  }
+  gl_FragColor = vec4(vColor * shade, 1.0);
 }`;
 
 export class ParticleLayer implements ParticleTarget {
