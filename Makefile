@@ -1,12 +1,14 @@
 # The README's two commands: `make run` and `make test`. Both set up what a
-# fresh Debian 12 machine is missing, then build in Release.
+# fresh Debian 12 machine is missing, then build in Release (and the editor).
 BUILD_DIR ?= build
 BUILD_TYPE ?= Release
 JOBS ?= $(shell nproc)
 SCENE ?= scenes/dambreak2d.json
 CMAKE_FLAGS ?=
+PORT ?= 8080
+ABS_BUILD_DIR = $(abspath $(BUILD_DIR))
 
-.PHONY: all setup build templates run test bench clean
+.PHONY: all setup build web templates run run-headless test test-web test-web-only bench clean
 
 # 2D templates are recorded when missing (seconds); larger ones on demand:
 # build/flowclip record templates/recipes/letters3d.json
@@ -28,12 +30,32 @@ templates/%.h5: templates/recipes/%.json | build
 
 templates: $(foreach t,$(TEMPLATES_2D),templates/$(t).h5)
 
-run: build templates
+# The editor (web/ -> web/dist). It imports the TypeScript wire code the C++
+# build generates ($(BUILD_DIR)/generated/ts), hence after `build`.
+web: build
+	@cd web && FLOWCLIP_BUILD_DIR=$(ABS_BUILD_DIR) node scripts/build.mjs
+
+# The server with the editor: open the printed URL.
+run: build templates web
+	@echo "FlowClip editor: http://127.0.0.1:$(PORT)/  (Ctrl-C stops the server)"
+	$(BUILD_DIR)/flowclip serve --port $(PORT) --web web/dist
+
+run-headless: build templates
 	$(BUILD_DIR)/flowclip run $(SCENE) --seconds 2 --stats $(BUILD_DIR)/last-run-stats.json
 
-test: build templates
+test: build templates web
 	cd $(BUILD_DIR) && ctest --output-on-failure -j 1
 	$(BUILD_DIR)/venv/bin/python -m pytest -q tests
+	@$(MAKE) --no-print-directory test-web-only
+
+# The editor's Playwright tests (headless Debian Chromium against a real
+# server); the last line is "N passed, N failed" from the JSON report.
+test-web: build templates web
+	@$(MAKE) --no-print-directory test-web-only
+
+test-web-only:
+	@cd web && FLOWCLIP_BUILD_DIR=$(ABS_BUILD_DIR) ./node_modules/.bin/playwright test; \
+	  status=$$?; node scripts/report-summary.mjs playwright-report/results.json; exit $$status
 
 bench: build
 	$(BUILD_DIR)/flowclip bench solver

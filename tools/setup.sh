@@ -39,8 +39,16 @@ if [ ! -x "$VENV/bin/python" ] || ! cmp -s requirements.txt "$VENV/.requirements
   cp requirements.txt "$VENV/.requirements"
 fi
 
-# Web editor packages (present once web/package.json exists).
+# Web editor packages (present once web/package.json exists). Vite 8 and
+# Playwright need Node.js >= 20.19; Debian 12's own nodejs is 18.
 if [ -f web/package.json ]; then
+  node_version=$(node -p 'process.versions.node' 2>/dev/null || echo 0)
+  IFS=. read -r node_major node_minor _ <<<"$node_version"
+  if [ "$node_major" -lt 20 ] || { [ "$node_major" -eq 20 ] && [ "$node_minor" -lt 19 ]; } || ! command -v npm >/dev/null; then
+    echo "setup: the editor (web/) needs Node.js >= 20.19 with npm; found ${node_version/#0/none}." >&2
+    echo "       Debian 12 ships 18: install Node 20 or 22 (e.g. NodeSource's nodejs package) and run make again." >&2
+    exit 1
+  fi
   if [ ! -d web/node_modules ] || [ web/package-lock.json -nt web/node_modules/.package-lock.json ]; then
     echo "setup: installing npm packages in web/"
     (cd web && PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD=1 npm ci --no-audit --no-fund --loglevel=error)
