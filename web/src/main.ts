@@ -9,6 +9,8 @@ import { StatusBar } from './ui/StatusBar';
 import { Messages } from './ui/Messages';
 import { installKeyboard } from './ui/Keyboard';
 import { el } from './ui/dom';
+import { SetInstanceTransformCommand } from './commands/SetInstanceTransformCommand';
+import { SetInstanceValueCommand } from './commands/SetInstanceValueCommand';
 
 const DEFAULT_SCENE = 'drop2d';
 
@@ -24,7 +26,11 @@ const viewport = new Viewport(viewportDom, editor);
 installKeyboard(editor);
 
 // For debugging from the console and for tests (never used by the editor itself).
-(window as unknown as { flowclip: unknown }).flowclip = { editor, viewport };
+(window as unknown as { flowclip: unknown }).flowclip = {
+  editor,
+  viewport,
+  commands: { SetInstanceTransformCommand, SetInstanceValueCommand },
+};
 
 // Sessions this editor created are deleted when the page goes away.
 window.addEventListener('pagehide', () => {

@@ -62,3 +62,52 @@ test('a server error is shown in the message area', async ({ page }) => {
   await expect(msg).toHaveCount(1);
   await expect(msg).toContainText('no_such_scene');
 });
+
+test('undo and redo of an instance move go to the server (Ctrl+Z, Ctrl+Shift+Z)', async ({ page, request }) => {
+  const errors = await openEditor(page);
+  await page.getByTestId('scene-picker').selectOption('drop2d');
+  const session = page.getByTestId('session');
+  await expect(session).toHaveAttribute('data-value', /^[A-Za-z0-9_-]+$/);
+  const sid = (await session.getAttribute('data-value'))!;
+  const url = `${serverUrl()}/api/sessions/${sid}/instances/drop`;
+  const before = await (await request.get(url)).json();
+  // An empty track is the identity: the template where it was recorded.
+  const x0 = (before.transform[0]?.translation[0] ?? 0) as number;
+
+  // Two quick moves merge into one history entry (as a gizmo drag would).
+  await page.evaluate(async () => {
+    const { editor, commands } = (window as any).flowclip;
+    const old = editor.instances.get('drop').transform;
+    const moved = (dx: number) =>
+      old.length
+        ? old.map((k: any) => ({ ...k, translation: [k.translation[0] + dx, ...k.translation.slice(1)] }))
+        : [{ translation: [dx, 0] }];
+    await editor.execute(new commands.SetInstanceTransformCommand(editor, 'drop', moved(0.05), old));
+    await editor.execute(new commands.SetInstanceTransformCommand(editor, 'drop', moved(0.1), moved(0.05)));
+  });
+  const xAt = async () => ((await (await request.get(url)).json()).transform[0]?.translation[0] ?? 0) as number;
+  expect(await xAt()).toBeCloseTo(x0 + 0.1, 5);
+  expect(await page.evaluate(() => (window as any).flowclip.editor.history.undoEntries.length)).toBe(1);
+  await expect(page.getByTestId('undo')).toBeEnabled();
+
+  await page.locator('body').press('Control+z');
+  await expect.poll(xAt).toBeCloseTo(x0, 5);
+  await page.locator('body').press('Control+Shift+z');
+  await expect.poll(xAt).toBeCloseTo(x0 + 0.1, 5);
+  expect(errors).toEqual([]);
+});
+
+test('a lost stream reconnects and resyncs', async ({ page }) => {
+  await openEditor(page);
+  await page.getByTestId('scene-picker').selectOption('drop2d');
+  const connection = page.getByTestId('connection');
+  await expect(connection).toHaveAttribute('data-value', 'open');
+  // Drop the socket under the client (as a network loss would).
+  await page.evaluate(() => (window as any).flowclip.editor.stream.ws.close());
+  await expect(page.getByTestId('message-warning')).toContainText('reconnecting');
+  await expect(connection).toHaveAttribute('data-value', 'open');
+  const frame = page.getByTestId('frame');
+  const f0 = await readNumber(frame);
+  await page.getByTestId('step').click();
+  await expect.poll(() => readNumber(frame)).toBe(f0 + 1);
+});

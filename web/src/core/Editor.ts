@@ -143,7 +143,13 @@ export class Editor {
     const info: SessionInfo = { id: state.id, scene, dimension: state.dimension, sceneJson, owned };
     this.session = info;
     this.history.clear();
-    this.setInstances(sceneJson?.instances ?? []);
+    let instances = sceneJson?.instances ?? [];
+    try {
+      instances = await this.api.listInstances(state.id); // every key, defaults written
+    } catch (e) {
+      this.reportError(e, 'list instances');
+    }
+    this.setInstances(instances);
     this.applyState(state);
     this.signals.sessionChanged.dispatch(info);
     this.connectStream(info);
