@@ -45,7 +45,12 @@ test('play drop2d: frames arrive, liquid is drawn, the particle count matches th
   console.log(`frame ${state.frame}: ${expected} particles (${state.particles.temporary} temporary)`);
 
   // Rendering is on demand: nothing changes, nothing renders.
-  const renders = () => page.evaluate(() => (window as any).flowclip.viewport.renders as number);
+  const renders = () => page.evaluate(() => {
+    const { viewport, editor } = (window as any).flowclip;
+    return `${viewport.renders} renders, ${editor.stream.frames} frames, frame ${editor.decoder.info.frame}`;
+  });
+  // (The last frame's render is scheduled for the next animation frame: let it happen.)
+  await page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
   const r0 = await renders();
   await page.waitForTimeout(1000);
   expect(await renders()).toBe(r0);
