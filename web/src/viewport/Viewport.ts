@@ -21,6 +21,8 @@ export class Viewport {
   controls: OrbitControls;
   /** Renders done (tests check that nothing renders while nothing changes). */
   renders = 0;
+  /** Render requests by reason ('frame', 'camera', 'resize', 'session', 'fit'). */
+  readonly requests: Record<string, number> = {};
 
   private pending = false;
   private orthoHeight = 1;
@@ -52,7 +54,8 @@ export class Viewport {
   }
 
   /** Schedules one render at the next animation frame (coalesced). */
-  requestRender() {
+  requestRender(reason = 'other') {
+    this.requests[reason] = (this.requests[reason] ?? 0) + 1;
     if (this.pending) return;
     this.pending = true;
     requestAnimationFrame(() => {
@@ -91,14 +94,14 @@ export class Viewport {
       this.controls.target.set(cx, cy, cz);
     }
     this.controls.update();
-    this.requestRender();
+    this.requestRender('fit');
   }
 
   private onSession(s: SessionInfo | null) {
     if (!s) {
       this.particles.commit(0);
       this.boxes.group.visible = false;
-      this.requestRender();
+      this.requestRender('session');
       return;
     }
     this.boxes.group.visible = true;
@@ -123,7 +126,7 @@ export class Viewport {
       this.fitPending = false;
       this.fit(f.domainMin, f.domainMax);
     }
-    this.requestRender();
+    this.requestRender('frame');
   }
 
   private setDimension(dim: 2 | 3) {
@@ -144,7 +147,7 @@ export class Viewport {
       c.mouseButtons = { LEFT: THREE.MOUSE.PAN, MIDDLE: THREE.MOUSE.DOLLY, RIGHT: THREE.MOUSE.PAN };
       c.touches = { ONE: THREE.TOUCH.PAN, TWO: THREE.TOUCH.DOLLY_PAN };
     }
-    c.addEventListener('change', () => this.requestRender());
+    c.addEventListener('change', () => this.requestRender('camera'));
     return c;
   }
 
@@ -171,7 +174,7 @@ export class Viewport {
     this.persp.aspect = w / h;
     this.persp.updateProjectionMatrix();
     this.updateOrtho();
-    this.requestRender();
+    this.requestRender('resize');
   }
 
   dispose() {
