@@ -231,6 +231,22 @@ def test_a_public_host_without_a_token_refuses_to_start(template_dir, scene_dir,
     assert r.returncode == 2 and "token" in (r.stderr + r.stdout), r
 
 
+def test_cross_site_requests_are_refused(server, client):
+    """A page on another site may send 'simple' requests without asking the server: those are
+    refused by Origin, by Content-Type, and (DNS rebinding) by a Host that is not the loopback."""
+    url = server.url + "/api/sessions"
+    before = len(client.sessions())
+    body = '{"scene": "drop2d"}'
+    r = requests.post(url, data=body, headers={"Content-Type": "text/plain"}, timeout=10)
+    assert expect_error(r, 415, "unsupported_media_type")["message"].startswith("request bodies must be JSON")
+    r = requests.post(url, data=body, headers={"Content-Type": "application/json", "Origin": "http://evil.example"},
+                      timeout=10)
+    expect_error(r, 403, "forbidden")
+    r = requests.get(server.url + "/api/health", headers={"Host": "evil.example:8080"}, timeout=10)
+    expect_error(r, 403, "forbidden")
+    assert len(client.sessions()) == before
+
+
 def test_the_server_still_serves(client):
     assert client.health()["status"] == "ok"
     sid = client.create_session(small_scene())["id"]

@@ -19,6 +19,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <mutex>
 #include <optional>
 #include <thread>
 #include <unordered_map>
@@ -39,6 +40,13 @@ bool isLoopbackHost(const std::string& host) {
   return !ec && addr.is_loopback();
 }
 
+// What the server keeps of each open stream, to let go of its session at
+// shutdown (after the I/O threads have stopped, before the event loop dies).
+struct StreamHandle {
+  virtual ~StreamHandle() = default;
+  virtual void releaseAtShutdown() = 0;
+};
+
 struct HttpServer::Impl {
   ServiceHub& hub;
   ServerOptions options;
@@ -46,6 +54,24 @@ struct HttpServer::Impl {
   tcp::acceptor acceptor;
   net::thread_pool workers;
   std::optional<net::signal_set> signals;
+  std::mutex streamsMutex;
+  std::vector<std::weak_ptr<StreamHandle>> streams;
+  std::optional<net::steady_timer> acceptRetry;
+
+  void addStream(const std::shared_ptr<StreamHandle>& s) {
+    std::lock_guard lk(streamsMutex);
+    std::erase_if(streams, [](const auto& w) { return w.expired(); });
+    streams.push_back(s);
+  }
+  void releaseStreams() {
+    std::vector<std::weak_ptr<StreamHandle>> all;
+    {
+      std::lock_guard lk(streamsMutex);
+      all.swap(streams);
+    }
+    for (auto& w : all)
+      if (auto s = w.lock()) s->releaseAtShutdown();
+  }
 
   Impl(ServiceHub& h, ServerOptions o)
       : hub(h), options(std::move(o)), ioc(std::max(1, options.ioThreads)), acceptor(ioc),
@@ -54,6 +80,14 @@ struct HttpServer::Impl {
   void accept();
   bool authorized(const std::string& authorization) const {
     return options.token.empty() || authorization == "Bearer " + options.token;
+  }
+  // On a loopback bind the Host header must name the loopback too: a page
+  // whose DNS name was rebound to 127.0.0.1 sends its own name and is refused.
+  bool hostAllowed(std::string host) const {
+    if (!isLoopbackHost(options.host)) return true;
+    if (!host.empty() && host.front() == '[') host = host.substr(1, host.find(']') - 1);
+    else host = host.substr(0, host.find(':'));
+    return host == "localhost" || isLoopbackHost(host);
   }
   // Same-origin (the Origin's host:port equals the Host header) or listed.
   bool originAllowed(const std::string& origin, const std::string& host) const {
@@ -138,7 +172,9 @@ std::string offeredTokenProtocol(const std::string& protocols, const std::string
     std::string p = protocols.substr(i, j - i);
     p.erase(0, p.find_first_not_of(' '));
     p.erase(p.find_last_not_of(' ') + 1);
-    if (!token.empty() && p == "flowclip-token." + token) return p;
+    // Without a token on the server any offered token protocol is accepted
+    // (and must be echoed, or the browser fails the handshake).
+    if (p.rfind("flowclip-token.", 0) == 0 && (token.empty() || p == "flowclip-token." + token)) return p;
     i = j + 1;
   }
   return {};
@@ -146,7 +182,7 @@ std::string offeredTokenProtocol(const std::string& protocols, const std::string
 
 // ---- WebSocket stream ------------------------------------------------------------
 
-class StreamConnection : public std::enable_shared_from_this<StreamConnection> {
+class StreamConnection : public StreamHandle, public std::enable_shared_from_this<StreamConnection> {
  public:
   // More unanswered acks and errors than this means the client does not
   // read: it is disconnected rather than buffered for.
@@ -154,6 +190,18 @@ class StreamConnection : public std::enable_shared_from_this<StreamConnection> {
 
   StreamConnection(tcp::socket socket, HttpServer::Impl& server, std::shared_ptr<Session> session)
       : ws_(std::move(socket)), server_(server), session_(std::move(session)), timer_(ws_.get_executor()) {}
+
+  ~StreamConnection() override {
+    // Normally released already; a connection dropped with the event loop
+    // must still never be called by its session again.
+    if (session_) {
+      session_->unsubscribe(listenerId_);
+      server_.hub.cancelOnSessionDeleted(deletionHook_);
+    }
+  }
+
+  // Server shutdown, I/O threads stopped: nothing runs on the strand.
+  void releaseAtShutdown() override { release(); }
 
   void start(http::request<http::string_body> req, std::string protocol) {
     ws_.set_option(websocket::stream_base::timeout::suggested(beast::role_type::server));
@@ -223,11 +271,9 @@ class StreamConnection : public std::enable_shared_from_this<StreamConnection> {
       queueError(f->code, f->message, f->requestId);
     } else if (const auto* e = std::get_if<wire::EditRequest>(&message)) {
       try {
-        Edit edit = Edit::fromJson(json::parse(e->json));
+        Edit edit = Edit::fromJson(parseJsonLimited(e->json));
         const EditTicket t = session_->submit(std::move(edit));
         editIds_[t.id] = e->editId;
-      } catch (const json::parse_error& err) {
-        queueError(wire::fb::ErrorCode::InvalidEdit, std::string("Edit.json is not valid JSON: ") + err.what(), e->editId);
       } catch (const std::exception& err) {
         queueError(wire::fb::ErrorCode::InvalidEdit, err.what(), e->editId);
       }
@@ -241,7 +287,11 @@ class StreamConnection : public std::enable_shared_from_this<StreamConnection> {
           case wire::fb::TransportCommand::Seek: session_->seek(t->frame); break;
           case wire::fb::TransportCommand::SetSpeed: session_->setPlaybackSpeed(t->speed); break;
         }
+        // Every transport is answered with the state it leaves (even when
+        // nothing changed), carrying its request id.
+        pendingState_ = session_->state();
         pendingRequest_ = t->requestId;
+        pump();
       } catch (const std::out_of_range& err) {
         queueError(wire::fb::ErrorCode::NotFound, err.what(), t->requestId);
       } catch (const SessionError& err) {
@@ -250,7 +300,7 @@ class StreamConnection : public std::enable_shared_from_this<StreamConnection> {
         queueError(wire::fb::ErrorCode::InvalidArgument, err.what(), t->requestId);
       }
     } else if (const auto* s = std::get_if<wire::SubscribeRequest>(&message)) {
-      maxFrameRate_ = s->maxFrameRate;
+      maxFrameRate_ = s->maxFrameRate > 0 ? std::max(s->maxFrameRate, 0.01) : 0.0;
       session_->demandLayers(s->layers, +1);
       session_->demandLayers(layers_, -1);
       layers_ = s->layers;
@@ -339,8 +389,9 @@ class StreamConnection : public std::enable_shared_from_this<StreamConnection> {
     if (maxFrameRate_ > 0) nextFrameAt_ = now + std::chrono::microseconds(int64_t(1e6 / maxFrameRate_));
     if (layered) {
       lastSent_ = f;
-      layeredSent_ = std::move(layered);
-      write(net::buffer(layeredSent_->envelope.data(), layeredSent_->envelope.size()));
+      layeredSent_ = layered;
+      inFlight_ = std::move(layered);  // owns the bytes until the write completes
+      write(net::buffer(inFlight_->envelope.data(), inFlight_->envelope.size()));
       return;
     }
     try {
@@ -358,6 +409,7 @@ class StreamConnection : public std::enable_shared_from_this<StreamConnection> {
     writing_ = true;
     ws_.async_write(buffer, [self = shared_from_this()](beast::error_code ec, size_t) {
       self->writing_ = false;
+      self->inFlight_.reset();
       if (ec) {
         self->release();
         return;
@@ -382,7 +434,9 @@ class StreamConnection : public std::enable_shared_from_this<StreamConnection> {
       session_->demandLayers(layers_, -1);
       session_->unsubscribe(listenerId_);
       server_.hub.cancelOnSessionDeleted(deletionHook_);
-      session_.reset();
+      // The last owner of a deleted session joins its thread, which waits for
+      // the frame in progress: never on an I/O thread.
+      net::post(server_.workers, [s = std::move(session_)] {});
     }
     lastSent_.reset();
     messages_.clear();
@@ -401,7 +455,8 @@ class StreamConnection : public std::enable_shared_from_this<StreamConnection> {
   uint32_t pendingRequest_ = 0;
   std::unordered_map<uint64_t, uint32_t> editIds_;  // session edit id → the client's Edit.edit_id
   FramePtr lastSent_;
-  std::shared_ptr<const LayeredFrame> layeredSent_;  // held while its bytes are written
+  std::shared_ptr<const LayeredFrame> layeredSent_;  // the last layered frame sent (dedup)
+  std::shared_ptr<const LayeredFrame> inFlight_;     // the layered frame being written
   bool framePending_ = false, writing_ = false, closed_ = false, timerArmed_ = false;
   double maxFrameRate_ = 0;
   std::chrono::steady_clock::time_point nextFrameAt_{};
@@ -453,7 +508,9 @@ class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
       upgrade(std::move(req), path);
       return;
     }
-    // REST handlers may wait (edits, exports): run them off the I/O threads.
+    // REST handlers may wait (edits, exports): run them off the I/O threads,
+    // with no deadline (send() sets one for the answer).
+    stream_.expires_never();
     net::post(server_.workers, [self = shared_from_this(), req = std::move(req), target, path]() mutable {
       StringResponse res = makeResponse(self->respond(req, target, path), req.version(), req.keep_alive());
       if (req.method() == http::verb::head) res.body().clear();
@@ -468,8 +525,20 @@ class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
         return errorResponse(405, "only GET is served outside /api");
       return staticFile(server_.options.webDir, path);
     }
+    if (!server_.hostAllowed(std::string(req[http::field::host])))
+      return errorResponse(403, "Host " + std::string(req[http::field::host]).substr(0, 80) +
+                                    " is not this server's loopback address");
     if (!server_.authorized(std::string(req[http::field::authorization])))
       return errorResponse(401, "this server requires a token: send \"Authorization: Bearer <token>\"");
+    // A cross-site page may send simple requests without asking: refuse
+    // foreign origins, and bodies that are not declared JSON (a form or
+    // text/plain post cannot set that type without a preflight).
+    if (!server_.originAllowed(std::string(req[http::field::origin]), std::string(req[http::field::host])))
+      return errorResponse(403, "Origin " + std::string(req[http::field::origin]).substr(0, 80) +
+                                    " is not allowed (same origin or --allow-origin)");
+    if (!req.body().empty() &&
+        std::string(req[http::field::content_type]).rfind("application/json", 0) != 0)
+      return errorResponse(415, "request bodies must be JSON, sent with Content-Type: application/json");
     HttpRequest r;
     r.method = std::string(req.method_string());
     r.path = path;
@@ -499,6 +568,12 @@ class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
                         version, false));
       return;
     }
+    if (!server_.hostAllowed(std::string(req[http::field::host]))) {
+      send(makeResponse(errorResponse(403, "Host " + std::string(req[http::field::host]).substr(0, 80) +
+                                               " is not this server's loopback address"),
+                        version, false));
+      return;
+    }
     if (!server_.originAllowed(std::string(req[http::field::origin]), std::string(req[http::field::host]))) {
       send(makeResponse(errorResponse(403, "WebSocket origin " + std::string(req[http::field::origin]) +
                                                " is not allowed (same origin or --allow-origin)"),
@@ -511,11 +586,14 @@ class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
       return;
     }
     stream_.expires_never();
-    std::make_shared<StreamConnection>(stream_.release_socket(), server_, std::move(session))
-        ->start(std::move(req), protocol);
+    auto conn = std::make_shared<StreamConnection>(stream_.release_socket(), server_, std::move(session));
+    server_.addStream(conn);
+    conn->start(std::move(req), protocol);
   }
 
   void send(StringResponse res) {
+    // A minute plus one second per MB for the answer to leave.
+    stream_.expires_after(std::chrono::seconds(60 + res.body().size() / (1 << 20)));
     auto sp = std::make_shared<StringResponse>(std::move(res));
     http::async_write(stream_, *sp, [self = shared_from_this(), sp](beast::error_code ec, size_t) {
       if (ec) return;
@@ -539,8 +617,16 @@ class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
 void HttpServer::Impl::accept() {
   acceptor.async_accept(net::make_strand(ioc), [this](beast::error_code ec, tcp::socket socket) {
     if (!acceptor.is_open()) return;
-    if (!ec) std::make_shared<HttpConnection>(std::move(socket), *this)->start();
-    accept();
+    if (!ec) {
+      std::make_shared<HttpConnection>(std::move(socket), *this)->start();
+      accept();
+      return;
+    }
+    // Out of descriptors, say: retry shortly instead of spinning.
+    acceptRetry.emplace(ioc, std::chrono::milliseconds(100));
+    acceptRetry->async_wait([this](beast::error_code e) {
+      if (!e) accept();
+    });
   });
 }
 
@@ -577,6 +663,9 @@ void HttpServer::run(bool handleSignals) {
   for (int i = 1; i < impl_->options.ioThreads; ++i) threads.emplace_back([this] { impl_->ioc.run(); });
   impl_->ioc.run();
   for (auto& t : threads) t.join();
+  // Nothing runs on the event loop now: streams let go of their sessions
+  // here, so no session thread ever touches a connection or the loop again.
+  impl_->releaseStreams();
 }
 
 void HttpServer::stop() {

@@ -32,6 +32,7 @@ const char* errorCode(int status) {
     case 405: return "method_not_allowed";
     case 409: return "conflict";
     case 413: return "payload_too_large";
+    case 415: return "unsupported_media_type";
     case 422: return "unprocessable";
     case 429: return "too_many_sessions";
     case 500: return "internal_error";
@@ -113,14 +114,10 @@ json parseBody(const HttpRequest& req, bool required = true) {
     if (required) throw ApiError(400, "the request needs a JSON body");
     return json::object();
   }
-  try {
-    return json::parse(req.body);
-  } catch (const json::parse_error& e) {
-    throw ApiError(400, std::string("malformed JSON body: ") + e.what());
-  }
+  return parseJsonLimited(req.body);
 }
 
-json requireObject(const json& body) {
+const json& requireObject(const json& body) {
   if (!body.is_object()) throw ApiError(400, std::string("the body must be a JSON object, not ") + body.type_name());
   return body;
 }
@@ -325,6 +322,21 @@ wire::StateChangeInfo stateChangeInfo(const json& state, uint32_t requestId) {
   info.requestId = requestId;
   info.stateJson = state.dump(-1, ' ', false, json::error_handler_t::replace);
   return info;
+}
+
+json parseJsonLimited(const std::string& text) {
+  // Parsing is iterative but copying and destroying a json value recurse:
+  // a body nested a million deep would overflow the stack.
+  const auto limit = [](int depth, json::parse_event_t, json&) {
+    if (depth > kMaxJsonDepth)
+      throw ApiError(400, "JSON nested deeper than " + std::to_string(kMaxJsonDepth) + " levels");
+    return true;
+  };
+  try {
+    return json::parse(text, limit);
+  } catch (const json::parse_error& e) {
+    throw ApiError(400, std::string("malformed JSON: ") + e.what());
+  }
 }
 
 double currentRssMb() {

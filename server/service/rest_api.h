@@ -141,6 +141,12 @@ class ServiceHub {
   std::mutex fileMutex_;  // scene saves and exports: one writer at a time
 };
 
+// JSON from a client, nested at most kMaxJsonDepth levels (deeper values
+// would overflow the stack when copied). Throws ApiError 400 naming what is
+// wrong.
+constexpr int kMaxJsonDepth = 128;
+nlohmann::json parseJsonLimited(const std::string& text);
+
 // Resident set size of this process, MB (/proc/self/statm).
 double currentRssMb();
 

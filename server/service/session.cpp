@@ -241,7 +241,8 @@ class SessionImpl final : public Session {
       if (status_ == SessionStatus::Error) throw SessionError(errorText() + "; reset the session first");
       wasReplay = replay_ != nullptr;
       replay_ = nullptr;
-      stepsLeft_ = status_ == SessionStatus::Stepping ? stepsLeft_ + frames : frames;
+      stepsLeft_ = status_ == SessionStatus::Stepping ? int(std::min<int64_t>(int64_t(stepsLeft_) + frames, INT32_MAX))
+                                                      : frames;
       status_ = SessionStatus::Stepping;
       ++signal_;
     }
@@ -296,6 +297,11 @@ class SessionImpl final : public Session {
     EditTicket t;
     {
       std::lock_guard lk(mutex_);
+      // A flood of edits would starve the frames (edits go first at each
+      // boundary) and grow the queue without bound.
+      if (pendingEdits_ >= kMaxPendingEdits)
+        throw SessionError("the session already has " + std::to_string(kMaxPendingEdits) +
+                           " edits waiting to be applied; wait for their results");
       Op op;
       op.id = t.id = ++lastEditId_;
       op.edit = std::move(edit);
@@ -711,6 +717,7 @@ class SessionImpl final : public Session {
     historyBytes_ = 0;
     dropped_ = 0;
     replay_ = nullptr;
+    layered_.reset();  // frame numbers restart: an old layered frame 0 must not match
     FramePtr f = makeSnapshot(initialStats());
     live_ = f;
     recordLocked(f);
@@ -773,7 +780,7 @@ class SessionImpl final : public Session {
     left.swap(ops_);
     lk.unlock();
     for (Op& op : left)
-      if (!op.reset) op.promise->set_value(closedResult(op));
+      if (op.promise) op.promise->set_value(closedResult(op));
   }
 
   // Called with mutex_ released; returns with it held.

@@ -223,7 +223,9 @@ class Session {
   virtual FramePtr seek(int frame) = 0;
 
   // Edits: queued, validated and applied by the session's thread at the next
-  // frame boundary, in order. A rejected edit changes nothing.
+  // frame boundary, in order. A rejected edit changes nothing. At most
+  // kMaxPendingEdits wait at once; submit throws SessionError beyond.
+  static constexpr size_t kMaxPendingEdits = 256;
   virtual EditTicket submit(Edit edit) = 0;
   // The result of an edit, once known (the last 1024 are kept).
   virtual std::optional<EditResult> editResult(uint64_t id) const = 0;

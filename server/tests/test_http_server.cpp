@@ -179,5 +179,61 @@ TEST(HttpServer, DeletingTheSessionClosesItsStreamsAndFreesIt) {
   EXPECT_TRUE(weak.expired()) << "the stream must let go of a deleted session";
 }
 
+TEST(HttpServer, TransportIsAnsweredWithItsRequestIdEvenWhenNothingChanges) {
+  Served s;
+  auto c = s.connect();
+  readUntil(*c, fb::Message::Frame);
+  flatbuffers::FlatBufferBuilder fbb;
+  wire::TransportRequest pause;
+  pause.command = fb::TransportCommand::Pause;  // already paused
+  pause.requestId = 5;
+  wire::buildTransport(fbb, pause);
+  send(*c, fbb);
+  bool answered = false;
+  for (int i = 0; i < 10 && !answered; ++i) {
+    const std::string m = readUntil(*c, fb::Message::StateChange);
+    answered = envelope(m)->message_as_StateChange()->request_id() == 5;
+  }
+  EXPECT_TRUE(answered);
+}
+
+TEST(HttpServer, DeeplyNestedEditJsonIsAnErrorNotACrash) {
+  Served s;
+  auto c = s.connect();
+  readUntil(*c, fb::Message::Frame);
+  std::string deep = R"({"type": "update_instance", "name": "drop", "patch": {"x": )";
+  deep += std::string(200000, '[') + std::string(200000, ']') + "}}";
+  flatbuffers::FlatBufferBuilder fbb;
+  wire::buildEdit(fbb, {3, deep});
+  send(*c, fbb);
+  const std::string e = readUntil(*c, fb::Message::Error);
+  EXPECT_EQ(envelope(e)->message_as_Error()->request_id(), 3u);
+  EXPECT_NE(envelope(e)->message_as_Error()->message()->str().find("nested"), std::string::npos);
+}
+
+// Stopping the server while sessions play and streams read must not let a
+// session thread reach a connection or the dead event loop (the hub, and
+// its sessions, outlive the server).
+TEST(HttpServer, StopsCleanlyWhileSessionsPlayToReadingStreams) {
+  Served s;
+  for (int round = 0; round < 20; ++round) {
+    // Declared first, closed last: a client's close waits for the server's
+    // answer, which a stopped server only gives by closing the socket.
+    std::vector<std::unique_ptr<StreamClient>> clients;
+    HttpServer server(s.hub, Served::serverOptions(""));
+    std::thread thread([&] { server.run(false); });
+    for (int k = 0; k < 4; ++k)
+      clients.push_back(
+          std::make_unique<StreamClient>("127.0.0.1", server.port(), "/api/sessions/" + s.id + "/stream"));
+    s.hub.session(s.id)->play();
+    std::string m;
+    for (auto& c : clients) c->read(m);
+    server.stop();
+    thread.join();
+  }
+  s.hub.session(s.id)->pause();
+  EXPECT_TRUE(s.hub.session(s.id)->waitIdle(std::chrono::seconds(10)));
+}
+
 }  // namespace
 }  // namespace fc::service

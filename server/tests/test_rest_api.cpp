@@ -102,6 +102,11 @@ TEST(RestApi, BadInputGetsTheRightStatusAndNamesWhatWasWrong) {
   expectError(api.call("POST", "/api/sessions", R"({"scene": "../scenes/box"})"), 400, "bad_request", "scene");
   expectError(api.call("GET", "/api/exports/..%2Fbox.h5"), 400, "bad_request");
   expectError(api.call("GET", "/api/templates/missing"), 404, "not_found");
+  // Deep nesting is refused before anything copies it (copies recurse).
+  expectError(api.call("POST", "/api/scenes",
+                       R"({"name": "x", "session": "s1", "force": )" + std::string(100000, '[') +
+                           std::string(100000, ']') + "}"),
+              400, "bad_request");
   expectError(api.call("GET", "/api/sessions/s99"), 404, "not_found");
   // An invalid inline scene is understood but cannot be simulated: 422 with the key.
   json scene = smallTankScene();

@@ -51,6 +51,28 @@ int historyFrames(const Session& s) { return s.state()["history"]["frames"].get<
 
 // ------------------------------------------------------------------ create ---
 
+// A stream asked for layers and left before the session's thread got to it:
+// the queued layer request must not break the session's closing.
+TEST(SessionLayers, SessionClosesWithALayerRequestStillQueued) {
+  Fixture fx;
+  for (int k = 0; k < 20; ++k) {
+    auto s = createSession("t", "", smallTankScene(), fx.db);
+    wire::LayerFlags layers;
+    layers.boundary = true;
+    s->play();
+    s->demandLayers(layers, +1);
+  }
+  auto s = createSession("t", "", smallTankScene(), fx.db);
+  wire::LayerFlags layers;
+  layers.boundary = true;
+  s->demandLayers(layers, +1);
+  ASSERT_TRUE(s->waitIdle(kWait));
+  const auto layered = s->layeredFrame();
+  ASSERT_NE(layered, nullptr);
+  EXPECT_EQ(layered->frame, 0);
+  EXPECT_TRUE(layered->layers.boundary);
+}
+
 TEST(SessionCreate, InvalidSceneThrowsWithKeyPath) {
   Fixture fx;
   json bad = smallTankScene();
