@@ -6,6 +6,7 @@ import { Editor } from './core/Editor';
 import { Viewport } from './viewport/Viewport';
 import { Toolbar } from './ui/Toolbar';
 import { StatusBar } from './ui/StatusBar';
+import { LayerPanel, StatsOverlay } from './ui/Overlays';
 import { Messages } from './ui/Messages';
 import { installKeyboard } from './ui/Keyboard';
 import { el } from './ui/dom';
@@ -21,7 +22,7 @@ const viewportDom = el('main', { className: 'viewport', testid: 'viewport' });
 const messages = new Messages(editor);
 const statusBar = new StatusBar(editor);
 app.append(toolbar.dom, viewportDom, statusBar.dom);
-viewportDom.append(messages.dom);
+viewportDom.append(messages.dom, new LayerPanel(editor).dom, new StatsOverlay(editor).dom);
 const viewport = new Viewport(viewportDom, editor);
 installKeyboard(editor);
 

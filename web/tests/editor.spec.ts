@@ -119,3 +119,43 @@ test('a lost stream reconnects and resyncs', async ({ page }) => {
   await page.getByTestId('step').click();
   await expect.poll(() => readNumber(frame)).toBe(f0 + 1);
 });
+
+test('layer toggles and the stats overlay: boundary count, control layer, fidelity', async ({ page, request }) => {
+  test.setTimeout(30_000);
+  const errors = await openEditor(page);
+  await page.getByTestId('scene-picker').selectOption('drop2d');
+  const session = page.getByTestId('session');
+  await expect(session).toHaveAttribute('data-value', /^[A-Za-z0-9_-]+$/);
+  const sid = (await session.getAttribute('data-value'))!;
+  await expect(page.getByTestId('connection')).toHaveAttribute('data-value', 'open');
+  await expect(page.getByTestId('layer-liquid')).toBeChecked();
+
+  // Boundary layer: the server resends the frame with the boundary particles.
+  await page.getByTestId('layer-boundary').check();
+  const state = await (await request.get(`${serverUrl()}/api/sessions/${sid}`)).json();
+  const nb = state.particles.boundary as number;
+  expect(nb).toBeGreaterThan(0);
+  const stats = page.getByTestId('stats');
+  await expect(stats.getByTestId('stats-boundary')).toHaveAttribute('data-value', String(nb));
+  const drawn = () => page.evaluate(() => {
+    const { viewport } = (window as any).flowclip;
+    return { boundary: viewport.boundary.count as number, control: viewport.control.count as number };
+  });
+  await expect.poll(async () => (await drawn()).boundary).toBe(nb);
+
+  // Control layer, then step past the drop instance's start (0.2 s at 60 frames/s: frame 12).
+  await page.getByTestId('layer-control').check();
+  await page.evaluate(() => (window as any).flowclip.editor.transport('step', { frames: 16 }));
+  const frame = page.getByTestId('frame');
+  await expect.poll(() => readNumber(frame), { timeout: 20_000 }).toBeGreaterThanOrEqual(16);
+  const fidelity = stats.getByTestId('stats-fidelity-drop');
+  await expect(fidelity).toHaveAttribute('data-value', /^[0-9.eE+-]+$/);
+  const f = Number(await fidelity.getAttribute('data-value'));
+  console.log(`boundary ${nb}, fidelity of drop at frame ${await readNumber(frame)}: ${f}`);
+  expect(f).toBeGreaterThanOrEqual(0);
+  expect(f).toBeLessThanOrEqual(1);
+  expect((await drawn()).control).toBeGreaterThan(0);
+  expect(Number(await stats.getByTestId('stats-sim-ms').getAttribute('data-value'))).toBeGreaterThan(0);
+  expect(errors).toEqual([]);
+  await expect(page.getByTestId('message-error')).toHaveCount(0);
+});

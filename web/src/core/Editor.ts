@@ -6,6 +6,7 @@
 import { Api, ApiError } from '../net/Api';
 import { FrameDecoder, type FrameInfo } from '../net/FrameDecoder';
 import { Stream, type ConnectionStatus, type StreamState } from '../net/Stream';
+import { Layer } from '@wire';
 import type { InstanceJson, SceneJson, SceneSummary, SessionState, SessionStatusName, TransportName } from '../net/types';
 import type { Command } from './Command';
 import { History } from './History';
@@ -33,6 +34,14 @@ export interface SessionView {
   errorMessage: string;
 }
 
+/** What the viewport shows: liquid (client side only) and the stream's optional layers (Layer flags). */
+export interface LayerToggles {
+  liquid: boolean;
+  control: boolean;
+  repulsion: boolean;
+  boundary: boolean;
+}
+
 export type MessageLevel = 'error' | 'warning' | 'info';
 
 export interface UserMessage {
@@ -55,6 +64,10 @@ export class Editor {
     connection: new Signal<{ status: ConnectionStatus; attempt: number; retryInMs: number }>(),
     instancesChanged: new Signal<ReadonlyMap<string, InstanceJson>>(),
     historyChanged: new Signal<void>(),
+    /** The layer toggles changed (the stream was re-subscribed). */
+    layersChanged: new Signal<LayerToggles>(),
+    /** GET /api/health's rss_mb, polled every 2 s while the stream is open. */
+    serverMemory: new Signal<number>(),
     /** Something for the user to read (errors are never only logged). */
     message: new Signal<UserMessage>(),
   };
@@ -66,6 +79,8 @@ export class Editor {
   stream: Stream | null = null;
   /** Frames per wall second the stream sends at most (0: no limit). */
   maxFrameRate = 30;
+  readonly layers: LayerToggles = { liquid: true, control: false, repulsion: false, boundary: false };
+  private healthTimer: ReturnType<typeof setInterval> | null = null;
 
   constructor(api = new Api('', tokenFromPage())) {
     this.api = api;
@@ -119,6 +134,7 @@ export class Editor {
     if (!s) return;
     this.stream?.close();
     this.stream = null;
+    this.pollHealth(false);
     this.session = null;
     this.instances.clear();
     this.history.clear();
@@ -156,8 +172,53 @@ export class Editor {
     return info;
   }
 
+  // ------------------------------------------------------------- layers ---
+
+  /** The stream's Layer flags for the toggles (Instances always). */
+  layerFlags(): Layer {
+    const l = this.layers;
+    return (Layer.Instances | (l.control ? Layer.Control : 0) | (l.repulsion ? Layer.Repulsion : 0) |
+      (l.boundary ? Layer.Boundary : 0)) as Layer;
+  }
+
+  /** Changes layer toggles; the stream is re-subscribed when its flags change (the server resends the frame). */
+  setLayers(change: Partial<LayerToggles>) {
+    const before = this.layerFlags();
+    Object.assign(this.layers, change);
+    const flags = this.layerFlags();
+    if (flags !== before && this.stream) {
+      try {
+        this.stream.subscribe(this.maxFrameRate, flags);
+      } catch {
+        // Not connected: kept by the stream and sent when it (re)connects.
+      }
+    }
+    this.signals.layersChanged.dispatch(this.layers);
+  }
+
+  private pollHealth(on: boolean) {
+    if (!on) {
+      if (this.healthTimer) clearInterval(this.healthTimer);
+      this.healthTimer = null;
+      return;
+    }
+    if (this.healthTimer) return;
+    const poll = () => {
+      this.api.health().then(
+        (h) => {
+          if (typeof h.rss_mb === 'number') this.signals.serverMemory.dispatch(h.rss_mb);
+        },
+        () => undefined, // the stream reports a lost server
+      );
+    };
+    poll();
+    this.healthTimer = setInterval(poll, 2000);
+  }
+
   private connectStream(info: SessionInfo) {
-    const stream = new Stream(info.id, this.decoder, { token: this.api.token, maxFrameRate: this.maxFrameRate });
+    const stream = new Stream(info.id, this.decoder, {
+      token: this.api.token, maxFrameRate: this.maxFrameRate, layers: this.layerFlags(),
+    });
     this.stream = stream;
     stream.frame.add((f) => this.signals.frameDecoded.dispatch(f));
     stream.state.add((s) => this.applyStreamState(s));
@@ -165,6 +226,7 @@ export class Editor {
     let lost = false;
     stream.connection.add((c) => {
       this.signals.connection.dispatch(c);
+      this.pollHealth(c.status === 'open');
       if (c.status === 'reconnecting' && !lost) {
         lost = true;
         this.message('warning', 'connection to the server lost; reconnecting…');
@@ -189,6 +251,7 @@ export class Editor {
         this.message('error', `session ${s.id} no longer exists on the server; open a scene again`);
         this.stream?.close();
         this.stream = null;
+        this.pollHealth(false);
         return;
       }
       this.reportError(e, 'resync');

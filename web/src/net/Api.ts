@@ -66,7 +66,7 @@ export class Api {
   }
 
   health() {
-    return this.request<{ status: string; version: string; sessions: number }>('GET', '/api/health');
+    return this.request<{ status: string; version: string; sessions: number; rss_mb?: number }>('GET', '/api/health');
   }
   listScenes() {
     return this.request<{ scenes: SceneSummary[] }>('GET', '/api/scenes').then((r) => r.scenes);

@@ -3,7 +3,7 @@
 // straight into the float buffers of a ParticleTarget (the viewport's
 // BufferGeometry attributes), which grow by doubling; the frame's header,
 // counts and instance records go into objects reused from frame to frame.
-import { Frame, Instance, Points, Stats, Vec3 } from '@wire';
+import { ControlLayer, Frame, Instance, Layer, Points, Stats, Vec3 } from '@wire';
 
 /** Where decoded particles go: xyz positions and rgb colours, 3 floats per particle. */
 export interface ParticleTarget {
@@ -55,8 +55,12 @@ export interface FrameInfo {
   domainMin: [number, number, number];
   domainMax: [number, number, number];
   layers: number;
-  /** Particles decoded (liquid and temporary, then boundary when that layer is present). */
+  /** Liquid and temporary particles decoded into `target`. */
   count: number;
+  /** Boundary particles decoded into `boundaryTarget` (Layer.Boundary), control points (Layer.Control), repulsion points (Layer.Repulsion). */
+  boundaryCount: number;
+  controlCount: number;
+  repulsionCount: number;
   liquid: number;
   temporary: number;
   boundary: number;
@@ -80,7 +84,14 @@ export const enum Kind {
 const Q = 1 / 65535;
 
 export class FrameDecoder {
+  /** Liquid and temporary particles. */
   target: ParticleTarget = new ArrayParticleTarget();
+  /** Boundary particles (kind 2 at the end of Frame.particles; Layer.Boundary). */
+  boundaryTarget: ParticleTarget = new ArrayParticleTarget();
+  /** Control particles, coloured by α: green (α≈0, covered) → black (α≈1, uncovered). */
+  controlTarget: ParticleTarget = new ArrayParticleTarget();
+  /** Repulsion particles (red). */
+  repulsionTarget: ParticleTarget = new ArrayParticleTarget();
   readonly info: FrameInfo = {
     sessionId: '',
     frame: -1,
@@ -90,6 +101,9 @@ export class FrameDecoder {
     domainMax: [1, 1, 1],
     layers: 0,
     count: 0,
+    boundaryCount: 0,
+    controlCount: 0,
+    repulsionCount: 0,
     liquid: 0,
     temporary: 0,
     boundary: 0,
@@ -105,12 +119,15 @@ export class FrameDecoder {
   readonly phaseColors = new Float32Array(256 * 3);
   readonly temporaryColor = new Float32Array(3);
   readonly boundaryColor = new Float32Array(3);
+  readonly controlColor = new Float32Array([0.2, 0.85, 0.3]);
+  readonly repulsionColor = new Float32Array([1.0, 0.2, 0.2]);
 
   // Flatbuffers accessors reused for every frame.
   private readonly points = new Points();
   private readonly stats = new Stats();
   private readonly vec = new Vec3();
   private readonly inst = new Instance();
+  private readonly control = new ControlLayer();
 
   constructor() {
     this.setColors([0.45, 0.7, 1.0], [], [1.0, 0.62, 0.25], [0.55, 0.55, 0.6]);
@@ -144,37 +161,53 @@ export class FrameDecoder {
 
     const pts = frame.particles(this.points);
     const n = pts ? pts.count() : 0;
-    const q = pts ? pts.qArray() : null;
-    if (n > 0 && (!q || q.length < n * dim)) {
-      throw new Error(`frame ${info.frame}: ${n} particles but ${q ? q.length : 0} coordinates`);
-    }
     const kinds = frame.kindArray();
     const phases = frame.phaseArray();
-    const { positions, colors } = this.target.reserve(n);
-    if (n > 0 && pts && q) {
-      const bmin = pts.boxMin(this.vec);
-      const x0 = bmin ? bmin.x() : 0, y0 = bmin ? bmin.y() : 0, z0 = bmin ? bmin.z() : 0;
-      const bmax = pts.boxMax(this.vec);
-      const sx = ((bmax ? bmax.x() : 0) - x0) * Q;
-      const sy = ((bmax ? bmax.y() : 0) - y0) * Q;
-      const sz = ((bmax ? bmax.z() : 0) - z0) * Q;
-      if (dim === 3) {
-        for (let i = 0, j = 0, o = 0; i < n; i++, j += 3, o += 3) {
-          positions[o] = x0 + q[j]! * sx;
-          positions[o + 1] = y0 + q[j + 1]! * sy;
-          positions[o + 2] = z0 + q[j + 2]! * sz;
-        }
-      } else {
-        for (let i = 0, j = 0, o = 0; i < n; i++, j += 2, o += 3) {
-          positions[o] = x0 + q[j]! * sx;
-          positions[o + 1] = y0 + q[j + 1]! * sy;
-          positions[o + 2] = 0;
-        }
-      }
-      this.colorize(n, kinds, phases, colors);
+    // Boundary particles follow the liquid ones: split at the first of the trailing kind-2 run.
+    let nl = n;
+    if (kinds && kinds.length >= n) while (nl > 0 && kinds[nl - 1] === Kind.Boundary) nl--;
+    const { positions, colors } = this.target.reserve(nl);
+    const b = this.boundaryTarget.reserve(n - nl);
+    if (n > 0 && pts) {
+      this.dequantize(pts, n, dim, 0, nl, positions, `frame ${info.frame}: particles`);
+      this.dequantize(pts, n, dim, nl, n - nl, b.positions, `frame ${info.frame}: particles`);
+      this.colorize(nl, kinds, phases, colors);
+      fillColor(b.colors, n - nl, this.boundaryColor);
     }
-    this.target.commit(n);
-    info.count = n;
+
+    // Control points with α, repulsion points (optional layers).
+    let nc = 0, nr = 0;
+    const ctl = info.layers & Layer.Control ? frame.control(this.control) : null;
+    const cpts = ctl ? ctl.points(this.points) : null;
+    if (cpts) {
+      nc = cpts.count();
+      const alpha = ctl!.alphaArray();
+      const c = this.controlTarget.reserve(nc);
+      this.dequantize(cpts, nc, dim, 0, nc, c.positions, `frame ${info.frame}: control`);
+      const g = this.controlColor;
+      const haveAlpha = alpha !== null && alpha.length >= nc;
+      for (let i = 0, o = 0; i < nc; i++, o += 3) {
+        const k = haveAlpha ? 1 - alpha![i]! / 255 : 1; // α = 0 (covered): green; α = 1: black
+        c.colors[o] = g[0]! * k;
+        c.colors[o + 1] = g[1]! * k;
+        c.colors[o + 2] = g[2]! * k;
+      }
+    }
+    const rpts = info.layers & Layer.Repulsion ? frame.repulsion(this.points) : null;
+    if (rpts) {
+      nr = rpts.count();
+      const r = this.repulsionTarget.reserve(nr);
+      this.dequantize(rpts, nr, dim, 0, nr, r.positions, `frame ${info.frame}: repulsion`);
+      fillColor(r.colors, nr, this.repulsionColor);
+    }
+    this.target.commit(nl);
+    this.boundaryTarget.commit(n - nl);
+    this.controlTarget.commit(nc);
+    this.repulsionTarget.commit(nr);
+    info.count = nl;
+    info.boundaryCount = n - nl;
+    info.controlCount = nc;
+    info.repulsionCount = nr;
 
     const st = frame.stats(this.stats);
     info.liquid = st ? st.liquidParticles() : 0;
@@ -186,6 +219,32 @@ export class FrameDecoder {
     this.readInstances(frame, dim);
     info.decodeMs = performance.now() - t0;
     return info;
+  }
+
+  /** Points `first`..`first+count` of `pts` (n in all) → xyz floats at positions[0..). Throws if q is short. */
+  private dequantize(pts: Points, n: number, dim: 2 | 3, first: number, count: number, positions: Float32Array, what: string) {
+    if (count <= 0) return;
+    const q = pts.qArray();
+    if (!q || q.length < n * dim) throw new Error(`${what}: ${n} points but ${q ? q.length : 0} coordinates`);
+    const bmin = pts.boxMin(this.vec);
+    const x0 = bmin ? bmin.x() : 0, y0 = bmin ? bmin.y() : 0, z0 = bmin ? bmin.z() : 0;
+    const bmax = pts.boxMax(this.vec);
+    const sx = ((bmax ? bmax.x() : 0) - x0) * Q;
+    const sy = ((bmax ? bmax.y() : 0) - y0) * Q;
+    const sz = ((bmax ? bmax.z() : 0) - z0) * Q;
+    if (dim === 3) {
+      for (let i = 0, j = 3 * first, o = 0; i < count; i++, j += 3, o += 3) {
+        positions[o] = x0 + q[j]! * sx;
+        positions[o + 1] = y0 + q[j + 1]! * sy;
+        positions[o + 2] = z0 + q[j + 2]! * sz;
+      }
+    } else {
+      for (let i = 0, j = 2 * first, o = 0; i < count; i++, j += 2, o += 3) {
+        positions[o] = x0 + q[j]! * sx;
+        positions[o + 1] = y0 + q[j + 1]! * sy;
+        positions[o + 2] = 0;
+      }
+    }
   }
 
   private colorize(n: number, kinds: Uint8Array | null, phases: Uint8Array | null, colors: Float32Array) {
@@ -238,6 +297,14 @@ export class FrameDecoder {
       readWorldMatrix(rec, dim, out.matrix);
     }
     info.instanceCount = count;
+  }
+}
+
+function fillColor(colors: Float32Array, n: number, c: Float32Array) {
+  for (let i = 0, o = 0; i < n; i++, o += 3) {
+    colors[o] = c[0]!;
+    colors[o + 1] = c[1]!;
+    colors[o + 2] = c[2]!;
   }
 }
 

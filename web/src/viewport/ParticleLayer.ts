@@ -51,7 +51,7 @@ export class ParticleLayer implements ParticleTarget {
   private capacity = 0;
   count = 0;
 
-  constructor() {
+  constructor(name = 'particles') {
     this.material = new THREE.ShaderMaterial({
       vertexShader,
       fragmentShader,
@@ -65,7 +65,7 @@ export class ParticleLayer implements ParticleTarget {
     this.geometry = this.makeGeometry(0);
     this.points = new THREE.Points(this.geometry, this.material);
     this.points.frustumCulled = false;
-    this.points.name = 'particles';
+    this.points.name = name;
   }
 
   reserve(n: number) {

@@ -14,6 +14,10 @@ export class Viewport {
   readonly renderer: THREE.WebGLRenderer;
   readonly scene = new THREE.Scene();
   readonly particles = new ParticleLayer();
+  /** The optional layers (editor.layers): boundary particles, control particles with α, repulsion particles. */
+  readonly boundary = new ParticleLayer('boundary');
+  readonly control = new ParticleLayer('control');
+  readonly repulsion = new ParticleLayer('repulsion');
   readonly boxes = new Boxes();
   readonly ortho = new THREE.OrthographicCamera(-1, 1, 1, -1, -100, 100);
   readonly persp = new THREE.PerspectiveCamera(45, 1, 0.01, 100);
@@ -21,7 +25,7 @@ export class Viewport {
   controls: OrbitControls;
   /** Renders done (tests check that nothing renders while nothing changes). */
   renders = 0;
-  /** Render requests by reason ('frame', 'camera', 'resize', 'session', 'fit'). */
+  /** Render requests by reason ('frame', 'camera', 'resize', 'session', 'fit', 'layers'). */
   readonly requests: Record<string, number> = {};
 
   private pending = false;
@@ -40,10 +44,25 @@ export class Viewport {
     this.renderer.domElement.dataset['testid'] = 'viewport-canvas';
     container.appendChild(this.renderer.domElement);
 
-    this.scene.add(this.boxes.group, this.particles.points);
+    // Drawn in this order (2D: all at z = 0): boundary, liquid, repulsion, control on top.
+    this.boundary.points.renderOrder = 0;
+    this.particles.points.renderOrder = 1;
+    this.repulsion.points.renderOrder = 2;
+    this.control.points.renderOrder = 3;
+    this.scene.add(this.boxes.group, this.boundary.points, this.particles.points, this.repulsion.points, this.control.points);
     this.ortho.position.set(0.5, 0.5, 10);
     this.controls = this.makeControls();
     editor.decoder.target = this.particles;
+    editor.decoder.boundaryTarget = this.boundary;
+    editor.decoder.controlTarget = this.control;
+    editor.decoder.repulsionTarget = this.repulsion;
+    editor.signals.layersChanged.add((l) => {
+      this.particles.points.visible = l.liquid;
+      this.boundary.points.visible = l.boundary;
+      this.control.points.visible = l.control;
+      this.repulsion.points.visible = l.repulsion;
+      this.requestRender('layers');
+    });
 
     editor.signals.frameDecoded.add((f) => this.onFrame(f));
     editor.signals.sessionChanged.add((s) => this.onSession(s));
@@ -66,7 +85,7 @@ export class Viewport {
 
   render() {
     const h = this.renderer.getDrawingBufferSize(new THREE.Vector2()).y;
-    this.particles.updateScale(this.camera, h);
+    for (const l of this.layers()) l.updateScale(this.camera, h);
     this.renderer.render(this.scene, this.camera);
     this.renders++;
   }
@@ -99,7 +118,7 @@ export class Viewport {
 
   private onSession(s: SessionInfo | null) {
     if (!s) {
-      this.particles.commit(0);
+      for (const l of this.layers()) l.commit(0);
       this.boxes.group.visible = false;
       this.requestRender('session');
       return;
@@ -107,7 +126,7 @@ export class Viewport {
     this.boxes.group.visible = true;
     this.setDimension(s.dimension);
     const scene = s.sceneJson;
-    this.particles.setRadius(scene?.particle_radius ?? 0.005);
+    for (const l of this.layers()) l.setRadius(scene?.particle_radius ?? 0.005);
     const phases = (scene?.phases ?? []).map((p) => (p.color && p.color.length >= 3 ? p.color : null));
     const d = this.editor.decoder;
     d.setColors([0.45, 0.7, 1.0], phases, d.temporaryColor, d.boundaryColor);
@@ -127,6 +146,10 @@ export class Viewport {
       this.fit(f.domainMin, f.domainMax);
     }
     this.requestRender('frame');
+  }
+
+  private layers(): ParticleLayer[] {
+    return [this.particles, this.boundary, this.control, this.repulsion];
   }
 
   private setDimension(dim: 2 | 3) {
@@ -180,7 +203,7 @@ export class Viewport {
   dispose() {
     this.resizeObserver.disconnect();
     this.controls.dispose();
-    this.particles.dispose();
+    for (const l of this.layers()) l.dispose();
     this.boxes.dispose();
     this.renderer.dispose();
   }

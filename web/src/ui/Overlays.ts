@@ -1,0 +1,107 @@
+// Viewport overlays: the layer toggles (top left) and the stats overlay
+// (bottom left). Values are also in data-value attributes (tests read them).
+import type { Editor, LayerToggles } from '../core/Editor';
+import type { FrameInfo } from '../net/FrameDecoder';
+import { el } from './dom';
+
+/** Checkboxes for the liquid and the stream's optional layers; they act through editor.setLayers. */
+export class LayerPanel {
+  readonly dom: HTMLElement;
+
+  constructor(editor: Editor) {
+    const box = (key: keyof LayerToggles, label: string, swatch: string, title: string) => {
+      const input = el('input', { testid: `layer-${key}`, attrs: { type: 'checkbox' } });
+      input.checked = editor.layers[key];
+      input.addEventListener('change', () => editor.setLayers({ [key]: input.checked }));
+      editor.signals.layersChanged.add((l) => (input.checked = l[key]));
+      const sw = el('span', { className: 'swatch' });
+      sw.style.background = swatch;
+      return el('label', { className: 'layer', title }, [input, sw, label]);
+    };
+    this.dom = el('div', { className: 'overlay layers', testid: 'layers' }, [
+      box('liquid', 'liquid', '#73b3ff', 'Liquid and temporary particles'),
+      box('control', 'control', 'linear-gradient(90deg, #33d94d, #000)', 'Control particles: green α≈0 (covered by liquid) → black α≈1 (uncovered)'),
+      box('repulsion', 'repulsion', '#ff3333', 'Repulsion particles'),
+      box('boundary', 'boundary', '#8c8c99', 'Boundary (wall and obstacle) particles'),
+    ]);
+  }
+}
+
+/** Simulation timings and rate, particle counts by kind, fidelity per instance, server memory. */
+export class StatsOverlay {
+  readonly dom: HTMLElement;
+  private readonly fields: Record<string, HTMLElement> = {};
+  private readonly fidelityList: HTMLElement;
+  private lastFrame = -1;
+  private lastArrival = 0;
+  private fps = 0;
+
+  constructor(editor: Editor) {
+    const row = (id: string, label: string, title: string) => {
+      const value = el('span', { className: 'value', testid: `stats-${id}`, text: '–', attrs: { 'data-value': '' } });
+      this.fields[id] = value;
+      return el('div', { className: 'row', title }, [el('span', { className: 'label', text: label }), value]);
+    };
+    this.fidelityList = el('div', { className: 'fidelity', testid: 'stats-fidelity' });
+    this.dom = el('div', { className: 'overlay stats', testid: 'stats' }, [
+      row('sim-ms', 'sim ms/frame', 'Wall time of the frame on the server (control included)'),
+      row('control-ms', 'control ms', 'Template control part of it'),
+      row('fps', 'sim frames/s', 'Simulated frames per wall second (successive frames\' arrival; 1000 / ms per frame for a single frame)'),
+      row('liquid', 'liquid', 'Liquid particles (temporary ones excluded)'),
+      row('temporary', 'temporary', 'Temporary particles seeded by template control'),
+      row('boundary', 'boundary', 'Boundary particles'),
+      row('memory', 'server MB', 'Resident memory of the server (GET /api/health, every 2 s)'),
+      this.fidelityList,
+    ]);
+    editor.signals.frameDecoded.add((f) => this.onFrame(f));
+    editor.signals.serverMemory.add((mb) => this.set('memory', mb.toFixed(0), String(mb)));
+    editor.signals.sessionChanged.add(() => {
+      this.lastFrame = -1;
+      this.fps = 0;
+      for (const k of Object.keys(this.fields)) if (k !== 'memory') this.set(k, '–', '');
+      this.fidelityList.replaceChildren();
+    });
+  }
+
+  private onFrame(f: FrameInfo) {
+    const now = performance.now();
+    if (this.lastFrame >= 0 && f.frame === this.lastFrame + 1 && now > this.lastArrival) {
+      const rate = 1000 / (now - this.lastArrival);
+      this.fps = this.fps > 0 ? 0.8 * this.fps + 0.2 * rate : rate; // smoothed
+    } else if (f.frame !== this.lastFrame) {
+      this.fps = f.wallMs > 0 ? 1000 / f.wallMs : 0;
+    }
+    this.lastFrame = f.frame;
+    this.lastArrival = now;
+    this.set('sim-ms', f.wallMs.toFixed(1), String(f.wallMs));
+    this.set('control-ms', f.controlMs.toFixed(1), String(f.controlMs));
+    this.set('fps', this.fps.toFixed(1), String(this.fps));
+    this.set('liquid', f.liquid.toLocaleString('en-US'), String(f.liquid));
+    this.set('temporary', f.temporary.toLocaleString('en-US'), String(f.temporary));
+    this.set('boundary', f.boundary.toLocaleString('en-US'), String(f.boundary));
+    const list = this.fidelityList;
+    while (list.children.length > f.instanceCount) list.lastChild!.remove();
+    for (let k = 0; k < f.instanceCount; k++) {
+      const inst = f.instances[k]!;
+      let row = list.children[k] as HTMLElement | undefined;
+      if (!row) {
+        row = el('div', { className: 'row' }, [el('span', { className: 'label' }), el('span', { className: 'value' })]);
+        list.append(row);
+      }
+      const measured = inst.fidelity >= 0;
+      const label = row.firstChild as HTMLElement, value = row.lastChild as HTMLElement;
+      const lt = `fidelity ${inst.name}`, vt = measured ? inst.fidelity.toFixed(3) : '–';
+      if (label.textContent !== lt) label.textContent = lt;
+      if (value.textContent !== vt) value.textContent = vt;
+      row.dataset['testid'] = `stats-fidelity-${inst.name}`;
+      row.dataset['value'] = measured ? String(inst.fidelity) : '';
+      row.title = 'Occupancy IoU with the template frame, [0, 1] (– : not measured, e.g. inactive)';
+    }
+  }
+
+  private set(id: string, text: string, value: string) {
+    const e = this.fields[id]!;
+    if (e.textContent !== text) e.textContent = text;
+    e.dataset['value'] = value;
+  }
+}
