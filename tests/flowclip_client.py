@@ -280,6 +280,11 @@ class Client:
     def template(self, name):
         return self.call("GET", "/api/templates/{name}", name=name)
 
+    def template_preview(self, name, frame=None, max_points=None):
+        """One frame's positions (flattened, every k-th particle, at most max_points) for a thumbnail."""
+        query = {k: v for k, v in (("frame", frame), ("max", max_points)) if v is not None}
+        return self.call("GET", "/api/templates/{name}/preview", name=name, params=query)
+
     def delete_template(self, name):
         return self.call("DELETE", "/api/templates/{name}", name=name)
 

@@ -45,6 +45,8 @@ def test_tour_of_every_endpoint(server, client, openapi):
     names = {t["name"] for t in client.templates()}
     assert {"drop2d", "column2d", "jet2d"} <= names
     assert client.template("drop2d")["dimension"] == 2
+    preview = client.template_preview("drop2d", frame=0, max_points=100)
+    assert preview["frame"] == 0 and 0 < len(preview["positions"]) <= 200
     scenes = {s["name"]: s for s in client.scenes()}
     assert scenes["drop2d"]["dimension"] == 2 and scenes["drop2d"]["instances"] == 1
     scene = drop_scene_without_instances(client, "tour")

@@ -6,6 +6,7 @@
 #include "service/frame_encoding.h"
 
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -366,6 +367,7 @@ const std::vector<ServiceHub::Route>& ServiceHub::routes() {
       {"GET", "/api/templates", &ServiceHub::listTemplates},
       {"GET", "/api/templates/{name}", &ServiceHub::getTemplate},
       {"DELETE", "/api/templates/{name}", &ServiceHub::deleteTemplate},
+      {"GET", "/api/templates/{name}/preview", &ServiceHub::templatePreview},
       {"GET", "/api/scenes", &ServiceHub::listScenes},
       {"POST", "/api/scenes", &ServiceHub::saveScene},
       {"GET", "/api/scenes/{name}", &ServiceHub::getScene},
@@ -511,7 +513,92 @@ HttpResponse ServiceHub::deleteTemplate(const HttpRequest&, const Params& p) {
   checkName(p[0], "template");
   if (!database_.contains(p[0])) throw ApiError(404, "no template \"" + p[0] + "\" in " + database_.directory(), "name");
   database_.remove(p[0]);
+  {
+    std::lock_guard<std::mutex> lock(previewMutex_);
+    previews_.erase(p[0]);
+  }
   return jsonResponse({{"deleted", p[0]}});
+}
+
+namespace {
+
+// Positions of one template frame for a library thumbnail: every k-th
+// particle so that at most maxPoints remain, rounded to 0.1 mm.
+template <int D>
+json previewJson(const Template<D>& tpl, long frame, long maxPoints) {
+  const TemplateFrame<D>& f = tpl.frames[size_t(frame)];
+  const size_t n = f.size();
+  const size_t stride = std::max<size_t>(1, (n + size_t(maxPoints) - 1) / size_t(maxPoints));
+  json pos = json::array();
+  for (size_t i = 0; i < n; i += stride)
+    for (int d = 0; d < D; ++d) pos.push_back(std::round(double(f.x[i][d]) * 1e4) / 1e4);
+  return {{"name", tpl.header.name},
+          {"dimension", D},
+          {"frame", frame},
+          {"frames", tpl.frameCount()},
+          {"time", double(frame) / tpl.header.frameRate},
+          {"particles", n},
+          {"stride", stride},
+          {"region_min", tpl.header.regionMin},
+          {"region_max", tpl.header.regionMax},
+          {"positions", pos}};
+}
+
+long queryInteger(const std::string& query, const std::string& key, long fallback, long lo, long hi) {
+  const std::string text = queryValue(query, key);
+  if (text.empty()) return fallback;
+  char* end = nullptr;
+  errno = 0;
+  const long v = std::strtol(text.c_str(), &end, 10);
+  if (errno != 0 || end == text.c_str() || *end != '\0' || v < lo || v > hi)
+    throw ApiError(400, "query \"" + key + "\" must be an integer in [" + std::to_string(lo) + ", " +
+                            std::to_string(hi) + "], got \"" + text.substr(0, 40) + "\"",
+                   key);
+  return v;
+}
+
+}  // namespace
+
+HttpResponse ServiceHub::templatePreview(const HttpRequest& req, const Params& p) {
+  checkName(p[0], "template");
+  if (!database_.contains(p[0])) throw ApiError(404, "no template \"" + p[0] + "\" in " + database_.directory(), "name");
+  const std::string path = database_.pathFor(p[0]);
+  std::error_code ec;
+  const uint64_t size = std::filesystem::file_size(path, ec);
+  const int64_t mtime = ec ? 0 : int64_t(std::filesystem::last_write_time(path, ec).time_since_epoch().count());
+  PreviewSource src;
+  {
+    std::lock_guard<std::mutex> lock(previewMutex_);
+    auto it = previews_.find(p[0]);
+    if (it != previews_.end() && it->second.size == size && it->second.mtime == mtime) src = it->second;
+  }
+  if (!src.tpl) {
+    try {
+      const TemplateHeader header = readTemplateHeader(path);
+      src.dimension = header.dimension;
+      if (header.dimension == 2)
+        src.tpl = std::make_shared<const Template<2>>(readTemplate<2>(path));
+      else
+        src.tpl = std::make_shared<const Template<3>>(readTemplate<3>(path));
+    } catch (const TemplateError& e) {
+      throw ApiError(422, e.what(), "name");
+    }
+    src.size = size;
+    src.mtime = mtime;
+    std::lock_guard<std::mutex> lock(previewMutex_);
+    // A few decoded templates at most (a large 3D one holds tens of MB).
+    if (previews_.size() >= kPreviewCacheSize && !previews_.count(p[0])) previews_.erase(previews_.begin());
+    previews_[p[0]] = src;
+  }
+  const size_t frames = src.dimension == 2 ? static_cast<const Template<2>*>(src.tpl.get())->frameCount()
+                                           : static_cast<const Template<3>*>(src.tpl.get())->frameCount();
+  if (frames == 0) throw ApiError(422, "template \"" + p[0] + "\" has no frames", "name");
+  const long frame = queryInteger(req.query, "frame", long(frames / 2), 0, long(frames) - 1);
+  const long maxPoints = queryInteger(req.query, "max", 2000, 1, 100000);
+  const json out = src.dimension == 2
+                       ? previewJson(*static_cast<const Template<2>*>(src.tpl.get()), frame, maxPoints)
+                       : previewJson(*static_cast<const Template<3>*>(src.tpl.get()), frame, maxPoints);
+  return jsonResponse(out);
 }
 
 HttpResponse ServiceHub::recordTemplate(const HttpRequest& req, const Params& p) {

@@ -101,6 +101,7 @@ class ServiceHub {
   HttpResponse listTemplates(const HttpRequest&, const Params&);
   HttpResponse getTemplate(const HttpRequest&, const Params&);
   HttpResponse deleteTemplate(const HttpRequest&, const Params&);
+  HttpResponse templatePreview(const HttpRequest&, const Params&);
   HttpResponse recordTemplate(const HttpRequest&, const Params&);
   HttpResponse listScenes(const HttpRequest&, const Params&);
   HttpResponse getScene(const HttpRequest&, const Params&);
@@ -139,6 +140,17 @@ class ServiceHub {
   uint64_t nextSession_ = 1;
   int creating_ = 0;  // sessions being created (count against maxSessions)
   std::mutex fileMutex_;  // scene saves and exports: one writer at a time
+  // Decoded template files for previews, keyed by name and revalidated by
+  // the file's size and modification time (a library panel asks often).
+  struct PreviewSource {
+    uint64_t size = 0;
+    int64_t mtime = 0;
+    std::shared_ptr<const void> tpl;  // Template<2> or Template<3>
+    int dimension = 0;
+  };
+  static constexpr size_t kPreviewCacheSize = 4;
+  std::mutex previewMutex_;
+  std::map<std::string, PreviewSource> previews_;
 };
 
 // JSON from a client, nested at most kMaxJsonDepth levels (deeper values

@@ -239,6 +239,38 @@ TEST(RestApi, SavedScenesReloadAndAreNotOverwrittenWithoutForce) {
     EXPECT_EQ(e.path().filename().string().find(".tmp"), std::string::npos);
 }
 
+// The library's thumbnail: one frame's positions, thinned to at most `max`.
+TEST(RestApi, TemplatePreviewIsOneFrameThinnedToMax) {
+  Api api;
+  const json mid = api.callJson("GET", "/api/templates/blob/preview", nullptr, 200);
+  EXPECT_EQ(mid["dimension"], 2);
+  EXPECT_EQ(mid["frames"], 13);
+  EXPECT_EQ(mid["frame"], 6);  // the middle frame by default
+  EXPECT_EQ(mid["particles"], 16);
+  EXPECT_EQ(mid["positions"].size(), 32u);
+  // Frame 12 is frame 0 moved up by 12 mm (writeSmallTemplate): the same x, y + 0.012.
+  const json first = api.callJson("GET", "/api/templates/blob/preview?frame=0", nullptr, 200);
+  const json last = api.callJson("GET", "/api/templates/blob/preview?frame=12", nullptr, 200);
+  double ySum0 = 0, ySum12 = 0;
+  for (size_t i = 1; i < 32; i += 2) {
+    ySum0 += first["positions"][i].get<double>();
+    ySum12 += last["positions"][i].get<double>();
+  }
+  EXPECT_NEAR((ySum12 - ySum0) / 16, 0.012, 2e-4);
+  const json thin = api.callJson("GET", "/api/templates/blob/preview?max=5", nullptr, 200);
+  EXPECT_LE(thin["positions"].size() / 2, 5u);
+  EXPECT_EQ(thin["stride"], 4);
+  for (const json& v : thin["positions"]) EXPECT_TRUE(v.get<double>() >= 0.0 && v.get<double>() <= 0.4);
+  expectError(api.call("GET", "/api/templates/blob/preview?frame=13"), 400, "bad_request", "frame");
+  expectError(api.call("GET", "/api/templates/blob/preview?max=0"), 400, "bad_request", "max");
+  expectError(api.call("GET", "/api/templates/blob/preview?frame=x"), 400, "bad_request", "frame");
+  expectError(api.call("GET", "/api/templates/nothing/preview"), 404, "not_found", "name");
+  // Not a template file: 422 naming the file, and the server goes on.
+  std::ofstream(api.tmp.file("templates/junk.h5")) << "not hdf5";
+  expectError(api.call("GET", "/api/templates/junk/preview"), 422, "unprocessable", "name");
+  api.callJson("GET", "/api/templates/blob/preview", nullptr, 200);
+}
+
 TEST(RestApi, ExportAndTemplateRecordingFromTheHistory) {
   Api api;
   const std::string id = api.createSession();

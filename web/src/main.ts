@@ -21,7 +21,15 @@ const toolbar = new Toolbar(editor);
 const viewportDom = el('main', { className: 'viewport', testid: 'viewport' });
 const messages = new Messages(editor);
 const statusBar = new StatusBar(editor);
-app.append(toolbar.dom, viewportDom, statusBar.dom);
+// Layout (styles.css #app grid): toolbar on top; the template library on the
+// left; the viewport; the outliner and inspector on the right; the timeline
+// under the viewport; the status bar at the bottom.
+const leftPanel = el('aside', { className: 'sidebar left', testid: 'left-panel' });
+const rightPanel = el('aside', { className: 'sidebar right', testid: 'right-panel' });
+const timelineDom = el('section', { className: 'timeline-area', testid: 'timeline-area' });
+toolbar.dom.classList.add('area-toolbar');
+statusBar.dom.classList.add('area-status');
+app.append(toolbar.dom, leftPanel, viewportDom, rightPanel, timelineDom, statusBar.dom);
 viewportDom.append(messages.dom, new LayerPanel(editor).dom, new StatsOverlay(editor).dom);
 const viewport = new Viewport(viewportDom, editor);
 installKeyboard(editor);
@@ -44,6 +52,7 @@ window.addEventListener('pagehide', () => {
 
 async function start() {
   const params = new URLSearchParams(location.search);
+  void editor.loadTemplates();
   const scenes = await editor.loadScenes();
   const session = params.get('session');
   if (session) {

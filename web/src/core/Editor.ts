@@ -7,7 +7,9 @@ import { Api, ApiError } from '../net/Api';
 import { FrameDecoder, type FrameInfo } from '../net/FrameDecoder';
 import { Stream, type ConnectionStatus, type StreamState } from '../net/Stream';
 import { Layer } from '@wire';
-import type { InstanceJson, SceneJson, SceneSummary, SessionState, SessionStatusName, TransportName } from '../net/types';
+import type {
+  InstanceJson, SceneJson, SceneSummary, SessionState, SessionStatusName, TemplateInfo, TransportName,
+} from '../net/types';
 import type { Command } from './Command';
 import { History } from './History';
 import { Signal } from './Signal';
@@ -56,6 +58,9 @@ export class Editor {
 
   readonly signals = {
     scenesChanged: new Signal<SceneSummary[]>(),
+    templatesChanged: new Signal<TemplateInfo[]>(),
+    /** The selected instance's name (null: none). Outliner, inspector, gizmo and timeline follow it. */
+    selectionChanged: new Signal<string | null>(),
     /** A session was opened (or closed: null). */
     sessionChanged: new Signal<SessionInfo | null>(),
     sessionView: new Signal<SessionView>(),
@@ -73,6 +78,9 @@ export class Editor {
   };
 
   scenes: SceneSummary[] = [];
+  templates: TemplateInfo[] = [];
+  /** The selected instance (a name in `instances`) or null. */
+  selected: string | null = null;
   session: SessionInfo | null = null;
   view: SessionView = emptyView();
   readonly instances = new Map<string, InstanceJson>();
@@ -101,6 +109,17 @@ export class Editor {
     }
     this.signals.scenesChanged.dispatch(this.scenes);
     return this.scenes;
+  }
+
+  async loadTemplates(): Promise<TemplateInfo[]> {
+    try {
+      this.templates = await this.api.listTemplates();
+    } catch (e) {
+      this.reportError(e, 'list templates');
+      this.templates = [];
+    }
+    this.signals.templatesChanged.dispatch(this.templates);
+    return this.templates;
   }
 
   /** Creates a session of scene `name` and streams it (the previous session, if ours, is deleted). */
@@ -279,6 +298,15 @@ export class Editor {
     this.instances.clear();
     for (const i of list) this.instances.set(i.name, i);
     this.signals.instancesChanged.dispatch(this.instances);
+    if (this.selected !== null && !this.instances.has(this.selected)) this.select(null);
+  }
+
+  /** Selects an instance by name (null: none); unknown names select nothing. */
+  select(name: string | null) {
+    const next = name !== null && this.instances.has(name) ? name : null;
+    if (next === this.selected) return;
+    this.selected = next;
+    this.signals.selectionChanged.dispatch(next);
   }
 
   /** The server's answer to an instance edit. */
@@ -290,6 +318,7 @@ export class Editor {
   instanceRemoved(name: string) {
     this.instances.delete(name);
     this.signals.instancesChanged.dispatch(this.instances);
+    if (this.selected === name) this.select(null);
   }
 
   // ------------------------------------------------------------ history ---
