@@ -274,6 +274,10 @@ class Client:
     def health(self):
         return self.call("GET", "/api/health")
 
+    def parameters(self, dimension=2):
+        """Every parameter's declaration (name, unit, min, max, default, type, help)."""
+        return self.call("GET", "/api/parameters", params={"dimension": dimension})
+
     def templates(self):
         return self.call("GET", "/api/templates")["templates"]
 

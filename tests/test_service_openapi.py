@@ -45,6 +45,9 @@ def test_tour_of_every_endpoint(server, client, openapi):
     names = {t["name"] for t in client.templates()}
     assert {"drop2d", "column2d", "jet2d"} <= names
     assert client.template("drop2d")["dimension"] == 2
+    params3 = client.parameters(3)
+    assert params3["dimension"] == 3 and "dfsph" in params3["solvers"]
+    assert any(p["name"] == "falloff_width" for p in params3["instance"])
     preview = client.template_preview("drop2d", frame=0, max_points=100)
     assert preview["frame"] == 0 and 0 < len(preview["positions"]) <= 200
     scenes = {s["name"]: s for s in client.scenes()}

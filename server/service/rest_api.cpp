@@ -4,6 +4,9 @@
 #include "io/stats_json.h"
 #include "io/template_file.h"
 #include "service/frame_encoding.h"
+#include "control/instance.h"
+#include "sph/pipeline.h"
+#include "sph/settings.h"
 
 #include <algorithm>
 #include <cerrno>
@@ -364,6 +367,7 @@ ServiceHub::~ServiceHub() {
 const std::vector<ServiceHub::Route>& ServiceHub::routes() {
   static const std::vector<Route> table = {
       {"GET", "/api/health", &ServiceHub::health},
+      {"GET", "/api/parameters", &ServiceHub::parameters},
       {"GET", "/api/templates", &ServiceHub::listTemplates},
       {"GET", "/api/templates/{name}", &ServiceHub::getTemplate},
       {"DELETE", "/api/templates/{name}", &ServiceHub::deleteTemplate},
@@ -495,6 +499,52 @@ HttpResponse ServiceHub::health(const HttpRequest&, const Params&) {
                        {"max_sessions", options_.maxSessions},
                        {"uptime_s", uptime},
                        {"rss_mb", currentRssMb()}});
+}
+
+namespace {
+
+json specsJson(const ParamSpecs& specs) {
+  json list = json::array();
+  for (const ParamSpec& s : specs) {
+    const char* type = s.type == ParamType::Boolean ? "boolean" : s.type == ParamType::Integer ? "integer" : "number";
+    json j = {{"name", s.name}, {"unit", s.unit}, {"min", s.min}, {"max", s.max}, {"type", type}, {"help", s.help}};
+    if (s.type == ParamType::Boolean) j["default"] = s.def != 0;
+    else j["default"] = s.def;
+    list.push_back(j);
+  }
+  return list;
+}
+
+template <class R>
+json registryJson(const R& registry) {
+  json out = json::object();
+  for (const std::string& name : registry.names()) {
+    const auto* e = registry.find(name);
+    out[name] = {{"help", e->help}, {"params", specsJson(e->params)}};
+  }
+  return out;
+}
+
+template <int D>
+json parametersJson() {
+  registerBuiltinSolversAndEffects();
+  return {{"dimension", D},
+          {"instance", specsJson(instanceParamSpecs(D))},
+          {"control", specsJson(controlSettingsSpecs())},
+          {"settings", specsJson(simulationSettingsSpecs())},
+          {"solvers", registryJson(PressureSolverRegistry<D>::instance())},
+          {"effects", registryJson(EffectRegistry<D>::instance())}};
+}
+
+}  // namespace
+
+// The one declaration of every parameter (name, unit, range, default, help):
+// the editor's inspector builds its fields from it.
+HttpResponse ServiceHub::parameters(const HttpRequest& req, const Params&) {
+  const std::string d = queryValue(req.query, "dimension");
+  if (d.empty() || d == "2") return jsonResponse(parametersJson<2>());
+  if (d == "3") return jsonResponse(parametersJson<3>());
+  throw ApiError(400, "query \"dimension\" must be 2 or 3, got \"" + d.substr(0, 40) + "\"", "dimension");
 }
 
 HttpResponse ServiceHub::listTemplates(const HttpRequest&, const Params&) {

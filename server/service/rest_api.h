@@ -98,6 +98,7 @@ class ServiceHub {
  private:
   using Params = std::vector<std::string>;
   HttpResponse health(const HttpRequest&, const Params&);
+  HttpResponse parameters(const HttpRequest&, const Params&);
   HttpResponse listTemplates(const HttpRequest&, const Params&);
   HttpResponse getTemplate(const HttpRequest&, const Params&);
   HttpResponse deleteTemplate(const HttpRequest&, const Params&);

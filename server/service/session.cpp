@@ -282,7 +282,8 @@ class SessionImpl final : public Session {
       if (!f) throw std::out_of_range("frame " + std::to_string(frame) + " is not in the history (" + keptText() + ")");
       if (status_ != SessionStatus::Error) status_ = SessionStatus::Paused;
       stepsLeft_ = 0;
-      replay_ = f;
+      // Seeking the newest frame is going back to live (the timeline's end).
+      replay_ = f == live_ ? nullptr : f;
       ++signal_;
     }
     wake();

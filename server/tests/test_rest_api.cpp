@@ -5,6 +5,7 @@
 #include "service/rest_api.h"
 
 #include "service/frame_encoding.h"
+#include "control/instance.h"
 #include "tests/hdf5_test_util.h"
 #include "tests/test_fixtures.h"
 
@@ -237,6 +238,42 @@ TEST(RestApi, SavedScenesReloadAndAreNotOverwrittenWithoutForce) {
   EXPECT_EQ(api.tmp.entries().size(), 2u);  // templates, scenes: nothing else written
   for (auto& e : std::filesystem::directory_iterator(api.tmp.file("scenes")))
     EXPECT_EQ(e.path().filename().string().find(".tmp"), std::string::npos);
+}
+
+// The parameter declarations the inspector is built from: the same specs the
+// scene parser validates with (names, ranges, defaults per dimension).
+TEST(RestApi, ParametersAreTheDeclarations) {
+  Api api;
+  const json p2 = api.callJson("GET", "/api/parameters", nullptr, 200);
+  const json p3 = api.callJson("GET", "/api/parameters?dimension=3", nullptr, 200);
+  EXPECT_EQ(p2["dimension"], 2);
+  EXPECT_EQ(p3["dimension"], 3);
+  auto find = [](const json& list, const std::string& name) {
+    for (const json& s : list)
+      if (s["name"] == name) return s;
+    return json();
+  };
+  ASSERT_EQ(p2["instance"].size(), instanceParamSpecs(2).size());
+  for (const ParamSpec& spec : instanceParamSpecs(2)) {
+    const json j = find(p2["instance"], spec.name);
+    ASSERT_FALSE(j.is_null()) << spec.name;
+    EXPECT_EQ(j["min"].get<double>(), spec.min) << spec.name;
+    EXPECT_EQ(j["max"].get<double>(), spec.max) << spec.name;
+    EXPECT_EQ(j["unit"], spec.unit) << spec.name;
+  }
+  // Paper §4 defaults differ by dimension.
+  EXPECT_DOUBLE_EQ(find(p2["instance"], "attraction_weight")["default"].get<double>(), 0.2);
+  EXPECT_DOUBLE_EQ(find(p3["instance"], "attraction_weight")["default"].get<double>(), 0.06);
+  const json rep = find(p2["instance"], "repulsion");
+  EXPECT_EQ(rep["type"], "boolean");
+  EXPECT_EQ(rep["default"], true);
+  EXPECT_EQ(find(p2["control"], "temporary_grace_frames")["type"], "integer");
+  EXPECT_DOUBLE_EQ(find(p2["settings"], "cfl_factor")["default"].get<double>(), 1.0);
+  ASSERT_TRUE(p2["solvers"].contains("dfsph"));
+  ASSERT_TRUE(p2["solvers"].contains("wcsph"));
+  EXPECT_DOUBLE_EQ(find(p2["solvers"]["dfsph"]["params"], "density_tolerance_pct")["default"].get<double>(), 0.01);
+  EXPECT_TRUE(p2["effects"].contains("viscosity_standard"));
+  expectError(api.call("GET", "/api/parameters?dimension=4"), 400, "bad_request", "dimension");
 }
 
 // The library's thumbnail: one frame's positions, thinned to at most `max`.

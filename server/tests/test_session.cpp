@@ -522,6 +522,11 @@ TEST(SessionHistory, SeekShowsTheRecordedFrameAsPublished) {
   EXPECT_EQ(st["shown"]["frame"], 2);
   EXPECT_EQ(st["frame"], 6);  // the simulation did not move
   EXPECT_EQ(st["status"], "paused");
+  // Seeking the newest frame is live again (the timeline's end); back to 2.
+  EXPECT_EQ(s->seek(6)->frame, 6);
+  EXPECT_TRUE(s->state()["shown"]["live"].get<bool>());
+  EXPECT_EQ(s->seek(2)->frame, 2);
+  EXPECT_FALSE(s->state()["shown"]["live"].get<bool>());
   // Stepping leaves replay and continues from the newest frame.
   s->step(1);
   ASSERT_TRUE(s->waitIdle(kWait));
