@@ -9,9 +9,13 @@ import { StatusBar } from './ui/StatusBar';
 import { LayerPanel, StatsOverlay } from './ui/Overlays';
 import { Messages } from './ui/Messages';
 import { installKeyboard } from './ui/Keyboard';
+import { TemplateLibrary } from './ui/TemplateLibrary';
+import { Outliner } from './ui/Outliner';
+import { Inspector } from './ui/Inspector';
 import { el } from './ui/dom';
 import { SetInstanceTransformCommand } from './commands/SetInstanceTransformCommand';
 import { SetInstanceValueCommand } from './commands/SetInstanceValueCommand';
+import * as track from './core/TransformTrack';
 
 const DEFAULT_SCENE = 'drop2d';
 
@@ -31,6 +35,8 @@ toolbar.dom.classList.add('area-toolbar');
 statusBar.dom.classList.add('area-status');
 app.append(toolbar.dom, leftPanel, viewportDom, rightPanel, timelineDom, statusBar.dom);
 viewportDom.append(messages.dom, new LayerPanel(editor).dom, new StatsOverlay(editor).dom);
+leftPanel.append(new TemplateLibrary(editor).dom);
+rightPanel.append(new Outliner(editor).dom, new Inspector(editor).dom);
 const viewport = new Viewport(viewportDom, editor);
 installKeyboard(editor);
 
@@ -39,6 +45,7 @@ installKeyboard(editor);
   editor,
   viewport,
   commands: { SetInstanceTransformCommand, SetInstanceValueCommand },
+  track,
 };
 
 // Sessions this editor created are deleted when the page goes away.

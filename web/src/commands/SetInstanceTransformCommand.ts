@@ -9,17 +9,21 @@ import type { TransformKey } from '../net/types';
 export class SetInstanceTransformCommand extends Command {
   readonly name: string;
   override readonly mergeKey: string;
+  override readonly mergeWindowMs: number | null;
   private newValue: TransformKey[];
 
+  /** `drag`: an id unique to one gizmo drag; its commands all merge, however slow the drag. */
   constructor(
     private readonly editor: Editor,
     private readonly instance: string,
     newValue: TransformKey[],
     private readonly oldValue: TransformKey[],
+    drag?: number,
   ) {
     super();
     this.name = `Move ${instance}`;
-    this.mergeKey = `transform:${instance}`;
+    this.mergeKey = drag === undefined ? `transform:${instance}` : `transform:${instance}:drag${drag}`;
+    this.mergeWindowMs = drag === undefined ? null : Infinity;
     this.newValue = structuredClone(newValue);
     this.oldValue = structuredClone(oldValue);
   }
@@ -39,6 +43,6 @@ export class SetInstanceTransformCommand extends Command {
   private async apply(transform: TransformKey[]) {
     const sid = this.editor.requireSession();
     const res = await this.editor.api.patchInstance(sid, this.instance, { transform });
-    this.editor.instanceUpdated(res.instance);
+    this.editor.instanceUpdated(await this.editor.settleInstanceEdit(sid, this.instance, res));
   }
 }

@@ -38,6 +38,6 @@ export class SetInstanceValueCommand extends Command {
   private async apply(value: unknown) {
     const sid = this.editor.requireSession();
     const res = await this.editor.api.patchInstance(sid, this.instance, { [this.key]: value });
-    this.editor.instanceUpdated(res.instance);
+    this.editor.instanceUpdated(await this.editor.settleInstanceEdit(sid, this.instance, res));
   }
 }

@@ -14,6 +14,12 @@ export abstract class Command {
    * value and the last one's new value. null: never merges.
    */
   readonly mergeKey: string | null = null;
+  /**
+   * How long after the previous command a merge may happen (ms); null: the
+   * history's default (0.5 s). A gizmo drag uses a mergeKey unique to the drag
+   * and Infinity, so that a slow drag is still one entry.
+   */
+  readonly mergeWindowMs: number | null = null;
   /** Wall time it was created (ms), for merging. */
   createdAt = performance.now();
 

@@ -8,8 +8,10 @@ import { FrameDecoder, type FrameInfo } from '../net/FrameDecoder';
 import { Stream, type ConnectionStatus, type StreamState } from '../net/Stream';
 import { Layer } from '@wire';
 import type {
-  InstanceJson, SceneJson, SceneSummary, SessionState, SessionStatusName, TemplateInfo, TransportName,
+  InstanceEditResponse, InstanceJson, ParametersJson, SceneJson, SceneSummary, SessionState, SessionStatusName,
+  SettingsPatch, TemplateInfo, TransportName,
 } from '../net/types';
+import { AddInstanceCommand } from '../commands/AddInstanceCommand';
 import type { Command } from './Command';
 import { History } from './History';
 import { Signal } from './Signal';
@@ -59,6 +61,10 @@ export class Editor {
   readonly signals = {
     scenesChanged: new Signal<SceneSummary[]>(),
     templatesChanged: new Signal<TemplateInfo[]>(),
+    /** The parameter declarations for the session's dimension arrived (GET /api/parameters). */
+    parametersChanged: new Signal<ParametersJson | null>(),
+    /** The session's scene JSON changed (settings edits re-read it). */
+    sceneChanged: new Signal<SceneJson | null>(),
     /** The selected instance's name (null: none). Outliner, inspector, gizmo and timeline follow it. */
     selectionChanged: new Signal<string | null>(),
     /** A session was opened (or closed: null). */
@@ -79,6 +85,11 @@ export class Editor {
 
   scenes: SceneSummary[] = [];
   templates: TemplateInfo[] = [];
+  /** Parameter declarations for the open session's dimension (null until read). */
+  parameters: ParametersJson | null = null;
+  private readonly parameterCache = new Map<number, ParametersJson>();
+  /** World point at the centre of the view (the viewport keeps it current): where a new instance goes. */
+  viewCentre: number[] = [0.5, 0.5, 0];
   /** The selected instance (a name in `instances`) or null. */
   selected: string | null = null;
   session: SessionInfo | null = null;
@@ -122,6 +133,23 @@ export class Editor {
     return this.templates;
   }
 
+  async loadParameters(dimension: 2 | 3): Promise<ParametersJson | null> {
+    let p = this.parameterCache.get(dimension) ?? null;
+    if (!p) {
+      try {
+        p = await this.api.parameters(dimension);
+        this.parameterCache.set(dimension, p);
+      } catch (e) {
+        this.reportError(e, 'read the parameter declarations');
+      }
+    }
+    if (this.session?.dimension === dimension) {
+      this.parameters = p;
+      this.signals.parametersChanged.dispatch(p);
+    }
+    return p;
+  }
+
   /** Creates a session of scene `name` and streams it (the previous session, if ours, is deleted). */
   async openScene(name: string): Promise<SessionInfo | null> {
     let state: SessionState;
@@ -155,7 +183,9 @@ export class Editor {
     this.stream = null;
     this.pollHealth(false);
     this.session = null;
+    this.parameters = null;
     this.instances.clear();
+    this.select(null);
     this.history.clear();
     this.view = emptyView();
     this.signals.sessionChanged.dispatch(null);
@@ -187,6 +217,7 @@ export class Editor {
     this.setInstances(instances);
     this.applyState(state);
     this.signals.sessionChanged.dispatch(info);
+    void this.loadParameters(state.dimension);
     this.connectStream(info);
     return info;
   }
@@ -307,6 +338,120 @@ export class Editor {
     if (next === this.selected) return;
     this.selected = next;
     this.signals.selectionChanged.dispatch(next);
+  }
+
+  /**
+   * The instance after an accepted edit. A session inside a long frame
+   * answers 202 (pending): the edit is polled until it is applied, then the
+   * instance is read; a rejected edit throws like a 422.
+   */
+  async settleInstanceEdit(sid: string, name: string, res: InstanceEditResponse): Promise<InstanceJson> {
+    if (res.instance) return res.instance;
+    const deadline = performance.now() + 30_000;
+    for (;;) {
+      const r = await this.api.getEdit(sid, res.edit.id);
+      const edit = r.edit ?? r;
+      if (edit.accepted === false) {
+        throw new ApiError(422, 'unprocessable', edit.error?.message ?? 'edit rejected', edit.error?.path);
+      }
+      if (edit.accepted === true) return this.api.getInstance(sid, name);
+      if (performance.now() > deadline) throw new Error(`edit ${res.edit.id} still pending after 30 s`);
+      await new Promise((r) => setTimeout(r, 100));
+    }
+  }
+
+  /** Scene time of the frame shown (frame n ends at n / frame_rate): the playhead. */
+  playheadTime(): number {
+    return this.view.shownFrame / this.frameRate();
+  }
+
+  frameRate(): number {
+    const fr = (this.session?.sceneJson?.['settings'] as { frame_rate?: number } | undefined)?.frame_rate;
+    return typeof fr === 'number' && fr > 0 ? fr : 60;
+  }
+
+  templateInfo(name: string): TemplateInfo | undefined {
+    return this.templates.find((t) => t.name === name);
+  }
+
+  /** The template's capture-region centre (where an empty transform track plays it). */
+  templateCentre(name: string): number[] {
+    const t = this.templateInfo(name);
+    const mn = t?.region_min ?? [0, 0, 0], mx = t?.region_max ?? [0, 0, 0];
+    return mn.map((v, d) => (v + (mx[d] ?? v)) / 2);
+  }
+
+  /** `base`, or base_2, base_3, … : a name no instance has (names follow [A-Za-z0-9_-]{1,64}). */
+  uniqueInstanceName(base: string): string {
+    const clean = base.replace(/[^A-Za-z0-9_-]/g, '_').slice(0, 56) || 'instance';
+    if (!this.instances.has(clean)) return clean;
+    for (let k = 2; ; k++) if (!this.instances.has(`${clean}_${k}`)) return `${clean}_${k}`;
+  }
+
+  /**
+   * Instances `template` with its region centre at `position` (world; the
+   * view centre by default), starting at the playhead so that it plays from
+   * the frame the user looks at.
+   */
+  addInstance(template: string, position: number[] = this.viewCentre): Promise<void> {
+    const s = this.session;
+    if (!s) {
+      this.message('warning', 'open a scene first');
+      return Promise.resolve();
+    }
+    const t = this.templateInfo(template);
+    if (t?.dimension !== undefined && t.dimension !== s.dimension) {
+      this.message('error', `template ${template} is ${t.dimension}D; the scene is ${s.dimension}D`);
+      return Promise.resolve();
+    }
+    const name = this.uniqueInstanceName(template);
+    const translation = position.slice(0, s.dimension).map((v) => Math.round(v * 1e4) / 1e4);
+    const start = Math.round(this.playheadTime() * 1e4) / 1e4;
+    return this.execute(new AddInstanceCommand(this, { name, template, start, transform: [{ time: start, translation }] }));
+  }
+
+  /** PATCHes the scene settings and re-reads the session's scene (the inspector shows it). */
+  async applySettings(patch: SettingsPatch): Promise<void> {
+    const s = this.requireSession();
+    await this.api.patchSettings(s, patch);
+    await this.refreshScene();
+  }
+
+  async refreshScene(): Promise<void> {
+    const s = this.session;
+    if (!s) return;
+    s.sceneJson = await this.api.getSessionScene(s.id);
+    this.signals.sceneChanged.dispatch(s.sceneJson);
+  }
+
+  /** Saves the session's current scene as NAME.json on the server (scene directory). */
+  async saveScene(name: string, force = false): Promise<boolean> {
+    const s = this.session;
+    if (!s) {
+      this.message('warning', 'open a scene first');
+      return false;
+    }
+    try {
+      const r = await this.api.saveScene(s.id, name, force);
+      this.message('info', `saved scene ${r.name} (${r.path})`);
+      await this.loadScenes();
+      return true;
+    } catch (e) {
+      this.reportError(e, `save scene ${name}`);
+      return false;
+    }
+  }
+
+  /** The session's current scene JSON (every accepted edit), for a download. */
+  async currentSceneJson(): Promise<SceneJson | null> {
+    const s = this.session;
+    if (!s) return null;
+    try {
+      return await this.api.getSessionScene(s.id);
+    } catch (e) {
+      this.reportError(e, 'read the scene');
+      return null;
+    }
   }
 
   /** The server's answer to an instance edit. */

@@ -45,7 +45,7 @@ export class History {
       last !== undefined &&
       cmd.mergeKey !== null &&
       last.mergeKey === cmd.mergeKey &&
-      cmd.createdAt - last.createdAt < this.mergeWindowMs;
+      cmd.createdAt - last.createdAt < (cmd.mergeWindowMs ?? this.mergeWindowMs);
     return this.enqueue(async () => {
       try {
         await cmd.execute();

@@ -2,7 +2,8 @@
 // ApiError carrying the server's Error object (status, code, message, path),
 // or status 0 when the server could not be reached.
 import type {
-  InstanceEditResponse, InstanceJson, SceneJson, SceneSummary, SessionState, TemplateInfo, TransportName,
+  EditResultJson, InstanceEditResponse, InstanceJson, ParametersJson, SceneJson, SceneSummary, SessionState, SettingsPatch,
+  TemplateInfo, TemplatePreviewJson, TransportName,
 } from './types';
 
 export class ApiError extends Error {
@@ -73,6 +74,27 @@ export class Api {
   }
   listTemplates() {
     return this.request<{ templates: TemplateInfo[] }>('GET', '/api/templates').then((r) => r.templates);
+  }
+  /** Every parameter's declaration for scenes of that dimension (the inspector's fields). */
+  parameters(dimension: 2 | 3) {
+    return this.request<ParametersJson>('GET', `/api/parameters?dimension=${dimension}`);
+  }
+  templatePreview(name: string, maxPoints = 1500) {
+    return this.request<TemplatePreviewJson>('GET', `/api/templates/${enc(name)}/preview?max=${maxPoints}`);
+  }
+  getScene(name: string) {
+    return this.request<SceneJson>('GET', `/api/scenes/${enc(name)}`);
+  }
+  /** Saves the session's current scene (every accepted edit) as NAME.json in the server's scene directory. */
+  saveScene(session: string, name: string, force = false) {
+    return this.request<{ name: string; path: string }>('POST', '/api/scenes', { name, session, force });
+  }
+  /** An edit's result: 200 applied or rejected (`accepted`, `error`), 202 `{pending: true}` not yet. */
+  getEdit(id: string, edit: number) {
+    return this.request<EditResultJson>('GET', `/api/sessions/${enc(id)}/edits/${edit}`);
+  }
+  patchSettings(id: string, patch: SettingsPatch) {
+    return this.request<{ edit: unknown }>('PATCH', `/api/sessions/${enc(id)}/settings`, patch);
   }
   createSession(scene: string | SceneJson, options: { name?: string; playback_speed?: number } = {}) {
     return this.request<SessionState>('POST', '/api/sessions', { scene, ...options });

@@ -78,14 +78,21 @@ export interface InstanceJson {
 export interface EditJson {
   id: number;
   type: string;
-  accepted: boolean;
+  /** Absent while pending (HTTP 202: the session is inside a long frame). */
+  accepted?: boolean;
+  pending?: boolean;
   frame?: number;
   instance?: string;
+  error?: { path: string; message: string };
 }
 
+/** GET .../edits/{id}: the Edit itself, or {edit: {pending}} while it waits. */
+export type EditResultJson = EditJson & { edit?: EditJson };
+
+/** An accepted instance edit carries the instance; a pending one (202) does not. */
 export interface InstanceEditResponse {
   edit: EditJson;
-  instance: InstanceJson;
+  instance?: InstanceJson;
 }
 
 export interface SceneJson {
@@ -99,3 +106,49 @@ export interface SceneJson {
 }
 
 export type TransportName = 'play' | 'pause' | 'step' | 'reset' | 'seek' | 'speed';
+
+/** One parameter's declaration (GET /api/parameters): the server's ParamSpec. */
+export interface ParamSpecJson {
+  name: string;
+  unit: string;
+  min: number;
+  max: number;
+  default: number | boolean;
+  type: 'number' | 'integer' | 'boolean';
+  help: string;
+}
+
+export interface RegisteredPartJson {
+  help: string;
+  params: ParamSpecJson[];
+}
+
+export interface ParametersJson {
+  dimension: 2 | 3;
+  instance: ParamSpecJson[];
+  control: ParamSpecJson[];
+  settings: ParamSpecJson[];
+  solvers: Record<string, RegisteredPartJson>;
+  effects: Record<string, RegisteredPartJson>;
+}
+
+/** GET /api/templates/{name}/preview: one frame's positions, flattened (dimension numbers each). */
+export interface TemplatePreviewJson {
+  name: string;
+  dimension: 2 | 3;
+  frame: number;
+  frames: number;
+  time: number;
+  particles: number;
+  stride: number;
+  region_min: Vec;
+  region_max: Vec;
+  positions: number[];
+}
+
+/** PATCH /api/sessions/{id}/settings: merge patches of the scene's objects. */
+export interface SettingsPatch {
+  settings?: Record<string, unknown>;
+  solver?: Record<string, unknown>;
+  control?: Record<string, unknown>;
+}

@@ -1,4 +1,5 @@
-// Top bar: scene picker, transport (play, pause, step, reset), undo/redo.
+// Top bar: scene picker, save (on the server) and download of the current
+// scene, transport (play, pause, step, reset, back to live), undo/redo.
 // Listens to the editor's signals; acts only through the editor.
 import type { Editor } from '../core/Editor';
 import { el } from './dom';
@@ -6,7 +7,8 @@ import { el } from './dom';
 export class Toolbar {
   readonly dom: HTMLElement;
   private readonly picker: HTMLSelectElement;
-  private readonly buttons: Record<'play' | 'pause' | 'step' | 'reset' | 'undo' | 'redo', HTMLButtonElement>;
+  private readonly buttons: Record<'play' | 'pause' | 'step' | 'reset' | 'live' | 'undo' | 'redo' | 'save' | 'download', HTMLButtonElement>;
+  private readonly saveName: HTMLInputElement;
 
   constructor(private readonly editor: Editor) {
     this.picker = el('select', { testid: 'scene-picker', title: 'Open a scene (a new session on the server)' });
@@ -26,14 +28,23 @@ export class Toolbar {
       pause: button('pause', '❚❚ Pause', 'Pause', () => void editor.transport('pause')),
       step: button('step', 'Step', 'Simulate one frame', () => void editor.transport('step', { frames: 1 })),
       reset: button('reset', 'Reset', 'Back to frame 0 (history cleared)', () => void editor.transport('reset')),
+      live: button('live', 'Live', 'Show the newest simulated frame (leave the replay)', () =>
+        void editor.transport('seek', { frame: editor.view.frame })),
+      save: button('save-scene', 'Save', 'Save the current scene (every accepted edit) on the server as NAME.json', () => void this.save()),
+      download: button('download-scene', 'Download', 'Download the current scene as JSON', () => void this.download()),
       undo: button('undo', '↶', 'Undo (Ctrl+Z)', () => void editor.undo()),
       redo: button('redo', '↷', 'Redo (Ctrl+Shift+Z)', () => void editor.redo()),
     };
     const b = this.buttons;
+    this.saveName = el('input', { testid: 'scene-save-name', title: 'Name to save the scene as ([A-Za-z0-9_-])', attrs: { type: 'text', size: '12', spellcheck: 'false' } });
+    this.saveName.addEventListener('keydown', (e) => {
+      if (e.key === 'Enter') void this.save();
+    });
     this.dom = el('header', { className: 'toolbar', testid: 'toolbar' }, [
       el('span', { className: 'brand', text: 'FlowClip' }),
       this.picker,
-      el('span', { className: 'group' }, [b.play, b.pause, b.step, b.reset]),
+      el('span', { className: 'group' }, [this.saveName, b.save, b.download]),
+      el('span', { className: 'group' }, [b.play, b.pause, b.step, b.reset, b.live]),
       el('span', { className: 'group' }, [b.undo, b.redo]),
     ]);
 
@@ -50,6 +61,7 @@ export class Toolbar {
     });
     editor.signals.sessionChanged.add((s) => {
       this.picker.value = s?.scene ?? '';
+      this.saveName.value = s ? `${s.scene}_edit` : '';
       this.update();
     });
     editor.signals.sessionView.add(() => this.update());
@@ -64,7 +76,35 @@ export class Toolbar {
     this.buttons.pause.disabled = !open || !running;
     this.buttons.step.disabled = !open || running || v.status === 'error';
     this.buttons.reset.disabled = !open;
+    this.buttons.live.disabled = !open || v.live || v.status === 'error';
+    this.buttons.save.disabled = !open;
+    this.buttons.download.disabled = !open;
     this.buttons.undo.disabled = !e.history.canUndo;
     this.buttons.redo.disabled = !e.history.canRedo;
+  }
+
+  /** Saves on the server; an existing name asks before overwriting. */
+  private async save() {
+    const name = this.saveName.value.trim();
+    if (!/^[A-Za-z0-9_-]{1,64}$/.test(name)) {
+      this.editor.message('error', `save: "${name}" is not a scene name (letters, digits, _ and -, at most 64)`);
+      return;
+    }
+    const exists = this.editor.scenes.some((s) => s.name === name);
+    if (exists && !window.confirm(`Scene ${name} exists on the server. Overwrite it?`)) return;
+    await this.editor.saveScene(name, exists);
+  }
+
+  /** The current scene as a JSON file (name: the save field's). */
+  private async download() {
+    const scene = await this.editor.currentSceneJson();
+    if (!scene) return;
+    const name = this.saveName.value.trim() || this.editor.session?.scene || 'scene';
+    const blob = new Blob([JSON.stringify({ ...scene, name }, null, 1) + '\n'], { type: 'application/json' });
+    const a = el('a', { attrs: { href: URL.createObjectURL(blob), download: `${name}.json` } });
+    document.body.append(a);
+    a.click();
+    a.remove();
+    setTimeout(() => URL.revokeObjectURL(a.href), 10_000);
   }
 }

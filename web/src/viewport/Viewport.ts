@@ -8,6 +8,8 @@ import { OrbitControls } from 'three/examples/jsm/controls/OrbitControls.js';
 import type { Editor, SessionInfo } from '../core/Editor';
 import type { FrameInfo } from '../net/FrameDecoder';
 import { Boxes } from './Boxes';
+import { InstanceGizmo } from './InstanceGizmo';
+import { TEMPLATE_DRAG_TYPE } from '../ui/TemplateLibrary';
 import { ParticleLayer } from './ParticleLayer';
 
 export class Viewport {
@@ -23,6 +25,8 @@ export class Viewport {
   readonly persp = new THREE.PerspectiveCamera(45, 1, 0.01, 100);
   camera: THREE.OrthographicCamera | THREE.PerspectiveCamera = this.ortho;
   controls: OrbitControls;
+  /** TransformControls on the selected instance. */
+  readonly gizmo: InstanceGizmo;
   /** Renders done (tests check that nothing renders while nothing changes). */
   renders = 0;
   /** Render requests by reason ('frame', 'camera', 'resize', 'session', 'fit', 'layers'). */
@@ -52,6 +56,9 @@ export class Viewport {
     this.scene.add(this.boxes.group, this.boundary.points, this.particles.points, this.repulsion.points, this.control.points);
     this.ortho.position.set(0.5, 0.5, 10);
     this.controls = this.makeControls();
+    this.gizmo = new InstanceGizmo(editor, this.camera, this.renderer.domElement, this.scene,
+      (why) => this.requestRender(why), () => this.controls);
+    this.installDrop();
     editor.decoder.target = this.particles;
     editor.decoder.boundaryTarget = this.boundary;
     editor.decoder.controlTarget = this.control;
@@ -113,6 +120,7 @@ export class Viewport {
       this.controls.target.set(cx, cy, cz);
     }
     this.controls.update();
+    this.updateViewCentre();
     this.requestRender('fit');
   }
 
@@ -158,7 +166,50 @@ export class Viewport {
     this.camera = dim === 2 ? this.ortho : this.persp;
     this.controls.dispose();
     this.controls = this.makeControls();
+    this.gizmo.setCamera(this.camera);
     this.resize();
+  }
+
+  /** World point under client pixel (x, y): 2D on z = 0; 3D on the plane through the orbit target facing the camera. */
+  worldAt(clientX: number, clientY: number): THREE.Vector3 {
+    const r = this.renderer.domElement.getBoundingClientRect();
+    const ndc = new THREE.Vector2(((clientX - r.left) / r.width) * 2 - 1, -((clientY - r.top) / r.height) * 2 + 1);
+    const ray = new THREE.Raycaster();
+    ray.setFromCamera(ndc, this.camera);
+    const normal = this.dimension === 2 ? new THREE.Vector3(0, 0, 1) : this.camera.getWorldDirection(new THREE.Vector3()).negate();
+    const plane = new THREE.Plane().setFromNormalAndCoplanarPoint(normal, this.dimension === 2 ? new THREE.Vector3() : this.controls.target);
+    const hit = new THREE.Vector3();
+    return ray.ray.intersectPlane(plane, hit) ?? this.controls.target.clone();
+  }
+
+  /** Client pixel of world point p (tests aim the mouse with it). */
+  screenOf(p: THREE.Vector3): { x: number; y: number } {
+    const r = this.renderer.domElement.getBoundingClientRect();
+    const v = p.clone().project(this.camera);
+    return { x: r.left + ((v.x + 1) / 2) * r.width, y: r.top + ((1 - v.y) / 2) * r.height };
+  }
+
+  /** A template dragged from the library is instanced where it is dropped. */
+  private installDrop() {
+    const dom = this.renderer.domElement;
+    dom.addEventListener('dragover', (e) => {
+      if (e.dataTransfer?.types.includes(TEMPLATE_DRAG_TYPE)) {
+        e.preventDefault();
+        e.dataTransfer.dropEffect = 'copy';
+      }
+    });
+    dom.addEventListener('drop', (e) => {
+      const name = e.dataTransfer?.getData(TEMPLATE_DRAG_TYPE);
+      if (!name) return;
+      e.preventDefault();
+      const p = this.worldAt(e.clientX, e.clientY);
+      void this.editor.addInstance(name, [p.x, p.y, p.z]);
+    });
+  }
+
+  private updateViewCentre() {
+    const t = this.controls.target;
+    this.editor.viewCentre = [t.x, t.y, t.z];
   }
 
   private makeControls(): OrbitControls {
@@ -170,7 +221,10 @@ export class Viewport {
       c.mouseButtons = { LEFT: THREE.MOUSE.PAN, MIDDLE: THREE.MOUSE.DOLLY, RIGHT: THREE.MOUSE.PAN };
       c.touches = { ONE: THREE.TOUCH.PAN, TWO: THREE.TOUCH.DOLLY_PAN };
     }
-    c.addEventListener('change', () => this.requestRender('camera'));
+    c.addEventListener('change', () => {
+      this.updateViewCentre();
+      this.requestRender('camera');
+    });
     return c;
   }
 
@@ -202,6 +256,7 @@ export class Viewport {
 
   dispose() {
     this.resizeObserver.disconnect();
+    this.gizmo.dispose();
     this.controls.dispose();
     for (const l of this.layers()) l.dispose();
     this.boxes.dispose();

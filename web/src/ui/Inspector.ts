@@ -1,0 +1,286 @@
+// The inspector (right panel): the selected instance's transform at the
+// playhead (with keyframes added and removed there), its time map (start,
+// crop, speed, reverse), its phase and its control parameters; below, the
+// scene's solver, simulation and control settings. Parameter fields are
+// built from the server's declarations (GET /api/parameters: name, unit,
+// range, default, help), the same ones the scene parser validates with.
+// Every change is a Command executed through the hub.
+import type { Editor } from '../core/Editor';
+import { SetInstanceTransformCommand } from '../commands/SetInstanceTransformCommand';
+import { SetInstanceValueCommand } from '../commands/SetInstanceValueCommand';
+import { SetSceneSettingsCommand } from '../commands/SetSceneSettingsCommand';
+import { addKeyAt, editTrackAt, evaluateTrack, keyIndexAt, removeKeyAt, type FullKey } from '../core/TransformTrack';
+import type { InstanceJson, ParametersJson, ParamSpecJson, SettingsPatch } from '../net/types';
+import { el } from './dom';
+import { checkboxField, formatNumber, numberField, paramField, selectField, type Field } from './fields';
+
+const AXES = ['x', 'y', 'z'];
+
+type SettingsGroup = 'solver' | 'settings' | 'control';
+
+export class Inspector {
+  readonly dom: HTMLElement;
+  private readonly instanceBox: HTMLElement;
+  private readonly sceneBox: HTMLElement;
+  private readonly header: HTMLElement;
+  private readonly keyInfo: HTMLElement;
+  private readonly addKey: HTMLButtonElement;
+  private readonly removeKey: HTMLButtonElement;
+  /** Instance fields by instance key (transform fields under "transform.translation.0" etc.). */
+  private fields = new Map<string, Field>();
+  private readonly paramBox: HTMLElement;
+  private paramsFor: ParametersJson | null = null;
+  private sceneFields = new Map<string, Field>();
+  private sceneFieldsFor = '';
+
+  constructor(private readonly editor: Editor) {
+    this.header = el('div', { className: 'inspector-header', testid: 'inspector-header' });
+    this.keyInfo = el('span', { className: 'key-info', testid: 'inspector-key-info' });
+    this.addKey = el('button', { text: '◆ key', testid: 'inspector-add-key', title: 'Add a keyframe at the playhead holding the transform there', attrs: { type: 'button' } });
+    this.removeKey = el('button', { text: '◇ key', testid: 'inspector-remove-key', title: 'Remove the keyframe at the playhead', attrs: { type: 'button' } });
+    this.addKey.addEventListener('click', () => this.keyAtPlayhead(true));
+    this.removeKey.addEventListener('click', () => this.keyAtPlayhead(false));
+    this.paramBox = el('div', { className: 'inspector-group' });
+    this.instanceBox = el('div', { className: 'inspector-instance', testid: 'inspector-instance' });
+    this.sceneBox = el('div', { className: 'inspector-scene', testid: 'inspector-scene' });
+    this.dom = el('section', { className: 'panel inspector', testid: 'inspector' }, [
+      el('h2', { text: 'Inspector' }),
+      this.instanceBox,
+      el('h2', { text: 'Scene settings' }),
+      this.sceneBox,
+    ]);
+    this.buildInstanceFields();
+
+    editor.signals.selectionChanged.add(() => this.update());
+    editor.signals.instancesChanged.add(() => this.update());
+    editor.signals.sessionView.add(() => this.update()); // the playhead moved: transform at it
+    editor.signals.parametersChanged.add(() => {
+      this.buildParamFields();
+      this.buildSceneFields();
+      this.update();
+    });
+    editor.signals.sceneChanged.add(() => this.updateScene());
+    editor.signals.sessionChanged.add(() => {
+      this.buildInstanceFields();
+      this.buildParamFields();
+      this.buildSceneFields();
+      this.update();
+    });
+    this.update();
+  }
+
+  // ------------------------------------------------------------ instance ---
+
+  private selectedInstance(): InstanceJson | null {
+    const e = this.editor;
+    return e.selected ? e.instances.get(e.selected) ?? null : null;
+  }
+
+  private dim(): 2 | 3 {
+    return this.editor.session?.dimension ?? 2;
+  }
+
+  private tolerance(): number {
+    return 0.5 / this.editor.frameRate();
+  }
+
+  private complain = (text: string) => this.editor.message('error', text);
+
+  private buildInstanceFields() {
+    const dim = this.dim();
+    this.fields = new Map();
+    const transform = el('div', { className: 'inspector-group' });
+    const addTransform = (what: 'translation' | 'rotation' | 'scale', label: string, unit: string, n: number) => {
+      for (let d = 0; d < n; d++) {
+        const axis = what === 'rotation' && dim === 2 ? '' : ` ${AXES[d]}`;
+        const f = numberField(`inspector-${what}-${d}`, `${label}${axis}`, unit, `${label} at the playhead`, (v) =>
+          this.editTransform((k) => {
+            k[what][d] = v as number;
+          }), this.complain);
+        this.fields.set(`transform.${what}.${d}`, f);
+        transform.append(f.row);
+      }
+    };
+    addTransform('translation', 'position', 'm', dim);
+    addTransform('rotation', 'rotation', '°', dim === 2 ? 1 : 3);
+    addTransform('scale', 'scale', '×', dim);
+    for (let d = 0; d < dim; d++) {
+      const f = checkboxField(`inspector-reflect-${d}`, `reflect ${AXES[d]}`, `Mirror the template along its ${AXES[d]} axis`, (v) =>
+        this.editTransform((k) => {
+          k.reflect[d] = v as boolean;
+        }));
+      this.fields.set(`transform.reflect.${d}`, f);
+      transform.append(f.row);
+    }
+    transform.append(el('div', { className: 'key-row' }, [this.keyInfo, this.addKey, this.removeKey]));
+
+    const time = el('div', { className: 'inspector-group' });
+    const timeField = (key: string, label: string, unit: string, title: string, allowEmpty = false, placeholder = '') => {
+      const f = numberField(`inspector-${key}`, label, unit, title, (v) => this.setValue(key, v), this.complain, { allowEmpty, placeholder });
+      this.fields.set(key, f);
+      time.append(f.row);
+    };
+    timeField('start', 'start', 's', 'Scene time the instance starts playing');
+    timeField('crop_begin', 'crop begin', 's', 'Template time the instance starts from');
+    timeField('crop_end', 'crop end', 's', 'Template time the instance ends at (empty: the template\'s end)', true, 'end');
+    timeField('speed', 'speed', '×', 'Template seconds per scene second (> 0)');
+    const reverse = checkboxField('inspector-reverse', 'reverse', 'Play the template backwards', (v) => this.setValue('reverse', v));
+    this.fields.set('reverse', reverse);
+    time.append(reverse.row);
+    const phase = selectField('inspector-phase', 'phase', 'The liquid phase this instance controls', [], (v) => this.setValue('phase', v));
+    this.fields.set('phase', phase);
+    time.append(phase.row);
+
+    this.instanceBox.replaceChildren(
+      this.header,
+      el('h3', { text: 'Transform at the playhead' }),
+      transform,
+      el('h3', { text: 'Time' }),
+      time,
+      el('h3', { text: 'Control' }),
+      this.paramBox,
+    );
+  }
+
+  /** Control parameters from the declarations (rebuilt when they arrive or the dimension changes). */
+  private buildParamFields() {
+    const p = this.editor.parameters;
+    if (p === this.paramsFor) return;
+    this.paramsFor = p;
+    for (const key of [...this.fields.keys()]) if (key.startsWith('param.')) this.fields.delete(key);
+    this.paramBox.replaceChildren();
+    if (!p) return;
+    for (const spec of p.instance) {
+      const f = paramField('inspector', spec, (v) => this.setValue(spec.name, v), this.complain);
+      this.fields.set(`param.${spec.name}`, f);
+      this.paramBox.append(f.row);
+    }
+  }
+
+  private update() {
+    const inst = this.selectedInstance();
+    this.instanceBox.hidden = inst === null;
+    this.updateScene();
+    if (!inst) return;
+    const e = this.editor, dim = this.dim(), t = e.playheadTime();
+    const centre = e.templateCentre(inst.template);
+    const info = e.templateInfo(inst.template);
+    this.header.textContent = `${inst.name} · ${inst.template}${info?.duration !== undefined ? ` (${formatNumber(info.duration)} s)` : ''}`;
+    this.header.dataset['value'] = inst.name;
+    const k = evaluateTrack(inst.transform, t, dim, centre);
+    for (const what of ['translation', 'rotation', 'scale'] as const)
+      k[what].forEach((v, d) => this.fields.get(`transform.${what}.${d}`)?.show(v));
+    k.reflect.forEach((v, d) => this.fields.get(`transform.reflect.${d}`)?.show(v));
+    const keys = inst.transform ?? [];
+    const at = keyIndexAt(keys, t, this.tolerance());
+    this.keyInfo.textContent = `t = ${t.toFixed(3)} s · ${keys.length} key${keys.length === 1 ? '' : 's'}${at >= 0 ? ' · ◆ here' : ''}`;
+    this.keyInfo.dataset['keys'] = String(keys.length);
+    this.keyInfo.dataset['here'] = String(at >= 0);
+    this.removeKey.disabled = at < 0;
+    for (const key of ['start', 'crop_begin', 'crop_end', 'speed', 'reverse'])
+      this.fields.get(key)?.show(key === 'crop_end' && (inst.crop_end === undefined || inst.crop_end < 0) ? null : inst[key]);
+    const phases = (e.session?.sceneJson?.phases ?? []).map((p) => p.name);
+    const phase = this.fields.get('phase')!;
+    const select = phase.input as HTMLSelectElement;
+    if ([...select.options].map((o) => o.value).join('|') !== phases.join('|'))
+      select.replaceChildren(...phases.map((n) => el('option', { text: n, attrs: { value: n } })));
+    phase.show(inst.phase ?? phases[0] ?? '');
+    for (const [key, f] of this.fields) if (key.startsWith('param.')) f.show(inst[key.slice(6)]);
+  }
+
+  private setValue(key: string, value: unknown) {
+    const inst = this.selectedInstance();
+    if (!inst) return;
+    if (JSON.stringify(inst[key] ?? null) === JSON.stringify(value)) return;
+    void this.editor.execute(new SetInstanceValueCommand(this.editor, inst.name, key, value, inst[key])).then(() => this.update());
+  }
+
+  private editTransform(change: (k: FullKey) => void) {
+    const inst = this.selectedInstance();
+    if (!inst) return;
+    const e = this.editor;
+    const track = editTrackAt(inst.transform, e.playheadTime(), this.tolerance(), this.dim(), e.templateCentre(inst.template), change);
+    void e.execute(new SetInstanceTransformCommand(e, inst.name, track, inst.transform ?? [])).then(() => this.update());
+  }
+
+  private keyAtPlayhead(add: boolean) {
+    const inst = this.selectedInstance();
+    if (!inst) return;
+    const e = this.editor, t = e.playheadTime();
+    const old = inst.transform ?? [];
+    const track = add
+      ? addKeyAt(old, t, this.tolerance(), this.dim(), e.templateCentre(inst.template))
+      : removeKeyAt(old, t, this.tolerance());
+    void e.execute(new SetInstanceTransformCommand(e, inst.name, track, old)).then(() => this.update());
+  }
+
+  // --------------------------------------------------------------- scene ---
+
+  private sceneGroup(group: SettingsGroup): Record<string, unknown> {
+    const scene = this.editor.session?.sceneJson as Record<string, unknown> | null | undefined;
+    return (scene?.[group] as Record<string, unknown> | undefined) ?? {};
+  }
+
+  private solverMethod(): string {
+    return String(this.sceneGroup('solver')['method'] ?? 'dfsph');
+  }
+
+  /** Solver method, its parameters, simulation settings and control settings (rebuilt when the method changes). */
+  private buildSceneFields() {
+    const p = this.editor.parameters;
+    const method = this.solverMethod();
+    const id = p ? `${p.dimension}:${method}` : '';
+    if (id === this.sceneFieldsFor) return;
+    this.sceneFieldsFor = id;
+    this.sceneFields = new Map();
+    this.sceneBox.replaceChildren();
+    if (!p || !this.editor.session) return;
+    const methods = Object.keys(p.solvers);
+    const m = selectField('scene-solver-method', 'pressure solver', methods.map((n) => `${n}: ${p.solvers[n]!.help}`).join('\n'), methods,
+      (v) => this.changeMethod(String(v)));
+    this.sceneFields.set('solver.method', m);
+    this.sceneBox.append(m.row);
+    const add = (group: SettingsGroup, specs: ParamSpecJson[]) => {
+      for (const spec of specs) {
+        const f = paramField(`scene-${group}`, spec, (v) => this.setSetting(group, spec.name, v), this.complain);
+        this.sceneFields.set(`${group}.${spec.name}`, f);
+        this.sceneBox.append(f.row);
+      }
+    };
+    add('solver', p.solvers[method]?.params ?? []);
+    add('settings', p.settings);
+    add('control', p.control);
+  }
+
+  private updateScene() {
+    this.sceneBox.hidden = this.editor.session === null;
+    this.buildSceneFields();
+    for (const [key, f] of this.sceneFields) {
+      const [group, name] = key.split('.') as [SettingsGroup, string];
+      f.show(this.sceneGroup(group)[name]);
+    }
+  }
+
+  private setSetting(group: SettingsGroup, name: string, value: unknown) {
+    const old = this.sceneGroup(group)[name];
+    if (JSON.stringify(old ?? null) === JSON.stringify(value)) return;
+    const e = this.editor;
+    void e.execute(new SetSceneSettingsCommand(e, { [group]: { [name]: value } }, { [group]: { [name]: old ?? null } }))
+      .then(() => this.updateScene());
+  }
+
+  /** Another pressure solver: its own parameters replace the old one's (a merge patch removes those with null). */
+  private changeMethod(method: string) {
+    const p = this.editor.parameters, oldMethod = this.solverMethod();
+    if (!p || method === oldMethod) return;
+    const oldSolver = this.sceneGroup('solver');
+    const newNames = new Set((p.solvers[method]?.params ?? []).map((s) => s.name));
+    const oldNames = new Set((p.solvers[oldMethod]?.params ?? []).map((s) => s.name));
+    const patch: SettingsPatch = { solver: { method } };
+    const undo: SettingsPatch = { solver: { method: oldMethod } };
+    for (const n of oldNames) if (!newNames.has(n)) patch.solver![n] = null;
+    for (const n of new Set([...oldNames, ...newNames])) undo.solver![n] = oldSolver[n] ?? null;
+    const e = this.editor;
+    void e.execute(new SetSceneSettingsCommand(e, patch, undo)).then(() => this.updateScene());
+  }
+}

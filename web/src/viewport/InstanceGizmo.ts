@@ -1,0 +1,191 @@
+// The TransformControls gizmo on the selected instance: translate (W),
+// rotate (E), scale (R); reflection is the inspector's. The gizmo moves a
+// proxy object placed at the instance's transform at the playhead (the
+// region centre's world position, its rotation and |scale|); each change
+// during a drag becomes a SetInstanceTransformCommand editing the key at the
+// playhead (auto-key on animated tracks, core/TransformTrack.ts). A drag
+// sends at most one PATCH at a time (the newest pose wins) and all of a
+// drag's commands merge into one history entry. 2D scenes: x/y translation
+// and scale, rotation about z only.
+import * as THREE from 'three';
+import { TransformControls } from 'three/examples/jsm/controls/TransformControls.js';
+import type { OrbitControls } from 'three/examples/jsm/controls/OrbitControls.js';
+import type { Editor } from '../core/Editor';
+import { SetInstanceTransformCommand } from '../commands/SetInstanceTransformCommand';
+import { editTrackAt, evaluateTrack, type FullKey } from '../core/TransformTrack';
+import type { TransformKey } from '../net/types';
+
+const DEG = 180 / Math.PI;
+let nextDrag = 1;
+
+export type GizmoMode = 'translate' | 'rotate' | 'scale';
+
+export class InstanceGizmo {
+  readonly controls: TransformControls;
+  readonly proxy = new THREE.Object3D();
+  /** Pointer-move changes sent as commands during drags (tests read it). */
+  sent = 0;
+  private dim: 2 | 3 = 2;
+  private drag: { id: number; name: string; oldTrack: TransformKey[]; start: FullKey } | null = null;
+  private inFlight = false;
+  private pendingTrack: TransformKey[] | null = null;
+  private readonly euler = new THREE.Euler();
+
+  constructor(
+    private readonly editor: Editor,
+    camera: THREE.Camera,
+    dom: HTMLElement,
+    scene: THREE.Scene,
+    private readonly requestRender: (why: string) => void,
+    private getOrbit: () => OrbitControls,
+  ) {
+    this.proxy.name = 'gizmo-proxy';
+    scene.add(this.proxy);
+    this.controls = new TransformControls(camera, dom);
+    this.controls.setSize(0.9);
+    const helper = this.controls.getHelper();
+    helper.name = 'gizmo';
+    scene.add(helper);
+    this.controls.addEventListener('change', () => this.requestRender('gizmo'));
+    this.controls.addEventListener('dragging-changed', (e) => {
+      this.getOrbit().enabled = !(e as unknown as { value: boolean }).value;
+    });
+    this.controls.addEventListener('mouseDown', () => this.beginDrag());
+    this.controls.addEventListener('objectChange', () => this.onChange());
+    this.controls.addEventListener('mouseUp', () => this.endDrag());
+
+    editor.signals.selectionChanged.add(() => this.place());
+    editor.signals.instancesChanged.add(() => this.place());
+    editor.signals.sessionView.add(() => this.place());
+    editor.signals.sessionChanged.add((s) => {
+      if (s) this.setDimension(s.dimension);
+      this.place();
+    });
+    window.addEventListener('keydown', (e) => {
+      const t = e.target as HTMLElement | null;
+      if (t && (t.tagName === 'INPUT' || t.tagName === 'SELECT' || t.tagName === 'TEXTAREA')) return;
+      if (e.ctrlKey || e.metaKey || e.altKey) return;
+      const mode = ({ w: 'translate', e: 'rotate', r: 'scale' } as Record<string, GizmoMode>)[e.key.toLowerCase()];
+      if (mode) this.setMode(mode);
+    });
+    this.place();
+  }
+
+  get mode(): GizmoMode {
+    return this.controls.mode as GizmoMode;
+  }
+
+  setMode(mode: GizmoMode) {
+    this.controls.setMode(mode);
+    this.applyAxes();
+    this.requestRender('gizmo');
+  }
+
+  setCamera(camera: THREE.Camera) {
+    this.controls.camera = camera;
+    this.requestRender('gizmo');
+  }
+
+  private setDimension(dim: 2 | 3) {
+    this.dim = dim;
+    this.applyAxes();
+  }
+
+  private applyAxes() {
+    const c = this.controls, flat = this.dim === 2;
+    c.showZ = !flat || c.mode === 'rotate';
+    c.showX = !flat || c.mode !== 'rotate';
+    c.showY = !flat || c.mode !== 'rotate';
+    c.space = flat ? 'world' : 'local';
+  }
+
+  /** The proxy at the selected instance's transform at the playhead (not while the user drags it). */
+  private place() {
+    if (this.drag) return;
+    const e = this.editor;
+    const inst = e.selected ? e.instances.get(e.selected) : undefined;
+    if (!inst || !e.session) {
+      if (this.controls.object) {
+        this.controls.detach();
+        this.requestRender('gizmo');
+      }
+      return;
+    }
+    const k = evaluateTrack(inst.transform, e.playheadTime(), this.dim, e.templateCentre(inst.template));
+    this.proxy.position.set(k.translation[0]!, k.translation[1]!, this.dim === 3 ? k.translation[2]! : 0);
+    if (this.dim === 2) this.proxy.rotation.set(0, 0, k.rotation[0]! / DEG);
+    else this.proxy.rotation.set(k.rotation[0]! / DEG, k.rotation[1]! / DEG, k.rotation[2]! / DEG, 'XYZ');
+    this.proxy.scale.set(k.scale[0]!, k.scale[1]!, this.dim === 3 ? k.scale[2]! : 1);
+    this.proxy.updateMatrixWorld();
+    if (this.controls.object !== this.proxy) this.controls.attach(this.proxy);
+    this.requestRender('gizmo');
+  }
+
+  private beginDrag() {
+    const e = this.editor;
+    const inst = e.selected ? e.instances.get(e.selected) : undefined;
+    if (!inst) return;
+    this.drag = {
+      id: nextDrag++,
+      name: inst.name,
+      oldTrack: structuredClone(inst.transform ?? []),
+      start: evaluateTrack(inst.transform, e.playheadTime(), this.dim, e.templateCentre(inst.template)),
+    };
+  }
+
+  /** The proxy's pose → the key at the playhead (rounded to 0.1 mm, 0.01°, 1e-4 in scale). */
+  private onChange() {
+    const d = this.drag;
+    if (!d) return;
+    const e = this.editor, inst = e.instances.get(d.name);
+    if (!inst) return;
+    const p = this.proxy, dim = this.dim;
+    const r4 = (v: number) => Math.round(v * 1e4) / 1e4;
+    const r2 = (v: number) => Math.round(v * 100) / 100;
+    const track = editTrackAt(d.oldTrack, e.playheadTime(), 0.5 / e.frameRate(), dim, e.templateCentre(inst.template), (k) => {
+      k.translation = [r4(p.position.x), r4(p.position.y), r4(p.position.z)].slice(0, dim);
+      if (dim === 2) {
+        k.rotation = [r2(p.rotation.z * DEG)];
+      } else {
+        this.euler.copy(p.rotation).reorder('XYZ');
+        k.rotation = [r2(this.euler.x * DEG), r2(this.euler.y * DEG), r2(this.euler.z * DEG)];
+      }
+      // Scale is a magnitude: reflection stays as it was (the inspector's).
+      const s = [p.scale.x, p.scale.y, p.scale.z].map((v) => Math.max(1e-3, r4(Math.abs(v))));
+      k.scale = s.slice(0, dim);
+    });
+    this.pendingTrack = track;
+    this.pump();
+  }
+
+  private pump() {
+    const d = this.drag ?? this.lastDrag;
+    if (this.inFlight || !this.pendingTrack || !d) return;
+    const track = this.pendingTrack;
+    this.pendingTrack = null;
+    this.inFlight = true;
+    this.sent++;
+    void this.editor
+      .execute(new SetInstanceTransformCommand(this.editor, d.name, track, d.oldTrack, d.id))
+      .finally(() => {
+        this.inFlight = false;
+        if (this.pendingTrack) this.pump();
+        else if (!this.drag) this.place();
+      });
+  }
+
+  private lastDrag: { id: number; name: string; oldTrack: TransformKey[] } | null = null;
+
+  private endDrag() {
+    this.lastDrag = this.drag;
+    this.drag = null;
+    if (this.pendingTrack) this.pump();
+    else if (!this.inFlight) this.place();
+  }
+
+  dispose() {
+    this.controls.detach();
+    this.controls.getHelper().removeFromParent();
+    this.controls.dispose();
+  }
+}
