@@ -234,6 +234,8 @@ struct FrameParts {
   Offset<fb::Points> repulsion;
   Offset<flatbuffers::Vector<Offset<fb::Instance>>> instances;
   Offset<fb::Stats> stats;
+  Offset<flatbuffers::Vector<uint8_t>> speed;
+  float speedMax = 0;
 };
 
 void finishFrame(FlatBufferBuilder& fbb, const FrameParts& p) {
@@ -253,6 +255,10 @@ void finishFrame(FlatBufferBuilder& fbb, const FrameParts& p) {
   if (!p.repulsion.IsNull()) b.add_repulsion(p.repulsion);
   if (!p.instances.IsNull()) b.add_instances(p.instances);
   b.add_stats(p.stats);
+  if (!p.speed.IsNull()) {
+    b.add_speed(p.speed);
+    b.add_speed_max(p.speedMax);
+  }
   finishEnvelope(fbb, fb::Message::Frame, b.Finish().Union());
 }
 
@@ -295,6 +301,21 @@ void quantizeMapped(const WorldMap<D>& map, const std::vector<Vec<D>>& x, uint16
     const auto w = map(x[i]);
     for (int d = 0; d < D; ++d) q[i * D + size_t(d)] = quant(d, w[d]);
   }
+}
+
+// Layer.Speed: speeds[i] = |v_i| → round(|v| / max · 255); a non-finite
+// speed (never published: the session stops first) encodes as 255.
+Offset<flatbuffers::Vector<uint8_t>> createSpeed(FlatBufferBuilder& fbb, const std::vector<double>& speeds, float& maxOut) {
+  double mx = 0;
+  for (double v : speeds)
+    if (std::isfinite(v)) mx = std::max(mx, v);
+  maxOut = float(mx);
+  uint8_t* q = nullptr;
+  auto out = fbb.CreateUninitializedVector<uint8_t>(speeds.size(), &q);
+  const double scale = mx > 0 ? 255.0 / mx : 0.0;
+  for (size_t i = 0; i < speeds.size(); ++i)
+    q[i] = std::isfinite(speeds[i]) ? uint8_t(std::min(255.0, speeds[i] * scale + 0.5)) : uint8_t(255);
+  return out;
 }
 
 uint8_t quantizeAlpha(Real a) {
@@ -495,6 +516,12 @@ void encodeFrameImpl(const Simulation<D>& sim, const FrameStats& stats, const Co
     }
     p.instances = fbb.CreateVector(records);
   }
+  if (layers.speed) {
+    std::vector<double> speeds(nLiquid);
+    for (size_t i = 0; i < nLiquid; ++i) speeds[i] = double(fluid.v[i].norm());
+    p.speed = createSpeed(fbb, speeds, p.speedMax);
+    present |= fb::Layer::Speed;
+  }
   p.layers = present;
   p.stats = createStats(fbb, stats, counts);
   finishFrame(fbb, p);
@@ -566,6 +593,7 @@ fb::Layer LayerFlags::bits() const {
   if (repulsion) b |= fb::Layer::Repulsion;
   if (boundary) b |= fb::Layer::Boundary;
   if (instances) b |= fb::Layer::Instances;
+  if (speed) b |= fb::Layer::Speed;
   return b;
 }
 
@@ -575,6 +603,7 @@ LayerFlags LayerFlags::fromBits(fb::Layer bits) {
   f.repulsion = (bits & fb::Layer::Repulsion) != fb::Layer::NONE;
   f.boundary = (bits & fb::Layer::Boundary) != fb::Layer::NONE;
   f.instances = (bits & fb::Layer::Instances) != fb::Layer::NONE;
+  f.speed = (bits & fb::Layer::Speed) != fb::Layer::NONE;
   return f;
 }
 
@@ -661,6 +690,20 @@ void encodeQuantizedFrame(const QuantizedFrame& f, const LayerFlags& layers, fla
       records.reserve(f.instances.size());
       for (const InstanceRecord& r : f.instances) records.push_back(createInstance(fbb, r, f.dimension, true, {}));
       p.instances = fbb.CreateVector(records);
+    }
+    const size_t dim = size_t(f.dimension);
+    if (layers.speed && f.velocities.size() == n * dim) {
+      std::vector<double> speeds(n);
+      for (size_t i = 0; i < n; ++i) {
+        double v2 = 0;
+        for (size_t d = 0; d < dim; ++d) {
+          const double v = (double(f.velocities[i * dim + d]) * (2.0 / 65535.0) - 1.0) * f.velocityMax[d];
+          v2 += v * v;
+        }
+        speeds[i] = std::sqrt(v2);
+      }
+      p.speed = createSpeed(fbb, speeds, p.speedMax);
+      present |= fb::Layer::Speed;
     }
     p.layers = present;
     p.stats = createStats(fbb, *f.stats, counts);
@@ -826,7 +869,7 @@ ClientMessage parseClientMessage(const uint8_t* data, size_t size) {
         std::snprintf(buf, sizeof buf, "0x%02x", bits & ~unsigned(fb::Layer::ANY));
         return failure(fb::ErrorCode::InvalidArgument,
                        std::string("Subscribe.layers has unknown bits ") + buf +
-                           " (known: Control 1, Repulsion 2, Boundary 4, Instances 8)",
+                           " (known: Control 1, Repulsion 2, Boundary 4, Instances 8, Speed 16)",
                        r.requestId);
       }
       r.layers = LayerFlags::fromBits(s->layers());
@@ -899,6 +942,15 @@ DecodedFrame decodeFrame(const uint8_t* data, size_t size) {
     throw std::invalid_argument("Frame.kind / Frame.phase must have one value per particle (" + std::to_string(n) + ")");
   out.kind.assign(f->kind()->begin(), f->kind()->end());
   out.phase.assign(f->phase()->begin(), f->phase()->end());
+  if (out.layers.speed) {
+    size_t nLiquid = n;
+    while (nLiquid > 0 && out.kind[nLiquid - 1] == uint8_t(ParticleKind::Boundary)) --nLiquid;
+    if (!f->speed() || f->speed()->size() != nLiquid)
+      throw std::invalid_argument("Frame.speed must have one value per liquid particle (" + std::to_string(nLiquid) + ")");
+    out.speedMax = f->speed_max();
+    out.speed.reserve(nLiquid);
+    for (uint8_t q : *f->speed()) out.speed.push_back(double(q) / 255.0 * out.speedMax);
+  }
   if (out.layers.control) {
     if (!f->control()) throw std::invalid_argument("Frame.layers has Control but Frame.control is missing");
     decodePoints(f->control()->points(), dim, "control.points", out.control);

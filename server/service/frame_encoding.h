@@ -34,6 +34,7 @@ struct LayerFlags {
   bool repulsion = false;  // repulsion particles of the active instances
   bool boundary = false;   // boundary particles appended to the particles (kind 2)
   bool instances = true;   // instance records (matrix, box, falloff, fidelity)
+  bool speed = false;      // |v| per liquid particle, 8 bits against the frame's largest
 
   fb::Layer bits() const;
   static LayerFlags fromBits(fb::Layer bits);
@@ -94,6 +95,10 @@ struct QuantizedFrame {
   std::array<double, 3> domainMin{}, domainMax{};  // m (z = 0 in 2D)
   std::span<const uint16_t> positions;             // particles × dimension
   std::span<const uint8_t> kind, phase;            // one per particle
+  // Optional (Layer.Speed): 16-bit velocities in a symmetric box per axis,
+  // as FrameSnapshot stores them (particles × dimension; empty: no speed).
+  std::span<const uint16_t> velocities;
+  std::array<double, 3> velocityMax{};
   const FrameStats* stats = nullptr;               // frame, time, timings (required)
   std::span<const InstanceRecord> instances;       // sent when layers.instances
 };
@@ -211,6 +216,8 @@ struct DecodedFrame {
   std::vector<double> alpha;              // α per control point, q / 255
   DecodedPoints repulsion;                // empty unless layers.repulsion
   std::vector<DecodedInstance> instances;
+  std::vector<double> speed;              // m/s per liquid particle (q / 255 · speed_max), empty unless layers.speed
+  double speedMax = 0;
   // Timings and counts (float precision on the wire). `particles` is
   // liquid + temporary; the per-instance list carries name, active, template
   // frame, fidelity, controlled and the layer counts.

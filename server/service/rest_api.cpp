@@ -294,6 +294,8 @@ void encodeSnapshot(const FrameSnapshot& f, const std::string& sessionId, const 
   q.positions = f.positions;
   q.kind = f.kind;
   q.phase = f.phase;
+  q.velocities = f.velocities;
+  q.velocityMax = f.velocityMax;
   q.stats = &f.stats;
   q.instances = records;
   wire::encodeQuantizedFrame(q, layers, fbb);

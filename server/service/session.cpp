@@ -879,6 +879,7 @@ class SessionImpl final : public Session {
       change(layers.control, layerDemand_[0]);
       change(layers.repulsion, layerDemand_[1]);
       change(layers.boundary, layerDemand_[2]);
+      change(layers.speed, layerDemand_[3]);
       if (rose) {
         Op op;
         op.layers = true;
@@ -904,8 +905,9 @@ class SessionImpl final : public Session {
       want.control = layerDemand_[0] > 0;
       want.repulsion = layerDemand_[1] > 0;
       want.boundary = layerDemand_[2] > 0;
+      want.speed = layerDemand_[3] > 0;
     }
-    if (!want.control && !want.repulsion && !want.boundary) return;
+    if (!want.control && !want.repulsion && !want.boundary && !want.speed) return;
     auto out = std::make_shared<LayeredFrame>();
     out->frame = stats.frame;
     out->layers = want;
@@ -1221,7 +1223,7 @@ class SessionImpl final : public Session {
   bool notifying_ = false;   // listeners are hearing of the last frame
   std::deque<Op> ops_;
   size_t pendingEdits_ = 0;
-  int layerDemand_[3] = {0, 0, 0};              // streams wanting control, repulsion, boundary
+  int layerDemand_[4] = {0, 0, 0, 0};           // streams wanting control, repulsion, boundary, speed
   std::shared_ptr<const LayeredFrame> layered_;  // the newest frame with those layers
   flatbuffers::FlatBufferBuilder layerBuilder_{1 << 16};  // session thread only
   uint64_t lastEditId_ = 0;

@@ -206,6 +206,30 @@ TEST(WireFrame, RoundTrip2D) {
   roundTrip<2>(sim);
 }
 
+// Layer.Speed from the simulation: |v| per liquid particle (none for the
+// boundary ones appended after them), 8 bits against the largest.
+TEST(WireFrame, SpeedLayerFromTheSimulation) {
+  Simulation<2> sim(tankSetup<2>(box2(0, 0, 1, 0.8f), box2(0, 0, 0.4f, 0.4f), kR));
+  for (size_t i = 0; i < sim.fluid.size(); ++i) sim.fluid.v[i] = Vec<2>(Real(0.01 * double(i % 100)), Real(-0.5));
+  FrameStats fs;
+  fs.frame = 3;
+  LayerFlags layers;
+  layers.speed = true;
+  layers.boundary = true;
+  flatbuffers::FlatBufferBuilder fbb;
+  encodeFrame<2>(sim, fs, nullptr, "s", layers, fbb);
+  const DecodedFrame d = decodeFrame(fbb.GetBufferPointer(), fbb.GetSize());
+  ASSERT_TRUE(d.layers.speed);
+  ASSERT_EQ(d.speed.size(), sim.fluid.size());
+  double vmax = 0;
+  for (size_t i = 0; i < sim.fluid.size(); ++i) vmax = std::max(vmax, double(sim.fluid.v[i].norm()));
+  EXPECT_NEAR(d.speedMax, vmax, 1e-6);
+  for (size_t i = 0; i < sim.fluid.size(); i += 37) EXPECT_NEAR(d.speed[i], double(sim.fluid.v[i].norm()), vmax / 255 + 1e-6) << i;
+  // Without the flag, no speeds.
+  encodeFrame<2>(sim, fs, nullptr, "s", LayerFlags{}, fbb);
+  EXPECT_TRUE(decodeFrame(fbb.GetBufferPointer(), fbb.GetSize()).speed.empty());
+}
+
 TEST(WireFrame, RoundTrip3D) {
   const AABB<3> domain(Vec<3>(0, 0, 0), Vec<3>(0.5f, 0.4f, 0.3f));
   const AABB<3> block(Vec<3>(0, 0, 0), Vec<3>(0.2f, 0.2f, 0.16f));
@@ -397,6 +421,25 @@ TEST(WireFrame, QuantizedFrameRoundTrip) {
   ASSERT_EQ(d.instances.size(), 1u);
   ASSERT_EQ(d.instances[0].worldRowMajor.size(), 9u);
   for (size_t k = 0; k < 9; ++k) EXPECT_FLOAT_EQ(d.instances[0].worldRowMajor[k], float(expected[k]));
+  EXPECT_TRUE(d.speed.empty());  // not asked for
+  // Layer.Speed from the recorded velocities: |v| within 1/255 of the frame's largest.
+  const std::array<double, 2> vmax = {2.0, 1.0};
+  const std::vector<double> vx = {2.0, -1.0, 0.0}, vy = {0.0, 1.0, 0.0};
+  std::vector<uint16_t> vq;
+  for (size_t i = 0; i < 3; ++i) {
+    vq.push_back(uint16_t(std::lround((vx[i] / vmax[0] + 1) / 2 * 65535)));
+    vq.push_back(uint16_t(std::lround((vy[i] / vmax[1] + 1) / 2 * 65535)));
+  }
+  f.velocities = vq;
+  f.velocityMax = {vmax[0], vmax[1], 0};
+  LayerFlags withSpeed;
+  withSpeed.speed = true;
+  encodeQuantizedFrame(f, withSpeed, fbb);
+  const DecodedFrame ds = decodeFrame(fbb.GetBufferPointer(), fbb.GetSize());
+  ASSERT_TRUE(ds.layers.speed);
+  ASSERT_EQ(ds.speed.size(), 3u);
+  EXPECT_NEAR(ds.speedMax, 2.0, 1e-3);
+  for (size_t i = 0; i < 3; ++i) EXPECT_NEAR(ds.speed[i], std::hypot(vx[i], vy[i]), 2.0 / 255 + 1e-3) << i;
   // Inconsistent sizes are refused.
   f.phase = std::span<const uint8_t>(phase.data(), 2);
   EXPECT_THROW(encodeQuantizedFrame(f, LayerFlags{}, fbb), EncodeError);

@@ -180,3 +180,31 @@ test('the scene is saved on the server and downloaded with its instances', async
   expect(errors).toEqual([]);
   await expect(page.getByTestId('message-error')).toHaveCount(0);
 });
+
+test('colour by speed: the server sends |v| per particle and the liquid takes the ramp', async ({ page }) => {
+  const errors = await openEditor(page);
+  await openDrop(page);
+  // Let the liquid move (the drop instance starts at 0.2 s: frame 12).
+  await page.evaluate(() => (window as any).flowclip.editor.transport('step', { frames: 20 }));
+  await expect.poll(() => readNumber(page.getByTestId('frame')), { timeout: 20_000 }).toBeGreaterThanOrEqual(20);
+  const distinctColours = () => page.evaluate(() => {
+    const { viewport, editor } = (window as any).flowclip;
+    const c = viewport.particles.points.geometry.getAttribute('color').array as Float32Array;
+    const seen = new Set<string>();
+    for (let i = 0; i < viewport.particles.count; i++) seen.add(`${c[3 * i]!.toFixed(3)},${c[3 * i + 1]!.toFixed(3)},${c[3 * i + 2]!.toFixed(3)}`);
+    return { colours: seen.size, speedLayer: (editor.decoder.info.layers & 16) !== 0, scale: editor.decoder.speedScale as number };
+  });
+  const before = await distinctColours();
+  expect(before.speedLayer).toBe(false);
+  expect(before.colours).toBeLessThanOrEqual(2); // phase colour (+ orange temporary particles)
+  await page.getByTestId('layer-speed').check();
+  await expect.poll(async () => (await distinctColours()).colours, { timeout: 10_000 }).toBeGreaterThan(20);
+  const after = await distinctColours();
+  expect(after.speedLayer).toBe(true);
+  expect(after.scale).toBeGreaterThan(0.05); // m/s: the splash moves
+  console.log(`colour by speed: ${after.colours} distinct colours, scale ${after.scale.toFixed(2)} m/s`);
+  await page.getByTestId('layer-speed').uncheck();
+  await expect.poll(async () => (await distinctColours()).colours, { timeout: 10_000 }).toBeLessThanOrEqual(2);
+  expect(errors).toEqual([]);
+  await expect(page.getByTestId('message-error')).toHaveCount(0);
+});

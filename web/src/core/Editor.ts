@@ -44,6 +44,8 @@ export interface LayerToggles {
   control: boolean;
   repulsion: boolean;
   boundary: boolean;
+  /** Liquid coloured by speed (Layer.Speed) instead of its phase colour. */
+  speed: boolean;
 }
 
 export type MessageLevel = 'error' | 'warning' | 'info';
@@ -98,7 +100,7 @@ export class Editor {
   stream: Stream | null = null;
   /** Frames per wall second the stream sends at most (0: no limit). */
   maxFrameRate = 30;
-  readonly layers: LayerToggles = { liquid: true, control: false, repulsion: false, boundary: false };
+  readonly layers: LayerToggles = { liquid: true, control: false, repulsion: false, boundary: false, speed: false };
   private healthTimer: ReturnType<typeof setInterval> | null = null;
 
   constructor(api = new Api('', tokenFromPage())) {
@@ -228,13 +230,14 @@ export class Editor {
   layerFlags(): Layer {
     const l = this.layers;
     return (Layer.Instances | (l.control ? Layer.Control : 0) | (l.repulsion ? Layer.Repulsion : 0) |
-      (l.boundary ? Layer.Boundary : 0)) as Layer;
+      (l.boundary ? Layer.Boundary : 0) | (l.speed ? Layer.Speed : 0)) as Layer;
   }
 
   /** Changes layer toggles; the stream is re-subscribed when its flags change (the server resends the frame). */
   setLayers(change: Partial<LayerToggles>) {
     const before = this.layerFlags();
     Object.assign(this.layers, change);
+    this.decoder.colorBySpeed = this.layers.speed;
     const flags = this.layerFlags();
     if (flags !== before && this.stream) {
       try {

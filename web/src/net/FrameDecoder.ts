@@ -121,6 +121,15 @@ export class FrameDecoder {
   readonly boundaryColor = new Float32Array(3);
   readonly controlColor = new Float32Array([0.2, 0.85, 0.3]);
   readonly repulsionColor = new Float32Array([1.0, 0.2, 0.2]);
+  /**
+   * Colour liquid particles by speed (frames that carry Layer.Speed): a ramp
+   * from dark blue (at rest) through the liquid's light blue to white at
+   * `speedScale` m/s and above. The scale follows the frames' largest speed
+   * with a slow decay, so that colours do not flicker from frame to frame.
+   */
+  colorBySpeed = false;
+  speedScale = 0;
+  private readonly speedRamp = new Float32Array(256 * 3);
 
   // Flatbuffers accessors reused for every frame.
   private readonly points = new Points();
@@ -131,6 +140,11 @@ export class FrameDecoder {
 
   constructor() {
     this.setColors([0.45, 0.7, 1.0], [], [1.0, 0.62, 0.25], [0.55, 0.55, 0.6]);
+    const stops = [[0.05, 0.12, 0.45], [0.45, 0.7, 1.0], [1, 1, 1]];
+    for (let k = 0; k < 256; k++) {
+      const u = k / 255, seg = u < 0.5 ? 0 : 1, w = u < 0.5 ? u * 2 : (u - 0.5) * 2;
+      for (let c = 0; c < 3; c++) this.speedRamp[3 * k + c] = stops[seg]![c]! + (stops[seg + 1]![c]! - stops[seg]![c]!) * w;
+    }
   }
 
   /** Colours as linear RGB: liquid default, per-phase overrides, temporary, boundary. */
@@ -172,6 +186,7 @@ export class FrameDecoder {
       this.dequantize(pts, n, dim, 0, nl, positions, `frame ${info.frame}: particles`);
       this.dequantize(pts, n, dim, nl, n - nl, b.positions, `frame ${info.frame}: particles`);
       this.colorize(nl, kinds, phases, colors);
+      if (this.colorBySpeed && info.layers & Layer.Speed) this.colorizeSpeed(frame, nl, kinds, colors);
       fillColor(b.colors, n - nl, this.boundaryColor);
     }
 
@@ -267,6 +282,23 @@ export class FrameDecoder {
         colors[o + 1] = bc[1]!;
         colors[o + 2] = bc[2]!;
       }
+    }
+  }
+
+  /** Liquid (not temporary) particles by |v| (Frame.speed, q / 255 · speed_max). */
+  private colorizeSpeed(frame: Frame, n: number, kinds: Uint8Array | null, colors: Float32Array) {
+    const q = frame.speedArray();
+    if (!q || q.length < n) return;
+    const max = frame.speedMax();
+    this.speedScale = Math.max(max, this.speedScale * 0.97, 1e-6);
+    const k = (max / this.speedScale), ramp = this.speedRamp;
+    const haveKinds = kinds !== null && kinds.length >= n;
+    for (let i = 0, o = 0; i < n; i++, o += 3) {
+      if (haveKinds && kinds![i] !== Kind.Liquid) continue;
+      const r = 3 * Math.min(255, Math.round(q[i]! * k));
+      colors[o] = ramp[r]!;
+      colors[o + 1] = ramp[r + 1]!;
+      colors[o + 2] = ramp[r + 2]!;
     }
   }
 

@@ -23,6 +23,7 @@ export class LayerPanel {
       box('control', 'control', 'linear-gradient(90deg, #33d94d, #000)', 'Control particles: green α≈0 (covered by liquid) → black α≈1 (uncovered)'),
       box('repulsion', 'repulsion', '#ff3333', 'Repulsion particles'),
       box('boundary', 'boundary', '#8c8c99', 'Boundary (wall and obstacle) particles'),
+      box('speed', 'by speed', 'linear-gradient(90deg, #0d1f73, #73b3ff, #fff)', 'Colour the liquid by speed: dark blue at rest → white at the fastest (temporary particles stay orange)'),
     ]);
   }
 }
