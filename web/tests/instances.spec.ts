@@ -208,3 +208,24 @@ test('colour by speed: the server sends |v| per particle and the liquid takes th
   expect(errors).toEqual([]);
   await expect(page.getByTestId('message-error')).toHaveCount(0);
 });
+
+test('clicking an instance box in the viewport selects it; clicking nothing deselects', async ({ page }) => {
+  const errors = await openEditor(page);
+  await openDrop(page);
+  await expect.poll(() => page.evaluate(() => (window as any).flowclip.editor.decoder.info.instanceCount)).toBe(1);
+  const at = (x: number, y: number) => page.evaluate(([x, y]) => {
+    const { viewport } = (window as any).flowclip;
+    const p = viewport.gizmo.proxy.position.clone().set(x, y, 0);
+    return viewport.screenOf(p);
+  }, [x, y]);
+  // drop2d's box: its template region [0.25, 0.95] × [0, 0.7] where it was recorded.
+  const inside = await at(0.4, 0.5);
+  await page.mouse.click(inside.x, inside.y);
+  await expect(page.getByTestId('outliner-item-drop')).toHaveClass(/selected/);
+  await expect(page.getByTestId('inspector-header')).toHaveAttribute('data-value', 'drop');
+  const outside = await at(0.1, 0.75);
+  await page.mouse.click(outside.x, outside.y);
+  await expect(page.getByTestId('outliner-item-drop')).not.toHaveClass(/selected/);
+  expect(await page.evaluate(() => (window as any).flowclip.editor.selected)).toBeNull();
+  expect(errors).toEqual([]);
+});

@@ -188,19 +188,19 @@ export class Inspector {
     for (const [key, f] of this.fields) if (key.startsWith('param.')) f.show(inst[key.slice(6)]);
   }
 
-  private setValue(key: string, value: unknown) {
+  private setValue(key: string, value: unknown): Promise<void> | void {
     const inst = this.selectedInstance();
     if (!inst) return;
     if (JSON.stringify(inst[key] ?? null) === JSON.stringify(value)) return;
-    void this.editor.execute(new SetInstanceValueCommand(this.editor, inst.name, key, value, inst[key])).then(() => this.update());
+    return this.editor.execute(new SetInstanceValueCommand(this.editor, inst.name, key, value, inst[key])).then(() => this.update());
   }
 
-  private editTransform(change: (k: FullKey) => void) {
+  private editTransform(change: (k: FullKey) => void): Promise<void> | void {
     const inst = this.selectedInstance();
     if (!inst) return;
     const e = this.editor;
     const track = editTrackAt(inst.transform, e.playheadTime(), this.tolerance(), this.dim(), e.templateCentre(inst.template), change);
-    void e.execute(new SetInstanceTransformCommand(e, inst.name, track, inst.transform ?? [])).then(() => this.update());
+    return e.execute(new SetInstanceTransformCommand(e, inst.name, track, inst.transform ?? [])).then(() => this.update());
   }
 
   private keyAtPlayhead(add: boolean) {
@@ -261,16 +261,16 @@ export class Inspector {
     }
   }
 
-  private setSetting(group: SettingsGroup, name: string, value: unknown) {
+  private setSetting(group: SettingsGroup, name: string, value: unknown): Promise<void> | void {
     const old = this.sceneGroup(group)[name];
     if (JSON.stringify(old ?? null) === JSON.stringify(value)) return;
     const e = this.editor;
-    void e.execute(new SetSceneSettingsCommand(e, { [group]: { [name]: value } }, { [group]: { [name]: old ?? null } }))
+    return e.execute(new SetSceneSettingsCommand(e, { [group]: { [name]: value } }, { [group]: { [name]: old ?? null } }))
       .then(() => this.updateScene());
   }
 
   /** Another pressure solver: its own parameters replace the old one's (a merge patch removes those with null). */
-  private changeMethod(method: string) {
+  private changeMethod(method: string): Promise<void> | void {
     const p = this.editor.parameters, oldMethod = this.solverMethod();
     if (!p || method === oldMethod) return;
     const oldSolver = this.sceneGroup('solver');
@@ -281,6 +281,6 @@ export class Inspector {
     for (const n of oldNames) if (!newNames.has(n)) patch.solver![n] = null;
     for (const n of new Set([...oldNames, ...newNames])) undo.solver![n] = oldSolver[n] ?? null;
     const e = this.editor;
-    void e.execute(new SetSceneSettingsCommand(e, patch, undo)).then(() => this.updateScene());
+    return e.execute(new SetSceneSettingsCommand(e, patch, undo)).then(() => this.updateScene());
   }
 }

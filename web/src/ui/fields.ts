@@ -15,13 +15,37 @@ export interface Field {
   setEnabled(on: boolean): void;
 }
 
-export type Commit = (value: unknown) => void;
+/**
+ * Applies a value; a returned promise keeps the field showing what the user
+ * chose until it settles (the document then says what was accepted), so a
+ * signal arriving meanwhile does not flip a checkbox back.
+ */
+export type Commit = (value: unknown) => Promise<void> | void;
 export type Complain = (text: string) => void;
 
 /** Up to 6 significant digits, no trailing zeros. */
 export function formatNumber(v: number): string {
   if (!Number.isFinite(v)) return String(v);
   return String(Number(v.toPrecision(6)));
+}
+
+/** The field's pending state around a commit: `show` is deferred while one is in flight. */
+class Pending {
+  private count = 0;
+  private last: { value: unknown } | null = null;
+  constructor(private readonly apply: (v: unknown) => void) {}
+  run(commit: Commit, value: unknown) {
+    const r = commit(value);
+    if (!(r instanceof Promise)) return;
+    this.count++;
+    void r.finally(() => {
+      if (--this.count === 0 && this.last) this.apply(this.last.value);
+    });
+  }
+  show(value: unknown) {
+    this.last = { value };
+    if (this.count === 0) this.apply(value);
+  }
 }
 
 function row(label: string, title: string, input: HTMLElement, unit: string, testid: string): HTMLElement {
@@ -44,12 +68,17 @@ export function numberField(
   // shown is then left alone; after a commit the server's answer shows,
   // even in the focused field (a refused value reverts).
   let typing = false;
+  const pending = new Pending((value) => {
+    shown = typeof value === 'number' ? formatNumber(value) : value === null || value === undefined ? '' : String(value);
+    input.dataset['value'] = shown;
+    if (!typing || document.activeElement !== input) input.value = shown;
+  });
   input.addEventListener('input', () => (typing = true));
   input.addEventListener('change', () => {
     typing = false;
     const text = input.value.trim();
     if (text === '' && opts.allowEmpty) {
-      commit(null);
+      pending.run(commit, null);
       return;
     }
     const v = Number(text);
@@ -58,7 +87,7 @@ export function numberField(
       input.value = shown;
       return;
     }
-    commit(opts.integer ? Math.round(v) : v);
+    pending.run(commit, opts.integer ? Math.round(v) : v);
   });
   input.addEventListener('keydown', (e) => {
     if (e.key === 'Escape') {
@@ -71,9 +100,7 @@ export function numberField(
     row: row(label, title, input, unit, testid),
     input,
     show(value: unknown) {
-      shown = typeof value === 'number' ? formatNumber(value) : value === null || value === undefined ? '' : String(value);
-      input.dataset['value'] = shown;
-      if (!typing || document.activeElement !== input) input.value = shown;
+      pending.show(value);
     },
     setEnabled(on: boolean) {
       input.disabled = !on;
@@ -83,13 +110,16 @@ export function numberField(
 
 export function checkboxField(testid: string, label: string, title: string, commit: Commit): Field {
   const input = el('input', { testid, attrs: { type: 'checkbox' } });
-  input.addEventListener('change', () => commit(input.checked));
+  const pending = new Pending((value) => {
+    input.checked = value === true;
+    input.dataset['value'] = String(value === true);
+  });
+  input.addEventListener('change', () => pending.run(commit, input.checked));
   return {
     row: row(label, title, input, '', testid),
     input,
     show(value: unknown) {
-      input.checked = value === true;
-      input.dataset['value'] = String(value === true);
+      pending.show(value);
     },
     setEnabled(on: boolean) {
       input.disabled = !on;
@@ -103,15 +133,18 @@ export function selectField(testid: string, label: string, title: string, option
     input.replaceChildren(...names.map((n) => el('option', { text: n, attrs: { value: n } })));
   };
   setOptions(options);
-  input.addEventListener('change', () => commit(input.value));
+  const pending = new Pending((value) => {
+    const v = String(value ?? '');
+    if (![...input.options].some((o) => o.value === v)) setOptions([...[...input.options].map((o) => o.value), v]);
+    input.value = v;
+    input.dataset['value'] = v;
+  });
+  input.addEventListener('change', () => pending.run(commit, input.value));
   return {
     row: row(label, title, input, '', testid),
     input,
     show(value: unknown) {
-      const v = String(value ?? '');
-      if (![...input.options].some((o) => o.value === v)) setOptions([...[...input.options].map((o) => o.value), v]);
-      input.value = v;
-      input.dataset['value'] = v;
+      pending.show(value);
     },
     setEnabled(on: boolean) {
       input.disabled = !on;

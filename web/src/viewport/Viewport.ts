@@ -59,6 +59,7 @@ export class Viewport {
     this.gizmo = new InstanceGizmo(editor, this.camera, this.renderer.domElement, this.scene,
       (why) => this.requestRender(why), () => this.controls);
     this.installDrop();
+    this.installPicking();
     editor.decoder.target = this.particles;
     editor.decoder.boundaryTarget = this.boundary;
     editor.decoder.controlTarget = this.control;
@@ -205,6 +206,57 @@ export class Viewport {
       const p = this.worldAt(e.clientX, e.clientY);
       void this.editor.addInstance(name, [p.x, p.y, p.z]);
     });
+  }
+
+  /**
+   * A click (no drag) selects the instance whose box is under the cursor
+   * (the nearest along the view ray; the ray is taken into each instance's
+   * template space, where its box is axis-aligned); a click on nothing
+   * deselects. Clicks on the gizmo's handles are the gizmo's.
+   */
+  private installPicking() {
+    const dom = this.renderer.domElement;
+    let down: { x: number; y: number } | null = null;
+    dom.addEventListener('pointerdown', (e) => {
+      down = e.button === 0 ? { x: e.clientX, y: e.clientY } : null;
+    });
+    dom.addEventListener('pointerup', (e) => {
+      if (!down || Math.hypot(e.clientX - down.x, e.clientY - down.y) > 4) return;
+      down = null;
+      if (this.gizmo.controls.axis !== null || this.gizmo.controls.dragging) return;
+      this.editor.select(this.instanceAt(e.clientX, e.clientY));
+    });
+  }
+
+  /** Name of the instance whose box the view ray through client pixel (x, y) hits first, or null. */
+  instanceAt(clientX: number, clientY: number): string | null {
+    const f = this.editor.decoder.info;
+    const r = this.renderer.domElement.getBoundingClientRect();
+    const ndc = new THREE.Vector2(((clientX - r.left) / r.width) * 2 - 1, -((clientY - r.top) / r.height) * 2 + 1);
+    const caster = new THREE.Raycaster();
+    caster.setFromCamera(ndc, this.camera);
+    const inv = new THREE.Matrix4(), m = new THREE.Matrix4(), hit = new THREE.Vector3();
+    let best: string | null = null, bestDist = Infinity;
+    for (let k = 0; k < f.instanceCount; k++) {
+      const inst = f.instances[k]!;
+      m.fromArray(inst.matrix);
+      if (Math.abs(m.determinant()) < 1e-12) continue;
+      inv.copy(m).invert();
+      const ray = caster.ray.clone().applyMatrix4(inv);
+      const mn = inst.templateMin, mx = inst.templateMax;
+      // 2D boxes are flat: give them depth so that the ray along z meets them.
+      const box = new THREE.Box3(
+        new THREE.Vector3(mn[0], mn[1], f.dimension === 2 ? -1 : mn[2]),
+        new THREE.Vector3(mx[0], mx[1], f.dimension === 2 ? 1 : mx[2]),
+      );
+      if (!ray.intersectBox(box, hit)) continue;
+      const d = hit.applyMatrix4(m).distanceTo(caster.ray.origin);
+      if (d < bestDist) {
+        bestDist = d;
+        best = inst.name;
+      }
+    }
+    return best;
   }
 
   private updateViewCentre() {
