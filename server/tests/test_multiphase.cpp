@@ -461,3 +461,18 @@ TEST(Multiphase, WcsphLayeredAtRest) {
 }
 }  // namespace
 }  // namespace fc
+
+namespace fc {
+namespace {
+// The demo scene: two phases of rest densities 1000 and 3000, so the number
+// density is on; it parses and keeps its documented size.
+TEST(Multiphase, DemoSceneParses) {
+  const auto setup = parseScene<2>(loadSceneJson(std::string(FLOWCLIP_SOURCE_DIR) + "/scenes/multiphase2d.json"));
+  ASSERT_EQ(setup.phases.size(), 2u);
+  EXPECT_EQ(setup.phases[1].restDensity / setup.phases[0].restDensity, Real(3));
+  Simulation<2> sim(setup);
+  EXPECT_TRUE(sim.numberDensity());
+  EXPECT_EQ(sim.fluid.size(), 2725u);  // scenes/README.md: 2 500 + 225
+}
+}  // namespace
+}  // namespace fc
