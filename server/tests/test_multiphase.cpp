@@ -2,17 +2,20 @@
 // the number-density interface treatment of Solenthaler & Pajarola 2008
 // (settings "density_formulation", automatic when rest densities differ).
 //  1. The formulation is chosen once at setup: automatic (number density
-//     only when rest densities differ), or as the scene says.
+//     only when rest densities differ), or as the scene says; on a 1:3
+//     lattice the number density reads both phases at rest density.
 //  2. A light phase (1000 kg/m³) placed under a heavy one (3000 kg/m³) rises
-//     above it (Rayleigh-Taylor), bounded density error, no NaN.
+//     above it (Rayleigh-Taylor) without the liquid gaining height, with a
+//     bounded density error and no NaN.
 //  3. The same ratio layered at rest (heavy at the bottom) stays at rest: the
 //     interface stays flat and as tightly spaced as the bulk, each phase keeps
 //     its volume, and no particle changes phase. The mass sum in the same
 //     scene opens a gap at the interface (the spurious interface tension the
-//     number density removes); measured and printed.
+//     number density removes), with DFSPH and with WCSPH.
 // Single-phase scenes are unchanged: Hydrostatic.* and DamBreak.* run the
 // mass sum, exactly as before (the formulation is never switched on for one
-// phase).
+// phase; their per-frame statistics are bit-identical to the commit before
+// the multiphase one, see README "The simulator").
 //
 // FLOWCLIP_TEST_VERBOSE=1 prints one line per frame.
 #include "io/scene.h"
