@@ -8,6 +8,7 @@ import { Toolbar } from './ui/Toolbar';
 import { StatusBar } from './ui/StatusBar';
 import { LayerPanel, StatsOverlay } from './ui/Overlays';
 import { Messages } from './ui/Messages';
+import { Timeline } from './ui/Timeline';
 import { installKeyboard } from './ui/Keyboard';
 import { TemplateLibrary } from './ui/TemplateLibrary';
 import { Outliner } from './ui/Outliner';
@@ -37,6 +38,7 @@ app.append(toolbar.dom, leftPanel, viewportDom, rightPanel, timelineDom, statusB
 viewportDom.append(messages.dom, new LayerPanel(editor).dom, new StatsOverlay(editor).dom);
 leftPanel.append(new TemplateLibrary(editor).dom);
 rightPanel.append(new Outliner(editor).dom, new Inspector(editor).dom);
+timelineDom.append(new Timeline(editor).dom);
 const viewport = new Viewport(viewportDom, editor);
 installKeyboard(editor);
 
