@@ -44,20 +44,25 @@ async function scale(page: Page) {
   };
 }
 
-/** A real mouse drag from the centre of `handle` by dx pixels, in several moves (as a hand would). */
-async function dragBy(page: Page, handle: Locator, dx: number) {
+/**
+ * A real mouse drag from the centre of `handle` by dx pixels, in several
+ * moves (as a hand would); `holdMs`: the hand holds still a third of the way.
+ */
+async function dragBy(page: Page, handle: Locator, dx: number, holdMs = 0) {
   const box = (await handle.boundingBox())!;
   const x = box.x + box.width / 2, y = box.y + box.height / 2;
   await page.mouse.move(x, y);
   await page.mouse.down();
   await page.mouse.move(x + dx / 3, y, { steps: 4 });
+  if (holdMs) await page.waitForTimeout(holdMs);
   await page.mouse.move(x + dx, y, { steps: 8 });
   await page.mouse.up();
   return { x, y };
 }
 
-/** Resolves when the editor's history has run every queued command. */
+/** Resolves when the timeline's drag has sent its last PATCH and the history has run every command. */
 async function historySettled(page: Page) {
+  await expect(page.getByTestId('timeline')).toHaveAttribute('data-pending', 'false');
   await page.evaluate(() => (window as any).flowclip.editor.history.idle());
 }
 
@@ -145,7 +150,8 @@ test('timeline: dragging the left end crops crop_begin and keeps the end time', 
   const endBefore = before.start + (1.0 - before.crop_begin) / before.speed;
   const s = await scale(page);
   const dx = Math.round(0.25 * s.pxPerSecond);
-  await dragBy(page, page.getByTestId('timeline-begin-drop'), dx);
+  // Held still for longer than the history's merge window (0.5 s): still one drag.
+  await dragBy(page, page.getByTestId('timeline-begin-drop'), dx, 800);
   await historySettled(page);
 
   const after = await getJson(request, instanceUrl);
@@ -171,15 +177,30 @@ test('timeline: dragging the body moves start; crops clamp to the template and t
   const s = await scale(page);
   const track = page.getByTestId('timeline-track-drop');
   const dx = Math.round(0.4 * s.pxPerSecond);
+  // The server answers slowly (each PATCH held back 150 ms): the drag sends
+  // one PATCH at a time, the newest position wins, and it lands where the
+  // pointer was released.
+  const patches: unknown[] = [];
+  await page.route('**/instances/drop', async (route) => {
+    if (route.request().method() === 'PATCH') {
+      patches.push(route.request().postDataJSON());
+      await new Promise((r) => setTimeout(r, 150));
+    }
+    await route.continue();
+  });
   // Grab the body away from its ends.
   const box = (await track.boundingBox())!;
   const x = box.x + box.width * 0.4, y = box.y + box.height / 2;
   await page.mouse.move(x, y);
   await page.mouse.down();
-  await page.mouse.move(x + dx, y, { steps: 10 });
+  await page.mouse.move(x + dx, y, { steps: 16 });
   await page.mouse.up();
   await historySettled(page);
+  await page.unroute('**/instances/drop');
+  console.log(`body drag: ${patches.length} PATCHes for 16 pointer moves: ${JSON.stringify(patches)}`);
+  expect(patches.length).toBeLessThanOrEqual(4);
   const moved = await getJson(request, instanceUrl);
+  expect(patches[patches.length - 1]).toEqual({ start: moved.start });
   const expected = before.start + dx / s.pxPerSecond;
   expect(Math.abs(moved.start - expected)).toBeLessThanOrEqual(0.5 / SCENE_FPS + 1 / s.pxPerSecond + 1e-9);
   expect(moved.start).toBeGreaterThan(0.5);
@@ -197,6 +218,39 @@ test('timeline: dragging the body moves start; crops clamp to the template and t
   const shortest = await getJson(request, instanceUrl);
   expect(shortest.crop_end - shortest.crop_begin).toBeCloseTo(TEMPLATE_FRAME, 9);
   expect(await undoCount(page)).toBe(3);
+  await expectNoErrors(page, errors);
+});
+
+test('timeline: an undo pressed while a drag\'s last PATCH is on its way undoes the whole drag', async ({ page, request }) => {
+  const { errors, instanceUrl } = await openDrop(page);
+  const before = await getJson(request, instanceUrl);
+  const s = await scale(page);
+  // A slow server: every PATCH held back 600 ms, so that the key press
+  // comes while the drag's second PATCH is in flight and its last values
+  // wait (without the fix the undo ran between them, and the last PATCH put
+  // the drag back as a new entry).
+  await page.route('**/instances/drop', async (route) => {
+    if (route.request().method() === 'PATCH') await new Promise((r) => setTimeout(r, 600));
+    await route.continue();
+  });
+  const box = (await page.getByTestId('timeline-track-drop').boundingBox())!;
+  const x = box.x + box.width * 0.4, y = box.y + box.height / 2;
+  await page.mouse.move(x, y);
+  await page.mouse.down();
+  await page.mouse.move(x + 0.1 * s.pxPerSecond, y, { steps: 3 });
+  await page.waitForTimeout(700); // the drag's first PATCH lands
+  await page.mouse.move(x + 0.3 * s.pxPerSecond, y, { steps: 6 });
+  await page.mouse.up();
+  await page.keyboard.press('Control+z'); // at once (no actionability wait): the last PATCHes are on their way
+  await historySettled(page);
+  await page.unroute('**/instances/drop');
+  expect((await getJson(request, instanceUrl)).start).toBe(before.start);
+  expect(await undoCount(page)).toBe(0);
+  expect(await page.evaluate(() => (window as any).flowclip.editor.history.redoEntries.length)).toBe(1);
+  await expect(page.getByTestId('timeline-track-drop')).toHaveAttribute('data-start', String(before.start));
+  // Redo applies where the drag ended.
+  await page.locator('body').press('Control+Shift+z');
+  await expect.poll(async () => (await getJson(request, instanceUrl)).start).toBeGreaterThan(before.start + 0.25);
   await expectNoErrors(page, errors);
 });
 
@@ -323,16 +377,22 @@ test('timeline: scrubbing the ruler shows a recorded frame (seek), the playhead 
   const p = (await playhead.boundingBox())!;
   expect(Math.abs(p.x + p.width / 2 - xOf(target / SCENE_FPS))).toBeLessThan(2);
 
-  page.on("response", async (r) => { if (r.url().includes("/transport")) console.log("RES", r.status(), (await r.text()).slice(0, 300)); });
-  // A click past the history clamps to its newest frame.
-  await page.mouse.click(xOf(1.5), y);
-  for (let i = 0; i < 10; i++) { console.log('STATE', JSON.stringify((await getJson(request, `${serverUrl()}/api/sessions/${sid}`)).shown), (await getJson(request, `${serverUrl()}/api/sessions/${sid}`)).status); await page.waitForTimeout(100); }
-  await expect.poll(async () => (await getJson(request, `${serverUrl()}/api/sessions/${sid}`)).shown).toEqual({ live: false, frame: 20 });
-  await expect(playhead).toHaveAttribute('data-value', '20');
-  // Stepping goes live again.
+  // Stepping goes live again (and simulates on from the newest frame).
   await page.getByTestId('step').click();
   await expect(playhead).toHaveAttribute('data-live', 'true');
   await expect.poll(() => readNumber(frame)).toBe(21);
   await expect(playhead).toHaveAttribute('data-value', '21');
+  await expect(page.getByTestId('timeline-simulated')).toHaveAttribute('data-last', '21');
+
+  // Back to a recorded frame, then a click past the history: the newest
+  // frame, which the server shows live again (seeking the newest frame is live).
+  await page.mouse.click(xOf(4 / SCENE_FPS), y);
+  await expect(playhead).toHaveAttribute('data-live', 'false');
+  await expect(playhead).toHaveAttribute('data-value', '4');
+  await page.mouse.click(xOf(1.5), y);
+  await expect.poll(async () => (await getJson(request, `${serverUrl()}/api/sessions/${sid}`)).shown).toEqual({ live: true, frame: 21 });
+  await expect(playhead).toHaveAttribute('data-live', 'true');
+  await expect(playhead).toHaveAttribute('data-value', '21');
+  await expect(frame).toHaveAttribute('data-value', '21');
   await expectNoErrors(page, errors);
 });

@@ -5,27 +5,20 @@
 // that was absent, which removes it so that the server's default applies).
 //
 // Merging: commands of the same mergeKey merge as any other command does
-// (History: within 0.5 s of the previous one). A drag passes a `gesture`:
-// the mergeKey is the gesture's own and every command of the gesture carries
-// the gesture's start time, so the whole drag is one history entry however
-// long the user holds still in the middle of it, and two drags made in quick
-// succession stay two entries.
+// (History: within 0.5 s of the previous one). A drag passes `drag`, an id
+// unique to the drag: the mergeKey is the drag's own and the merge window
+// infinite (as SetInstanceTransformCommand's gizmo drags), so the whole drag
+// is one history entry however long the user holds still in the middle of
+// it, and two drags made in quick succession stay two entries.
 import { Command } from '../core/Command';
 import type { Editor } from '../core/Editor';
 
 export type InstanceValues = Record<string, unknown>;
 
-/** One pointer drag (or any other continuous edit) that must be one undo step. */
-export interface Gesture {
-  /** Unique per gesture, e.g. "timeline:drop:crop-end:7". */
-  readonly id: string;
-  /** performance.now() when the gesture began. */
-  readonly startedAt: number;
-}
-
 export class SetInstanceValuesCommand extends Command {
   readonly name: string;
   override readonly mergeKey: string;
+  override readonly mergeWindowMs: number | null;
   private newValues: InstanceValues;
   private oldValues: InstanceValues;
 
@@ -34,13 +27,13 @@ export class SetInstanceValuesCommand extends Command {
     private readonly instance: string,
     newValues: InstanceValues,
     oldValues: InstanceValues,
-    options: { name?: string; gesture?: Gesture } = {},
+    options: { name?: string; drag?: string } = {},
   ) {
     super();
     const keys = Object.keys(newValues);
     this.name = options.name ?? `Set ${instance}.${keys.join(', ')}`;
-    this.mergeKey = options.gesture ? `values:${instance}:${options.gesture.id}` : `values:${instance}.${keys.sort().join(',')}`;
-    if (options.gesture) this.createdAt = options.gesture.startedAt;
+    this.mergeKey = options.drag !== undefined ? `values:${instance}:drag:${options.drag}` : `values:${instance}.${[...keys].sort().join(',')}`;
+    this.mergeWindowMs = options.drag !== undefined ? Infinity : null;
     this.newValues = structuredClone(newValues);
     this.oldValues = {};
     for (const k of keys) this.oldValues[k] = oldValues[k] === undefined ? null : structuredClone(oldValues[k]);
@@ -64,6 +57,6 @@ export class SetInstanceValuesCommand extends Command {
   private async apply(values: InstanceValues) {
     const sid = this.editor.requireSession();
     const res = await this.editor.api.patchInstance(sid, this.instance, values);
-    this.editor.instanceUpdated(res.instance);
+    this.editor.instanceUpdated(await this.editor.settleInstanceEdit(sid, this.instance, res));
   }
 }

@@ -13,7 +13,7 @@
 import './timeline.css';
 import type { Editor } from '../core/Editor';
 import type { InstanceJson, TemplateInfo } from '../net/types';
-import { SetInstanceValuesCommand, type Gesture, type InstanceValues } from '../commands/SetInstanceValuesCommand';
+import { SetInstanceValuesCommand, type InstanceValues } from '../commands/SetInstanceValuesCommand';
 import { el } from './dom';
 import { dragValues, keysOf, sceneEnd, tickStep, timingOf, withValues, type DragPart, type Timing } from './TimelineModel';
 
@@ -22,7 +22,6 @@ const RULER_HEIGHT = 22;
 const DRAG_THRESHOLD_PX = 3;
 const MIN_PX_PER_SECOND = 4;
 const MAX_PX_PER_SECOND = 20_000;
-const DEFAULT_SCENE_FRAME_RATE = 60;
 
 /** One track's elements, kept across renders (a drag must not lose the element it started on). */
 interface TrackDom {
@@ -45,7 +44,8 @@ type Drag =
       timing0: Timing;
       /** The instance's values of the edited keys when the drag began (undo restores them). */
       old: InstanceValues;
-      gesture: Gesture;
+      /** Unique to the drag: its commands merge into one history entry. */
+      dragId: string;
     }
   | { kind: 'pan'; pointerId: number; x0: number; viewStart0: number; moved: boolean }
   | { kind: 'scrub'; pointerId: number };
@@ -54,18 +54,22 @@ type Drag =
 interface EditFlight {
   instance: string;
   old: InstanceValues;
-  gesture: Gesture;
+  dragId: string;
   name: string;
   /** What the user sees while the drag's PATCHes land (the server's answers lag behind the pointer). */
   preview: InstanceValues;
   pending: InstanceValues | null;
   sent: InstanceValues | null;
   running: boolean;
+  /** A command of this drag has run (so the history's top entry is the drag's, and a newer command merges into it). */
+  landed: boolean;
+  /** The final command, issued when the pointer was released. */
+  final: Promise<void> | null;
   /** The pointer was released: drop the preview once the last PATCH landed. */
   released: boolean;
 }
 
-let gestureCount = 0;
+let dragCount = 0;
 
 export class Timeline {
   readonly dom: HTMLElement;
@@ -99,6 +103,8 @@ export class Timeline {
 
   private templatesListed = false;
   private renderScheduled = false;
+  /** Something besides the playhead changed since the last render. */
+  private layoutDirty = true;
   /** Renders so far, also in data-renders (tests check that nothing renders while nothing changes). */
   renders = 0;
 
@@ -113,12 +119,12 @@ export class Timeline {
     fit.addEventListener('click', () => this.fitView());
     this.ruler = el('div', {
       className: 'ruler', testid: 'timeline-ruler',
-      title: 'Scene time, s. Press or drag to show a recorded frame (seek); play or step to go live again',
+      title: 'Scene time, s. Press or drag to show a recorded frame (seek); the newest frame is live',
     }, [this.simulated, this.ticks]);
     this.tracks = el('div', { className: 'tracks', testid: 'timeline-tracks' });
     this.hint = el('div', { className: 'hint', text: 'open a scene to see its instances' });
     this.playhead = el('div', { className: 'playhead', testid: 'timeline-playhead', attrs: { 'data-value': '0' } });
-    this.dom = el('div', { className: 'timeline', testid: 'timeline' }, [
+    this.dom = el('div', { className: 'timeline', testid: 'timeline', attrs: { 'data-pending': 'false' } }, [
       this.ruler, this.tracks, this.hint, this.playhead, el('div', { className: 'corner' }, [this.readout, fit]),
     ]);
 
@@ -136,10 +142,12 @@ export class Timeline {
       this.requestRender();
     });
     s.selectionChanged.add(() => this.requestRender());
+    s.sceneChanged.add(() => this.requestRender()); // the frame rate may have changed
     s.sessionChanged.add((info) => {
       this.drag = null;
       this.flight = null;
       this.seekWanted = null;
+      this.updatePending();
       this.fitPending = info !== null;
       this.readView();
       this.requestRender();
@@ -156,7 +164,7 @@ export class Timeline {
       if (f.frame === this.shownFrame && last === this.historyLast) return;
       this.shownFrame = f.frame;
       this.historyLast = last;
-      this.requestRender();
+      this.requestRender('playhead');
     });
   }
 
@@ -171,13 +179,11 @@ export class Timeline {
   }
 
   private sceneFrameRate(): number {
-    const settings = this.editor.session?.sceneJson?.['settings'] as { frame_rate?: unknown } | undefined;
-    const r = settings?.frame_rate;
-    return typeof r === 'number' && r > 0 ? r : DEFAULT_SCENE_FRAME_RATE;
+    return this.editor.frameRate();
   }
 
   private template(inst: InstanceJson): TemplateInfo | undefined {
-    return this.editor.templates.find((t) => t.name === inst.template);
+    return this.editor.templateInfo(inst.template);
   }
 
   /** The timing the track shows: the drag's preview while one is on its way to the server. */
@@ -277,7 +283,7 @@ export class Timeline {
       this.dom.setPointerCapture(e.pointerId);
       this.drag = {
         kind: 'edit', part: dragPart, instance: inst.name, pointerId: e.pointerId, x0: e.clientX, moved: false,
-        timing0, old, gesture: { id: `timeline:${inst.name}:${dragPart}:${++gestureCount}`, startedAt: performance.now() },
+        timing0, old, dragId: `timeline-${dragPart}-${++dragCount}`,
       };
       return;
     }
@@ -312,9 +318,20 @@ export class Timeline {
     this.drag = null;
     if (this.dom.hasPointerCapture(e.pointerId)) this.dom.releasePointerCapture(e.pointerId);
     if (d.kind === 'pan' && !d.moved) this.editor.select(null);
-    if (d.kind === 'edit' && this.flight && this.flight.gesture === d.gesture) {
-      this.flight.released = true;
-      if (!this.flight.running) this.endFlight(this.flight);
+    const f = this.flight;
+    if (d.kind === 'edit' && f && f.dragId === d.dragId) {
+      f.released = true;
+      // The release's values go into the history's queue now, not after the
+      // PATCH in flight: an undo pressed right after the release (a slow
+      // server) then undoes the whole drag instead of running between its
+      // last two PATCHes. Only once a command of the drag has run, else the
+      // final one would not merge with it (History decides when issued).
+      if (f.running && f.pending && f.landed) {
+        const values = f.pending;
+        f.pending = null;
+        if (this.changesSomething(f, values)) f.final = this.issueEdit(f, values);
+      }
+      if (!f.running) this.endFlight(f);
     }
   }
 
@@ -323,15 +340,21 @@ export class Timeline {
   /** Shows `values` at once and sends them; while a PATCH is in flight only the newest values wait. */
   private sendEdit(d: Extract<Drag, { kind: 'edit' }>, values: InstanceValues) {
     let f = this.flight;
-    if (!f || f.gesture !== d.gesture) {
+    if (!f || f.dragId !== d.dragId) {
       const name = d.part === 'body' ? `Move ${d.instance}` : `Crop ${d.instance} (${d.part} end)`;
-      f = { instance: d.instance, old: d.old, gesture: d.gesture, name, preview: { ...d.old }, pending: null, sent: null, running: false, released: false };
+      f = { instance: d.instance, old: d.old, dragId: d.dragId, name, preview: { ...d.old }, pending: null, sent: null, running: false, landed: false, final: null, released: false };
       this.flight = f;
+      this.updatePending();
     }
     f.preview = values;
     f.pending = values;
     this.requestRender();
     if (!f.running) void this.pumpEdits(f);
+  }
+
+  /** data-pending on the timeline: a drag's PATCHes or a scrub's seeks are still on their way (tests wait for it). */
+  private updatePending() {
+    this.dom.dataset['pending'] = String(this.flight !== null || this.seeking);
   }
 
   private async pumpEdits(f: EditFlight) {
@@ -341,21 +364,32 @@ export class Timeline {
     while (f.pending && this.flight === f) {
       const values = f.pending;
       f.pending = null;
-      const last = f.sent ?? f.old;
-      if (Object.keys(values).every((k) => last[k] === values[k])) continue;
-      f.sent = values;
-      await this.editor.execute(
-        new SetInstanceValuesCommand(this.editor, f.instance, values, f.old, { name: f.name, gesture: f.gesture }),
-      );
+      if (this.changesSomething(f, values)) await this.issueEdit(f, values);
     }
+    if (f.final) await f.final;
     f.running = false;
     if (f.released) this.endFlight(f);
+  }
+
+  private changesSomething(f: EditFlight, values: InstanceValues): boolean {
+    const last = f.sent ?? f.old;
+    return Object.keys(values).some((k) => last[k] !== values[k]);
+  }
+
+  /** One command of the drag (its failure is reported by the history; the drag goes on). */
+  private issueEdit(f: EditFlight, values: InstanceValues): Promise<void> {
+    f.sent = values;
+    const cmd = new SetInstanceValuesCommand(this.editor, f.instance, values, f.old, { name: f.name, drag: f.dragId });
+    return this.editor.execute(cmd).then(() => {
+      f.landed = true;
+    });
   }
 
   /** The drag's PATCHes have landed (or failed: the history reported it): show the server's values again. */
   private endFlight(f: EditFlight) {
     if (this.flight !== f) return;
     this.flight = null;
+    this.updatePending();
     this.requestRender();
   }
 
@@ -366,7 +400,7 @@ export class Timeline {
     const frame = clamp(Math.round(this.timeAt(clientX) * this.sceneFrameRate()), this.historyFirst, this.historyLast);
     if (frame !== this.shownFrame || this.live) {
       this.shownFrame = frame;
-      this.requestRender();
+      this.requestRender('playhead');
     }
     this.seekWanted = frame;
     if (!this.seeking) void this.pumpSeeks();
@@ -374,6 +408,7 @@ export class Timeline {
 
   private async pumpSeeks() {
     this.seeking = true;
+    this.updatePending();
     let sent: number | null = null;
     while (this.seekWanted !== null) {
       const frame = this.seekWanted;
@@ -385,6 +420,7 @@ export class Timeline {
       await this.editor.transport('seek', { frame }); // its errors are reported by the hub
     }
     this.seeking = false;
+    this.updatePending();
     // The server's answer is the truth (a refused seek leaves the playhead where the server is).
     this.readView();
     this.requestRender();
@@ -392,7 +428,9 @@ export class Timeline {
 
   // ------------------------------------------------------------ render ---
 
-  private requestRender() {
+  /** 'playhead': only the playhead and the simulated range moved (a frame arrived while playing). */
+  private requestRender(what: 'all' | 'playhead' = 'all') {
+    if (what === 'all') this.layoutDirty = true;
     if (this.renderScheduled) return;
     this.renderScheduled = true;
     requestAnimationFrame(() => {
@@ -404,6 +442,12 @@ export class Timeline {
   private render() {
     this.renders++;
     this.dom.dataset['renders'] = String(this.renders);
+    if (!this.layoutDirty) {
+      this.renderSimulated();
+      this.renderPlayhead();
+      return;
+    }
+    this.layoutDirty = false;
     this.width = this.dom.clientWidth;
     if (this.fitPending && this.width > 0 && this.editor.session && this.contentKnown()) {
       this.fitPending = false;
@@ -438,6 +482,11 @@ export class Timeline {
       nodes.push(tick);
     }
     this.ticks.replaceChildren(...nodes);
+    this.renderSimulated();
+  }
+
+  private renderSimulated() {
+    const fr = this.sceneFrameRate();
     const hasSession = this.editor.session !== null;
     this.simulated.hidden = !hasSession;
     const a = this.x(this.historyFirst / fr), b = this.x(this.historyLast / fr);
@@ -547,7 +596,7 @@ export class Timeline {
     this.readout.classList.toggle('replay', !this.live);
     this.readout.title = this.live
       ? 'The viewport shows the newest simulated frame'
-      : 'The viewport shows a recorded frame; play or step to simulate on from the newest frame';
+      : 'The viewport shows a recorded frame; scrub to the end of the simulated range (or Live) to see the newest frame, play or step to simulate on';
   }
 }
 
