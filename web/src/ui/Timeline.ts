@@ -89,16 +89,27 @@ export class Timeline {
   private fitPending = true;
   private width = 0;
 
-  /** The frame the viewport shows and the replay history's range (REST/StateChange, extended by live frames). */
+  /**
+   * The playhead: the frame the viewport shows. The decoded frames are the
+   * truth (a REST answer can arrive after the stream's newer frames and state,
+   * e.g. a step's answer after the stepped frame); the session view gives it
+   * until the session's first frame arrives, and the pointer while scrubbing.
+   */
   private shownFrame = 0;
+  private frameArrived = false;
+  /** Live or replay, and the replay history's range, from REST and StateChange. */
   private live = true;
   private historyFirst = 0;
   private historyLast = 0;
+  /** The newest live frame decoded (the history reaches it even if a late REST answer says less). */
+  private newestLiveFrame = 0;
 
   private drag: Drag | null = null;
   private flight: EditFlight | null = null;
   /** Scrubbing: the frame to seek next (latest wins) while one seek is in flight. */
   private seekWanted: number | null = null;
+  /** The frame the pointer last asked for (the playhead shows it until the seeks are answered). */
+  private scrubFrame: number | null = null;
   private seeking = false;
 
   private templatesListed = false;
@@ -147,6 +158,8 @@ export class Timeline {
       this.drag = null;
       this.flight = null;
       this.seekWanted = null;
+      this.frameArrived = false;
+      this.newestLiveFrame = 0;
       this.updatePending();
       this.fitPending = info !== null;
       this.readView();
@@ -160,9 +173,12 @@ export class Timeline {
       // StateChange messages come with status changes only: while playing,
       // the frames themselves move the playhead and grow the history.
       if (f.sessionId !== this.editor.session?.id) return;
-      const last = this.live ? Math.max(this.historyLast, f.frame) : this.historyLast;
-      if (f.frame === this.shownFrame && last === this.historyLast) return;
-      this.shownFrame = f.frame;
+      this.frameArrived = true;
+      if (this.live) this.newestLiveFrame = Math.max(this.newestLiveFrame, f.frame);
+      const last = Math.max(this.historyLast, this.newestLiveFrame);
+      const shown = this.seeking && this.scrubFrame !== null ? this.scrubFrame : f.frame;
+      if (shown === this.shownFrame && last === this.historyLast) return;
+      this.shownFrame = shown;
       this.historyLast = last;
       this.requestRender('playhead');
     });
@@ -172,10 +188,12 @@ export class Timeline {
 
   private readView() {
     const v = this.editor.view;
-    this.shownFrame = v.shownFrame;
+    if (!this.frameArrived) this.shownFrame = v.shownFrame;
     this.live = v.live;
+    // Frame 0 with nothing after it: a reset (or a new session) cleared the history.
+    if (v.frame === 0 && v.historyLast === 0) this.newestLiveFrame = 0;
     this.historyFirst = v.historyFirst;
-    this.historyLast = v.historyLast;
+    this.historyLast = Math.max(v.historyLast, this.newestLiveFrame);
   }
 
   private sceneFrameRate(): number {
@@ -403,6 +421,7 @@ export class Timeline {
       this.requestRender('playhead');
     }
     this.seekWanted = frame;
+    this.scrubFrame = frame;
     if (!this.seeking) void this.pumpSeeks();
   }
 
@@ -420,8 +439,13 @@ export class Timeline {
       await this.editor.transport('seek', { frame }); // its errors are reported by the hub
     }
     this.seeking = false;
+    this.scrubFrame = null;
     this.updatePending();
-    // The server's answer is the truth (a refused seek leaves the playhead where the server is).
+    // The last seek's frame is on its way to the viewport; a refused seek
+    // leaves the playhead on the frame the viewport shows.
+    const decoded = this.editor.decoder.info;
+    if (sent !== null && this.editor.view.shownFrame === sent) this.shownFrame = sent;
+    else if (this.frameArrived && decoded.sessionId === this.editor.session?.id) this.shownFrame = decoded.frame;
     this.readView();
     this.requestRender();
   }
