@@ -5,6 +5,7 @@
 #include "core/neighborhood_search.h"
 #include "sph/particles.h"
 #include "sph/pipeline.h"
+#include "sph/rigid_bodies.h"
 #include "sph/setup.h"
 #include <array>
 #include <memory>
@@ -22,6 +23,16 @@ struct InstanceFrameStats {
   size_t controlled = 0;         // liquid particles it applied forces to
   size_t controlParticles = 0;   // its template frame's particles
   size_t repulsionParticles = 0; // its repulsion layer's particles (0 when repulsion is off)
+};
+
+// A body's state at the end of a frame (sph/rigid_bodies.h).
+struct BodyFrameStats {
+  std::string name;
+  std::array<double, 3> position{};     // m, centre
+  std::array<double, 3> velocity{};     // m/s
+  std::array<double, 3> rotationDeg{};  // 2D: [0, 0, angle]; 3D: Euler XYZ
+  std::array<double, 3> force{};        // N (2D: N/m), the liquid's pressure force in the last substep
+  size_t wallContacts = 0;              // substeps of the frame it touched a tank wall
 };
 
 struct FrameStats {
@@ -63,6 +74,7 @@ struct FrameStats {
   size_t removedParticles = 0;   // temporary particles removed this frame
   double controlMs = 0;          // of wallMs, spent in control (forces, temporary particles, fidelity)
   std::vector<InstanceFrameStats> instances;
+  std::vector<BodyFrameStats> bodies;  // empty without bodies
 };
 
 // A particle to insert (temporary particles).
@@ -101,6 +113,8 @@ class Simulation {
   int frame() const { return frame_; }
   double frameDuration() const { return 1.0 / setup_.settings.get("frame_rate"); }
   const std::vector<std::string>& pipelineStages() const { return stageNames_; }
+  // Moving bodies (null when the scene has none).
+  const RigidBodies<D>* bodies() const { return bodies_.get(); }
   size_t totalSubsteps() const { return totalSubsteps_; }
   Real restDensity(size_t i) const { return restDensity_[fluid.phase[i]]; }
   // The mass of a liquid particle of `phase` (the fluid blocks' lattice
@@ -146,6 +160,7 @@ class Simulation {
   Vec<D> gravity_;
   std::unique_ptr<PressureSolver<D>> pressure_;
   std::vector<std::unique_ptr<Effect<D>>> effects_;
+  std::unique_ptr<RigidBodies<D>> bodies_;
   std::vector<Effect<D>*> accelerationStages_, velocityStages_, frameStages_;
   bool neighborsFresh_ = false;
   uint32_t nextId_ = 0;

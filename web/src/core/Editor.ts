@@ -319,8 +319,12 @@ export class Editor {
       this.message('warning', 'open a scene first');
       return;
     }
+    // The stream's StateChange messages are newer than a REST answer that
+    // arrives after them: the answer is applied only if none came meanwhile.
+    const seq = this.streamStates;
     try {
-      this.applyState(await this.api.transport(s.id, command, args));
+      const state = await this.api.transport(s.id, command, args);
+      if (this.streamStates === seq) this.applyState(state);
     } catch (e) {
       this.reportError(e, command);
     }
@@ -515,7 +519,11 @@ export class Editor {
     this.signals.sessionView.dispatch(this.view);
   }
 
+  /** StateChange messages received (REST answers older than the newest are not applied). */
+  private streamStates = 0;
+
   private applyStreamState(s: StreamState) {
+    this.streamStates++;
     if (s.state) {
       this.applyState(s.state);
       return;
