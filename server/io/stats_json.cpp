@@ -49,6 +49,18 @@ nlohmann::json frameStatsToJson(const FrameStats& s, bool controlled) {
                     {"control_particles", i.controlParticles},
                     {"repulsion_particles", i.repulsionParticles}});
   j["instances"] = inst;
+  // Moving bodies, only in scenes that have them.
+  if (!s.bodies.empty()) {
+    nlohmann::json bodies = nlohmann::json::array();
+    for (const auto& b : s.bodies)
+      bodies.push_back({{"name", b.name},
+                        {"position", b.position},
+                        {"velocity", b.velocity},
+                        {"rotation_deg", b.rotationDeg},
+                        {"force", b.force},
+                        {"wall_contacts", b.wallContacts}});
+    j["bodies"] = bodies;
+  }
   return j;
 }
 
