@@ -21,14 +21,20 @@
 //      repetition times
 //        decode       Envelope → Frame → editor.decoder.decode(): dequantize and
 //                     colour into the ParticleLayer's attribute arrays (as the
-//                     stream's onMessage does)
-//        upload+draw  viewport.render() with the attributes marked for upload by
-//                     that decode, then a 1-pixel readPixels, the sync point that
-//                     makes the GL work count (Chromium's gl.finish() is a flush)
+//                     stream's onMessage does); the same bytes again, so the
+//                     kinds and phases are the previous frame's and the colours
+//                     are kept, as in a one-phase scene without temporary particles
+//        upload+draw  viewport.render() with what that decode marked for upload,
+//                     then a 1-pixel readPixels, the sync point that makes the GL
+//                     work count (Chromium's gl.finish() is only a flush)
 //        draw         the same render again, nothing to upload, and its readPixels
-//        sync         a readPixels alone (the round trip to the GPU process)
-//      upload = (upload+draw) − draw per repetition.
-// Median and p95 (nearest rank) over the repetitions, one table on stdout.
+//        upload       the same marks uploaded by a render with an empty draw
+//                     range, minus that empty render without uploads
+//        decode*, upload*  the same with every colour looked up and uploaded
+//                     (decoder.invalidateColors() before each decode)
+// Median and p95 (nearest rank) over the repetitions, one table on stdout
+// (--json FILE: every figure). FLOWCLIP_WEB_DIST serves another editor build
+// (before/after comparisons).
 // Under SwiftShader "GPU" work is CPU work on the same 2 cores: these are
 // software-GL figures, not what a GPU does.
 import { spawn } from 'node:child_process';
@@ -51,7 +57,7 @@ const CASES = [
   { key: '3d-300k', dim: 3, r: 0.01, cells: [100, 60, 50] },
 ];
 
-// Decodes timed together per repetition (performance.now() has 0.1 ms steps in the page).
+// Decodes (and uploads) timed together per repetition (performance.now() has 0.1 ms steps in the page).
 const DECODE_BATCH = 10;
 
 function usage(msg) {
@@ -118,7 +124,7 @@ function sceneFor(c) {
 async function startServer(tmp) {
   const buildDir = resolve(webDir, process.env.FLOWCLIP_BUILD_DIR ?? '../build');
   const bin = process.env.FLOWCLIP_BIN ?? join(buildDir, 'flowclip');
-  const dist = join(webDir, 'dist');
+  const dist = resolve(process.env.FLOWCLIP_WEB_DIST ?? join(webDir, 'dist'));
   if (!existsSync(bin)) throw new Error(`${bin} is missing: make build (or set FLOWCLIP_BUILD_DIR / FLOWCLIP_BIN)`);
   if (!existsSync(join(dist, 'index.html'))) throw new Error(`${dist} is missing: make web`);
   const logPath = join(tmp, 'server.log');
@@ -187,11 +193,24 @@ async function measureInPage({ id, reps, warmup, batch }) {
   const heap = () => (performance.memory ? performance.memory.usedJSHeapSize : NaN);
   const now = () => performance.now();
 
+  // Frames whose particles keep their kinds and phases (one phase, no temporary
+  // particles, however the simulation reorders them) reuse every colour;
+  // invalidateColors() before a decode makes it write and upload them all, as
+  // when the kinds change from the first particle on. (A decoder without
+  // colour reuse, an older build, does that every time.)
+  const invalidate = typeof decoder.invalidateColors === 'function' ? () => decoder.invalidateColors() : () => undefined;
+  const decodeNew = () => {
+    invalidate();
+    return decode();
+  };
   const layer = viewport.particles;
   const geometry = layer.points.geometry;
   viewport.render();
   sync();
-  const t = { decode: [], uploadDraw: [], draw: [], upload: [], uploadAlone: [], empty: [], sync: [] };
+  const t = {
+    decode: [], uploadDraw: [], draw: [], uploadDiff: [], upload: [],
+    decodeNew: [], uploadDrawNew: [], uploadNew: [], empty: [], sync: [],
+  };
   let peakHeap = heap();
   let drawn = 0;
   for (let i = -warmup; i < reps; i++) {
@@ -199,59 +218,89 @@ async function measureInPage({ id, reps, warmup, batch }) {
     const t0 = now();
     for (let k = 0; k < batch; k++) decode();
     const t1 = now();
-    viewport.render(); // uploads the range the decode marked, draws
+    viewport.render(); // uploads what the decode marked, draws
     sync();
     const t2 = now();
     drawn = viewport.renderer.info.render.points;
     viewport.render(); // nothing to upload
     sync();
     const t3 = now();
-    // The upload alone: the range marked again (as decode does), nothing drawn (empty draw range).
-    const n = layer.count;
-    layer.commit(n);
-    geometry.setDrawRange(0, 0);
-    viewport.render();
-    sync();
+    for (let k = 0; k < batch; k++) decodeNew();
     const t4 = now();
-    viewport.render(); // the same empty render, nothing to upload
+    viewport.render(); // every colour uploaded too
     sync();
     const t5 = now();
+    // The uploads alone: the frame's range marked again as each decode marks
+    // it, rendered with an empty draw range; minus the same empty render.
+    const n = layer.count;
+    geometry.setDrawRange(0, 0);
+    viewport.render(); // untimed: the first empty render after a full one costs more
+    sync();
+    const t5b = now();
+    for (let k = 0; k < batch; k++) {
+      layer.commit(n, n);
+      geometry.setDrawRange(0, 0);
+      viewport.render();
+      sync();
+    }
+    const t6 = now();
+    for (let k = 0; k < batch; k++) {
+      layer.commit(n, 0);
+      geometry.setDrawRange(0, 0);
+      viewport.render();
+      sync();
+    }
+    const t7 = now();
+    for (let k = 0; k < batch; k++) {
+      viewport.render();
+      sync();
+    }
+    const t8 = now();
     geometry.setDrawRange(0, n);
     sync();
-    const t6 = now();
+    const t9 = now();
     peakHeap = Math.max(peakHeap, heap());
     if (i < 0) continue;
+    const empty = (t8 - t7) / batch;
     t.decode.push((t1 - t0) / batch);
     t.uploadDraw.push(t2 - t1);
     t.draw.push(t3 - t2);
-    t.upload.push(t2 - t1 - (t3 - t2));
-    t.uploadAlone.push(t4 - t3 - (t5 - t4));
-    t.empty.push(t5 - t4);
-    t.sync.push(t6 - t5);
+    t.uploadDiff.push(t2 - t1 - (t3 - t2));
+    t.upload.push((t6 - t5b) / batch - empty);
+    t.decodeNew.push((t4 - t3) / batch);
+    t.uploadDrawNew.push(t5 - t4);
+    t.uploadNew.push((t7 - t6) / batch - empty);
+    t.empty.push(empty);
+    t.sync.push(t9 - t8);
   }
 
-  // Bytes the render after a decode sends with bufferSubData / bufferData (counted once, untimed).
-  const uploaded = { subData: 0, data: 0, calls: 0 };
+  // Bytes one render after a decode sends with bufferSubData / bufferData (counted once, untimed).
   const sub = gl.bufferSubData, full = gl.bufferData;
-  gl.bufferSubData = function (target, offset, src, srcOffset, length) {
-    uploaded.calls++;
-    if (src && src.BYTES_PER_ELEMENT) uploaded.subData += (length || src.length - (srcOffset ?? 0)) * src.BYTES_PER_ELEMENT;
-    else if (src) uploaded.subData += src.byteLength;
-    return sub.apply(this, arguments);
+  const countUpload = (decodeFn) => {
+    const up = { bytes: 0, calls: 0 };
+    gl.bufferSubData = function (target, offset, src, srcOffset, length) {
+      up.calls++;
+      if (src && src.BYTES_PER_ELEMENT) up.bytes += (length || src.length - (srcOffset ?? 0)) * src.BYTES_PER_ELEMENT;
+      else if (src) up.bytes += src.byteLength;
+      return sub.apply(this, arguments);
+    };
+    gl.bufferData = function (target, src) {
+      up.calls++;
+      if (src && typeof src === 'object') up.bytes += src.byteLength;
+      return full.apply(this, arguments);
+    };
+    try {
+      decodeFn();
+      viewport.render();
+      sync();
+    } finally {
+      gl.bufferSubData = sub;
+      gl.bufferData = full;
+    }
+    return up;
   };
-  gl.bufferData = function (target, src) {
-    uploaded.calls++;
-    if (src && typeof src === 'object') uploaded.data += src.byteLength;
-    return full.apply(this, arguments);
-  };
-  try {
-    decode();
-    viewport.render();
-    sync();
-  } finally {
-    gl.bufferSubData = sub;
-    gl.bufferData = full;
-  }
+  const uploaded = countUpload(decode);
+  const uploadedNew = countUpload(decodeNew);
 
   // JS heap allocated per decode (needs --js-flags=--expose-gc; 200 decodes allocate too little to trigger a GC).
   let allocPerDecode = null;
@@ -273,6 +322,7 @@ async function measureInPage({ id, reps, warmup, batch }) {
     peakHeap,
     allocPerDecode,
     uploaded,
+    uploadedNew,
     layerCapacity: layer.capacity,
     canvas: [gl.drawingBufferWidth, gl.drawingBufferHeight],
     pixelRatio: viewport.renderer.getPixelRatio(),
@@ -384,9 +434,10 @@ async function main() {
         count: m.count, streamBytes: first.bytes, wsBytes: wsUrl ? wsFrames.get(wsUrl) : null, restBytes: m.restBytes,
         firstDecodeMs: first.decodeMs, drawnPoints: m.drawnPoints,
         decode: stat(m.times.decode), uploadDraw: stat(m.times.uploadDraw), draw: stat(m.times.draw),
-        upload: stat(m.times.upload), uploadAlone: stat(m.times.uploadAlone), empty: stat(m.times.empty),
-        sync: stat(m.times.sync),
-        uploadedBytes: m.uploaded.subData + m.uploaded.data, uploadCalls: m.uploaded.calls,
+        uploadDiff: stat(m.times.uploadDiff), upload: stat(m.times.upload),
+        decodeNew: stat(m.times.decodeNew), uploadDrawNew: stat(m.times.uploadDrawNew), uploadNew: stat(m.times.uploadNew),
+        empty: stat(m.times.empty), sync: stat(m.times.sync),
+        uploadedBytes: m.uploaded.bytes, uploadedNewBytes: m.uploadedNew.bytes,
         peakHeap: m.peakHeap, allocPerDecode: m.allocPerDecode, layerCapacity: m.layerCapacity,
         canvas: m.canvas, pixelRatio: m.pixelRatio, renderer: m.renderer, webgl: m.webgl,
       };
@@ -415,12 +466,13 @@ async function main() {
     out.push(`canvas ${r0.canvas[0]}×${r0.canvas[1]} px (pixel ratio ${r0.pixelRatio}); frame 0 of each session, liquid only (the editor's default layers)`);
     out.push(`${opts.reps} repetitions after ${opts.warmup} warm-up; median / p95 ms`);
     out.push('');
-    const rows = [['scene', 'particles', 'bytes/frame', 'B/particle', 'decode ms', 'upload+draw ms', 'draw ms', 'upload ms', 'upload alone ms', 'uploaded MB', 'first decode ms']];
+    const rows = [['scene', 'particles', 'bytes/frame', 'B/particle', 'decode ms', 'upload+draw ms', 'draw ms', 'upload ms', 'uploaded MB',
+      'decode* ms', 'upload* ms', 'uploaded* MB', 'first decode ms']];
     for (const r of results) {
       rows.push([
         `${r.dimension}D r=${r.particleRadius}`, r.count.toLocaleString('en-US'), r.streamBytes.toLocaleString('en-US'),
-        (r.streamBytes / r.count).toFixed(2), pair(r.decode), pair(r.uploadDraw), pair(r.draw), pair(r.upload), pair(r.uploadAlone),
-        mb(r.uploadedBytes), ms(r.firstDecodeMs),
+        (r.streamBytes / r.count).toFixed(2), pair(r.decode), pair(r.uploadDraw), pair(r.draw), pair(r.upload), mb(r.uploadedBytes),
+        pair(r.decodeNew), pair(r.uploadNew), mb(r.uploadedNewBytes), ms(r.firstDecodeMs),
       ]);
     }
     out.push(table(rows));
@@ -428,12 +480,14 @@ async function main() {
     out.push('bytes/frame: the stream\'s Frame message as the decoder received it' +
       (results.every((r) => r.wsBytes === r.streamBytes) ? ' (= the WebSocket message Chromium received' : ' (WebSocket message: ' + results.map((r) => r.wsBytes).join(', ')) +
       (results.every((r) => r.restBytes === r.streamBytes) ? '; = GET .../frames/0?format=binary)' : `; REST binary: ${results.map((r) => r.restBytes).join(', ')})`));
-    out.push(`decode: Envelope → Frame → FrameDecoder.decode into the ParticleLayer's arrays (dequantize, colours); mean of ${DECODE_BATCH} back-to-back decodes per repetition`);
-    out.push('upload+draw: viewport.render() after that decode, then a 1-pixel readPixels (the sync point); draw: the same render again, nothing to upload; ' +
-      'upload: their difference per repetition');
-    out.push('upload alone: the frame\'s range marked again and rendered with an empty draw range, minus the same empty render; ' +
-      'uploaded: bytes bufferSubData/bufferData sent by one render after a decode');
-    out.push(`sync: the 1-pixel readPixels round trip alone, in every render figure: ${results.map((r) => `${r.case} ${ms(r.sync.median)}`).join(', ')} ms (median)`);
+    out.push(`decode: Envelope → Frame → FrameDecoder.decode into the ParticleLayer's arrays, the frame's kinds and phases those of the previous frame ` +
+      `(colours kept: one phase, no temporary particles); mean of ${DECODE_BATCH} back-to-back decodes per repetition`);
+    out.push('upload+draw: viewport.render() after that decode, then a 1-pixel readPixels (the sync point); draw: the same render again, nothing to upload');
+    out.push(`upload: what that decode marked, uploaded by a render with an empty draw range, minus the same empty render (means of ${DECODE_BATCH}); ` +
+      'uploaded: the bytes bufferSubData/bufferData sent by one render after the decode');
+    out.push('*: every colour looked up and uploaded as well (kinds or phases changed from the first particle on, or a new palette: invalidateColors() before each decode)');
+    out.push(`sync: the readPixels round trip alone, in every render figure: ${results.map((r) => `${r.case} ${ms(r.sync.median)}`).join(', ')} ms (median); ` +
+      `(upload+draw) − draw: ${results.map((r) => `${r.case} ${ms(r.uploadDiff.median)}`).join(', ')} ms (median, within the draw's noise)`);
     out.push('first decode: frame 0 as it arrived on the editor\'s stream, buffers grown for it (cold)');
     const peak = Math.max(...results.map((r) => r.peakHeap));
     out.push(Number.isFinite(peak)
