@@ -2,6 +2,8 @@
 // a scene: ?scene=NAME (empty: none), ?session=ID attaches to an existing
 // session, default drop2d (or the first scene listed).
 import './styles.css';
+import * as flatbuffers from 'flatbuffers';
+import { Envelope, Frame } from '@wire';
 import { Editor } from './core/Editor';
 import { Viewport } from './viewport/Viewport';
 import { Toolbar } from './ui/Toolbar';
@@ -42,12 +44,15 @@ timelineDom.append(new Timeline(editor).dom);
 const viewport = new Viewport(viewportDom, editor);
 installKeyboard(editor);
 
-// For debugging from the console and for tests (never used by the editor itself).
+// For debugging from the console, tests and the browser benchmark
+// (scripts/bench-browser.mjs decodes fetched frames with `wire`); never used
+// by the editor itself.
 (window as unknown as { flowclip: unknown }).flowclip = {
   editor,
   viewport,
   commands: { SetInstanceTransformCommand, SetInstanceValueCommand },
   track,
+  wire: { ByteBuffer: flatbuffers.ByteBuffer, Envelope, Frame },
 };
 
 // Sessions this editor created are deleted when the page goes away.
