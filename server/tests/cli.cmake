@@ -62,9 +62,11 @@ fc_cli_expect(cli_bad_scene_missing_file 2 "does_not_exist.json" run ${FC_BAD_SC
 fc_cli_expect(cli_bad_particle_radius_override 2 "fluid_blocks:"
   run ${FC_BAD_SCENES}/../../../scenes/bench/dambreak2d_r010.json --particle-radius 0.0001 --frames 1)
 
-# Every shipped scene loads, binds its template instances and builds its
-# simulation (no step is taken). The templates come from a fixture that
-# records every recipe into the build tree.
+# Every shipped scene loads, binds its template instances and runs 15
+# frames (past every shipped instance's start) without a non-finite value
+# (run exits non-zero on one), at a coarse particle radius (2D 0.01 m, 3D
+# 0.03 m). The templates come from a fixture that records every recipe into
+# the build tree at the same radii.
 set(FC_TEST_TEMPLATES ${CMAKE_BINARY_DIR}/test-templates)
 add_test(NAME cli_record_test_templates
   COMMAND ${CMAKE_COMMAND} -DFLOWCLIP=$<TARGET_FILE:flowclip> -DRECIPES=${FC_CLI_TESTS_DIR}/../../templates/recipes
@@ -75,8 +77,16 @@ foreach(scene IN LISTS FC_SHIPPED_SCENES)
   get_filename_component(stem ${scene} NAME_WE)
   get_filename_component(dir ${scene} DIRECTORY)
   get_filename_component(dir ${dir} NAME)
-  fc_cli_expect(cli_scene_loads_${dir}_${stem} 0 "" run ${scene} --frames 0 --quiet --templates ${FC_TEST_TEMPLATES})
-  set_tests_properties(cli_scene_loads_${dir}_${stem} PROPERTIES FIXTURES_REQUIRED test_templates)
+  file(READ ${scene} scene_text)
+  string(JSON scene_dim GET "${scene_text}" dimension)
+  if(scene_dim EQUAL 3)
+    set(smoke_radius 0.03)
+  else()
+    set(smoke_radius 0.01)
+  endif()
+  fc_cli_expect(cli_scene_runs_${dir}_${stem} 0 "" run ${scene} --frames 15 --particle-radius ${smoke_radius} --quiet
+                --templates ${FC_TEST_TEMPLATES})
+  set_tests_properties(cli_scene_runs_${dir}_${stem} PROPERTIES FIXTURES_REQUIRED test_templates)
 endforeach()
 # A scene naming a template the database lacks: status 2, the path named.
 fc_cli_expect(cli_scene_missing_template 2 "instances[0].template: no template 'drop2d'"

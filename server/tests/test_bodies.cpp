@@ -9,6 +9,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <filesystem>
+#include <type_traits>
 
 namespace fc {
 namespace {
@@ -206,6 +208,40 @@ TEST(Bodies, BadInputNamesTheKey) {
   expectBodyError(with("spin", 3), "bodies[0].spin", "unknown key");
   json twice = json::array({ok, ok});
   expectBodyError(twice, "bodies[1].name", "duplicate body name");
+}
+
+}  // namespace
+}  // namespace fc
+
+namespace fc {
+namespace {
+
+// Every shipped scene assembles exactly what it names: its pressure solver,
+// then its effects in order, a body stage only with bodies (and nothing
+// else: template control is added by the instances' binding, outside).
+TEST(Pipeline, ShippedScenesAssembleOnlyWhatTheyName) {
+  namespace fs = std::filesystem;
+  size_t scenes = 0;
+  for (const auto& dir : {fs::path(FLOWCLIP_SOURCE_DIR) / "scenes", fs::path(FLOWCLIP_SOURCE_DIR) / "scenes" / "bench"})
+    for (const auto& e : fs::directory_iterator(dir)) {
+      if (e.path().extension() != ".json") continue;
+      const json scene = loadSceneJson(e.path().string());
+      std::vector<std::string> expected = {"pressure:" + scene.value("solver", json::object()).value("method", "dfsph")};
+      for (const json& eff : scene.value("effects", json::array()))
+        expected.push_back("effect:" + (eff.is_string() ? eff.get<std::string>() : eff["name"].get<std::string>()));
+      const bool bodies = scene.contains("bodies") && !scene["bodies"].empty();
+      const double coarse = scene["dimension"] == 3 ? 0.03 : 0.01;
+      auto check = [&](auto dim) {
+        constexpr int D = decltype(dim)::value;
+        Simulation<D> sim(parseScene<D>(scene, coarse));
+        EXPECT_EQ(sim.pipelineStages(), expected) << e.path();
+        EXPECT_EQ(sim.bodies() != nullptr, bodies) << e.path();
+      };
+      if (scene["dimension"] == 3) check(std::integral_constant<int, 3>{});
+      else check(std::integral_constant<int, 2>{});
+      ++scenes;
+    }
+  EXPECT_GE(scenes, 15u);
 }
 
 }  // namespace
