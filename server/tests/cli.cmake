@@ -106,6 +106,10 @@ fc_cli_expect(cli_templates_inspect_missing 2 "no template 'nosuch'" templates i
 fc_cli_expect(cli_bench_control 0 "drop2d: control is"
   bench control ${FC_CLI_TESTS_DIR}/../../scenes/drop2d.json --frames 14 --threads 1 --templates ${FC_TEST_TEMPLATES})
 set_tests_properties(cli_bench_control PROPERTIES FIXTURES_REQUIRED test_templates)
+# bench scenes: the paper's Table 1 columns beside its own row.
+fc_cli_expect(cli_bench_scenes 0 "2D Rectangular drop"
+  bench scenes ${FC_CLI_TESTS_DIR}/../../scenes/drop2d.json --frames 14 --threads 1 --templates ${FC_TEST_TEMPLATES})
+set_tests_properties(cli_bench_scenes PROPERTIES FIXTURES_REQUIRED test_templates)
 # run --control-setting is checked as the scene file's "control" object.
 fc_cli_expect(cli_run_bad_control_setting 2 "control.forces_every_substep: '2' given by --control-setting"
   run ${FC_CLI_TESTS_DIR}/../../scenes/drop2d.json --frames 1 --control-setting forces_every_substep=2)
