@@ -359,8 +359,11 @@ void RigidBodies<D>::reportFrame(FrameStats& fs) {
     if constexpr (D == 2) {
       b.rotationDeg[2] = s.angle / kDeg;
     } else {
-      const Eigen::Vector3d e = s.rotation.eulerAngles(0, 1, 2);
-      for (int a = 0; a < 3; ++a) b.rotationDeg[size_t(a)] = e[a] / kDeg;
+      // Euler XYZ of R = Rx(a) Ry(b) Rz(c), b in [-90°, 90°] (the identity is 0, 0, 0).
+      const Eigen::Matrix3d& R = s.rotation;
+      b.rotationDeg[0] = std::atan2(-R(1, 2), R(2, 2)) / kDeg;
+      b.rotationDeg[1] = std::asin(std::clamp(R(0, 2), -1.0, 1.0)) / kDeg;
+      b.rotationDeg[2] = std::atan2(-R(0, 1), R(0, 0)) / kDeg;
     }
     for (int d = 0; d < D; ++d) b.force[size_t(d)] = s.force[d];
     b.wallContacts = s.wallContacts;
