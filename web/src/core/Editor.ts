@@ -220,6 +220,9 @@ export class Editor {
     this.applyState(state);
     this.signals.sessionChanged.dispatch(info);
     void this.loadParameters(state.dimension);
+    // Moving bodies are boundary particles: show them in scenes that have some.
+    const bodies = sceneJson?.['bodies'];
+    if (Array.isArray(bodies) && bodies.length > 0 && !this.layers.boundary) this.setLayers({ boundary: true });
     this.connectStream(info);
     return info;
   }
