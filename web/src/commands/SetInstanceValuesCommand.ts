@@ -21,6 +21,7 @@ export class SetInstanceValuesCommand extends Command {
   override readonly mergeWindowMs: number | null;
   private newValues: InstanceValues;
   private oldValues: InstanceValues;
+  private readonly sid: string;
 
   constructor(
     private readonly editor: Editor,
@@ -30,6 +31,7 @@ export class SetInstanceValuesCommand extends Command {
     options: { name?: string; drag?: string } = {},
   ) {
     super();
+    this.sid = editor.session?.id ?? '';
     const keys = Object.keys(newValues);
     this.name = options.name ?? `Set ${instance}.${keys.join(', ')}`;
     this.mergeKey = options.drag !== undefined ? `values:${instance}:drag:${options.drag}` : `values:${instance}.${[...keys].sort().join(',')}`;
@@ -55,8 +57,8 @@ export class SetInstanceValuesCommand extends Command {
   }
 
   private async apply(values: InstanceValues) {
-    const sid = this.editor.requireSession();
+    const sid = this.editor.sessionFor(this.sid);
     const res = await this.editor.api.patchInstance(sid, this.instance, values);
-    this.editor.instanceUpdated(await this.editor.settleInstanceEdit(sid, this.instance, res));
+    this.editor.instanceUpdated(await this.editor.settleInstanceEdit(sid, this.instance, res), sid);
   }
 }
