@@ -7,7 +7,7 @@
 //  3. a Taylor-Green vortex decays at the analytic rate at the scene's time
 //     step (10x the explicit viscosity limit), and at a small step the
 //     implicit solve agrees with the explicit viscosity_standard;
-//  4. honey-like liquids (nu = 1e-3 and 0.1 m^2/s) in a 2D dam break stay
+//  4. honey-like liquids (nu = 2e-3 and 0.1 m^2/s) in a 2D dam break stay
 //     finite, bounded and inside the tank at the pressure solver's time step,
 //     and spread much slower than water;
 //  5. the effect's parameters are validated by the scene parser.
@@ -207,16 +207,19 @@ TEST(ViscosityWeiler2018, ConservesMomentumAndDissipates3D) {
 // unidirectional with uniform pressure, so the velocity obeys
 // u_t = -g + ν u_xx with u(0) = u(W) = 0: it reaches, within a few
 // W²/(π²ν) ≈ 0.016 s, the steady profile u(x) = -(g / 2ν) x (W - x), and
-// the walls then carry the column's whole weight. Liquid: ν = 0.01 m²/s,
-// boundary_viscosity = ν (no slip). Δt at the velocity CFL is ~50x the
-// explicit limit 0.4 r²/ν.
+// the walls then carry the column's weight. Liquid: ν = 0.01 m²/s. Δt at
+// the velocity CFL is up to 125x the explicit limit 0.4 r²/ν.
 //
-// Measured at t = 0.25 s over the middle half of the column, per particle
+// Measured at t = 0.2 s (12 W²/(π²ν_eff)) over the middle half of the column, per particle
 // column: a least-squares parabola u = a x² + b x + c. Its curvature gives
 // the effective viscosity ν_eff = g / (2a), its roots the effective no-slip
 // planes. Expected from the operator (README): ν_eff ≈ 0.65-0.75 ν, the
 // shear response of the 2(d+2) Laplacian at two particle spacings per
 // support radius (0.65 on the resting lattice, 0.73 with rows sliding).
+// The boundary samples carry v_b = 0 where a mirrored ghost would carry -u,
+// which halves their drag: boundary_viscosity = 2ν puts the no-slip plane on
+// the wall surface (measured 0.01 r inside), boundary_viscosity = ν 1.24 r
+// behind it.
 
 struct ChannelRun {
   double nuEff = 0;           // g / (2a) of the fitted parabola
@@ -233,9 +236,9 @@ struct ChannelRun {
   double maxDt = 0, wallSeconds = 0;
 };
 
-ChannelRun fallingChannel(double nu, double until) {
+ChannelRun fallingChannel(double nu, double until, double boundaryViscosity) {
   const double W = 0.04, r = 0.001;
-  json s = scene2D(r, {W, 0.3}, {0, 0.12}, {W, 0.28}, nu, kG, weiler(nu));
+  json s = scene2D(r, {W, 0.3}, {0, 0.12}, {W, 0.28}, nu, kG, weiler(boundaryViscosity));
   Simulation<2> sim(parseScene<2>(s));
   ChannelRun run;
   run.particles = sim.fluid.size();
@@ -338,13 +341,13 @@ void printChannel(double nu, const ChannelRun& c) {
 }
 
 TEST(ViscosityWeiler2018, PoiseuilleProfileBetweenNoSlipWalls) {
-  const double nu = 0.01, W = 0.04;
-  const ChannelRun c = fallingChannel(nu, 0.25);
+  const double nu = 0.01, W = 0.04, r = 0.001;
+  const ChannelRun c = fallingChannel(nu, 0.2, 2 * nu);
   printChannel(nu, c);
   ASSERT_TRUE(c.finite);
   EXPECT_EQ(c.escaped, 0u);
   EXPECT_TRUE(c.converged) << "a viscosity solve hit max_iterations";
-  EXPECT_GT(c.maxDt, 20 * 0.4 * 1e-6 / nu) << "the run must use time steps far beyond the explicit limit";
+  EXPECT_GT(c.maxDt, 20 * 0.4 * r * r / nu) << "the run must use time steps far beyond the explicit limit";
   // Steady in the middle: its mean velocity changes by less than 5 % of g
   // per second (the column's ends are not steady: its lower surface is
   // Rayleigh-Taylor unstable and sheds drops that fall freely).
@@ -353,30 +356,32 @@ TEST(ViscosityWeiler2018, PoiseuilleProfileBetweenNoSlipWalls) {
   // report (viscous friction + pressure) is everything besides gravity.
   EXPECT_NEAR(c.wallForceOverWeight, 1.0 + c.dPdtOverWeight, 0.01) << "momentum balance does not close";
   EXPECT_GT(c.wallForceOverWeight, 0.8) << "the walls must carry most of the weight";
-  // The profile is a parabola, symmetric, with its no-slip planes just
-  // behind the walls (the first boundary row lies at -r)...
+  // The profile is a parabola, symmetric, vanishing at the walls...
   EXPECT_LT(c.fitRmsRel, 0.02) << "the profile is not parabolic";
-  EXPECT_NEAR(c.wall0 + c.wall1, W, 0.0002) << "the profile is not symmetric";
-  EXPECT_GT(c.wall0, -0.002) << "left no-slip plane more than 2r behind the wall";
-  EXPECT_LT(c.wall0, 0.0) << "left no-slip plane inside the liquid";
-  EXPECT_LT(c.wall1, W + 0.002) << "right no-slip plane more than 2r behind the wall";
+  EXPECT_NEAR(c.wall0 + c.wall1, W, 0.2 * r) << "the profile is not symmetric";
+  EXPECT_NEAR(c.wall0, 0.0, 0.25 * r) << "left no-slip plane";
+  EXPECT_NEAR(c.wall1, W, 0.25 * r) << "right no-slip plane";
   // ...whose curvature is g/ν_eff with ν_eff the operator's shear response.
-  EXPECT_GT(c.nuEff / nu, 0.6);
-  EXPECT_LT(c.nuEff / nu, 0.85);
-}
+  EXPECT_GT(c.nuEff / nu, 0.62);
+  EXPECT_LT(c.nuEff / nu, 0.82);
 
-// Twice the viscosity: half the velocity (same profile shape).
-TEST(ViscosityWeiler2018, PoiseuilleVelocityScalesInverselyWithViscosity) {
-  const ChannelRun a = fallingChannel(0.01, 0.2);
-  const ChannelRun b = fallingChannel(0.02, 0.2);
-  printChannel(0.01, a);
-  printChannel(0.02, b);
-  ASSERT_TRUE(a.finite && b.finite);
-  const double ratio = a.peak / b.peak;
-  std::printf("[ measured ] peak velocity nu=0.01 / nu=0.02: %.4f (analytic 2); nu_eff/nu %.4f and %.4f\n", ratio,
-              a.nuEff / 0.01, b.nuEff / 0.02);
+  // boundary_viscosity = ν: the same parabola, its no-slip planes behind
+  // the walls (measured 1.24 r).
+  const ChannelRun half = fallingChannel(nu, 0.2, nu);
+  printChannel(nu, half);
+  EXPECT_LT(half.fitRmsRel, 0.02);
+  EXPECT_LT(half.wall0, -0.5 * r);
+  EXPECT_GT(half.wall0, -2 * r);
+  EXPECT_NEAR(half.nuEff / nu, c.nuEff / nu, 0.05) << "the wall coefficient must not change the bulk";
+
+  // Twice the viscosity (and wall coefficient): half the velocity, the same
+  // ν_eff / ν.
+  const ChannelRun twice = fallingChannel(2 * nu, 0.2, 4 * nu);
+  printChannel(2 * nu, twice);
+  const double ratio = c.peak / twice.peak;
+  std::printf("[ measured ] peak velocity nu=%g / nu=%g: %.4f (analytic 2)\n", nu, 2 * nu, ratio);
   EXPECT_NEAR(ratio, 2.0, 0.1);
-  EXPECT_NEAR(a.nuEff / 0.01, b.nuEff / 0.02, 0.05) << "the operator's shear response must not depend on nu";
+  EXPECT_NEAR(twice.nuEff / (2 * nu), c.nuEff / nu, 0.05) << "the operator's shear response must not depend on nu";
 }
 
 // ---------------------------------------------------------------------------
@@ -390,7 +395,10 @@ TEST(ViscosityWeiler2018, PoiseuilleVelocityScalesInverselyWithViscosity) {
 constexpr double kTgL = 0.5, kTgR = 0.005, kTgU = 0.1;
 
 struct DecayRun {
-  double rate = 0, earlyRate = 0, expected = 0, keMax = 0, ke0 = 0;
+  double rate = 0;       // fitted KE decay rate over [0.05 s, until]
+  double midRate = 0;    // the same over [0.05, 0.2] s
+  double earlyRate = 0;  // the same over the frames up to 0.1 s
+  double expected = 0, keMax = 0, ke0 = 0;
   int substeps = 0, iterations = 0;
   double maxDt = 0;
   bool finite = true, converged = true;
@@ -416,8 +424,8 @@ DecayRun taylorGreen(double nu, const json& settings, double until, const json& 
   DecayRun run;
   run.expected = 4 * nu * k * k;
   run.ke0 = run.keMax = kineticEnergy(sim);
-  double st = 0, sl = 0, stt = 0, stl = 0, et = 0, el = 0, ett = 0, etl = 0;
-  int n = 0, ne = 0;
+  double st = 0, sl = 0, stt = 0, stl = 0, et = 0, el = 0, ett = 0, etl = 0, mt = 0, ml = 0, mtt = 0, mtl = 0;
+  int n = 0, ne = 0, nm = 0;
   while (sim.time() < until - 1e-9) {
     const FrameStats fs = sim.advanceFrame();
     run.substeps += fs.substeps;
@@ -434,10 +442,12 @@ DecayRun taylorGreen(double nu, const json& settings, double until, const json& 
                   fs.substeps, fs.maxDt, fs.viscosityIterations);
     if (t >= 0.05 - 1e-9) st += t, sl += l, stt += t * t, stl += t * l, ++n;
     if (t <= 0.1 + 1e-9) et += t, el += l, ett += t * t, etl += t * l, ++ne;
+    if (t >= 0.05 - 1e-9 && t <= 0.2 + 1e-9) mt += t, ml += l, mtt += t * t, mtl += t * l, ++nm;
     run.keMax = std::max(run.keMax, fs.kineticEnergy);
     if (fs.kineticEnergy > 2 * run.ke0) break;
   }
   run.rate = n > 1 ? -(n * stl - st * sl) / (n * stt - st * st) : 0;
+  run.midRate = nm > 1 ? -(nm * mtl - mt * ml) / (nm * mtt - mt * mt) : 0;
   run.earlyRate = ne > 1 ? -(ne * etl - et * el) / (ne * ett - et * et) : 0;
   return run;
 }
@@ -448,19 +458,20 @@ TEST(ViscosityWeiler2018, TaylorGreenDecayAtSceneTimeStepAndUnderRefinement) {
   const auto t0 = std::chrono::steady_clock::now();
   const DecayRun big = taylorGreen(nu, json(), 0.35, weiler(0));  // default settings: dt = dt_max = 5 ms
   const double bigSeconds = secondsSince(t0);
-  const DecayRun fine = taylorGreen(nu, fineSteps, 0.35, weiler(0));
-  const DecayRun expl = taylorGreen(nu, fineSteps, 0.35, json::array({"viscosity_standard"}));
+  // The small-step runs stop at 0.2 s (they take 10x the substeps).
+  const DecayRun fine = taylorGreen(nu, fineSteps, 0.2, weiler(0));
+  const DecayRun expl = taylorGreen(nu, fineSteps, 0.2, json::array({"viscosity_standard"}));
   for (const auto& [name, r] : {std::pair{"viscosity_weiler2018", &big}, std::pair{"viscosity_weiler2018", &fine},
                                 std::pair{"viscosity_standard", &expl}})
-    std::printf("[ measured ] Taylor-Green nu=%g, %s, dt max %.1e s (%.1fx the explicit limit): KE decay rate %.4f "
-                "1/s over 0.05-0.35 s (ratio to analytic %.4f), %.4f up to 0.1 s (ratio %.4f); analytic %.4f; KE "
-                "max/KE0 %.4f; %d substeps, %.2f CG iterations per substep\n",
-                nu, name, r->maxDt, r->maxDt / (0.4 * kTgR * kTgR / nu), r->rate, r->rate / r->expected,
-                r->earlyRate, r->earlyRate / r->expected, r->expected, r->keMax / r->ke0, r->substeps,
+    std::printf("[ measured ] Taylor-Green nu=%g, %s, dt max %.1e s (%.1fx the explicit limit): KE decay rate / "
+                "analytic %.4f up to 0.1 s, %.4f over 0.05-0.2 s, %.4f over 0.05-0.35 s (analytic 4 nu k^2 = %.4f "
+                "1/s); KE max/KE0 %.4f; %d substeps, %.2f CG iterations per substep\n",
+                nu, name, r->maxDt, r->maxDt / (0.4 * kTgR * kTgR / nu), r->earlyRate / r->expected,
+                r->midRate / r->expected, r->rate / r->expected, r->expected, r->keMax / r->ke0, r->substeps,
                 double(r->iterations) / std::max(1, r->substeps));
-  std::printf("[ measured ] decay rate at dt 5 ms / 0.5 ms: %.4f (first 0.1 s: %.4f); implicit / explicit at 0.5 ms: "
-              "%.4f (first 0.1 s: %.4f); the 5 ms run took %.2f s wall\n",
-              big.rate / fine.rate, big.earlyRate / fine.earlyRate, fine.rate / expl.rate,
+  std::printf("[ measured ] decay rate at dt 5 ms / 0.5 ms: %.4f over 0.05-0.2 s (first 0.1 s: %.4f); implicit / "
+              "explicit at 0.5 ms: %.4f (first 0.1 s: %.4f); the 5 ms run took %.2f s wall\n",
+              big.midRate / fine.midRate, big.earlyRate / fine.earlyRate, fine.midRate / expl.midRate,
               fine.earlyRate / expl.earlyRate, bigSeconds);
   ASSERT_TRUE(big.finite && fine.finite && expl.finite);
   EXPECT_TRUE(big.converged && fine.converged);
@@ -471,26 +482,34 @@ TEST(ViscosityWeiler2018, TaylorGreenDecayAtSceneTimeStepAndUnderRefinement) {
   EXPECT_NEAR(big.earlyRate / big.expected, 1.0, 0.15);
   EXPECT_NEAR(big.rate / big.expected, 1.0, 0.3);
   // Temporal refinement: at a small step the implicit solve is the explicit
-  // operator (same spatial discretisation; measured 0.97-0.98x)...
-  EXPECT_NEAR(fine.rate / expl.rate, 1.0, 0.05) << "implicit and explicit must agree at a small step";
+  // operator (same spatial discretisation; measured 0.98x)...
+  EXPECT_NEAR(fine.midRate / expl.midRate, 1.0, 0.05) << "implicit and explicit must agree at a small step";
   EXPECT_NEAR(fine.earlyRate / expl.earlyRate, 1.0, 0.05) << "implicit and explicit must agree at a small step";
   // ...and 10x the step lowers the rate by a first-order amount (measured
-  // 0.90x: implicit Euler damps the stiff part of the discrete spectrum, the
+  // 0.92x: implicit Euler damps the stiff part of the discrete spectrum, the
   // modes with λΔt ≳ 1, at ln(1 + λΔt)/Δt < λ).
-  EXPECT_GT(big.rate / fine.rate, 0.85);
-  EXPECT_LT(big.rate / fine.rate, 1.0);
+  EXPECT_GT(big.midRate / fine.midRate, 0.85);
+  EXPECT_LT(big.midRate / fine.midRate, 1.0);
 }
 
 // ---------------------------------------------------------------------------
 // 4. Honey dam break (2D): a column a = 0.1 m wide, 2a high (r = 2.5 mm,
 // 3 200 particles) against the left wall of a 1 m tank, no-slip walls
-// (boundary_viscosity = ν), default time-step settings (CFL, dt_max 5 ms):
+// (boundary_viscosity = 2ν), default time-step settings (CFL, dt_max 5 ms):
 // no viscous limit. Water (no viscosity effect) for comparison. Over 0.4 s
 // (the water front does not reach the far wall): all finite, nothing
 // escapes; the viscous liquids never move faster than √(2 g H) (free fall
 // from the column's top) nor rise above their initial height, and their
 // fronts advance much less than the water front. (Water's front may exceed
-// √(2 g H): Ritter's inviscid front runs at 2√(g H).)
+// √(2 g H): Ritter's inviscid front runs at 2√(g H). At ν = 1e-3 the front
+// reaches 1.91 m/s, 3.5 % below the bound: a real front speed, the same at
+// dt_max 2 ms, too close to the bound to assert, hence 2e-3 here.)
+// Measured: the thick liquid's largest speeds (up to ~1 m/s, against a
+// ~0.3 m/s slump) are single particles of the bottom row squeezed sideways:
+// DFSPH's density solve at Δt ≥ 3 ms in a 0.2 m deep quasi-static column
+// (80 rows) does not hold the bottom row; water at rest in the same column
+// reaches 2.6 m/s that way, and at dt_max 2 ms both stay calm (0.07 m/s
+// for the thick liquid, 0.4 m/s for water).
 
 struct DamRun {
   double front = 0;        // 99.5th percentile of x + r at the end, m
@@ -505,7 +524,7 @@ struct DamRun {
 
 DamRun damBreak(double nu, double until) {
   const double a = 0.1, r = 0.0025;
-  json effects = nu > 0 ? weiler(nu) : json();
+  json effects = nu > 0 ? weiler(2 * nu) : json();  // no slip (see section 2)
   Simulation<2> sim(parseScene<2>(scene2D(r, {1.0, 0.3}, {0, 0}, {a, 2 * a}, nu, kG, effects)));
   DamRun run;
   const auto t0 = std::chrono::steady_clock::now();
@@ -537,9 +556,9 @@ TEST(ViscosityWeiler2018, HoneyDamBreakStableAtPressureTimeStepAndSlow) {
   const double a = 0.1, r = 0.0025, T = 0.4;
   const double vBound = std::sqrt(2 * kG * 2 * a);
   const DamRun water = damBreak(0, T);
-  const DamRun honey = damBreak(1e-3, T);   // 1000x water
+  const DamRun honey = damBreak(2e-3, T);   // 2000x water, a runny honey
   const DamRun thick = damBreak(0.1, T);    // 1e5x water
-  for (const auto& [name, nu, d] : {std::tuple{"water", 1e-6, &water}, std::tuple{"honey", 1e-3, &honey},
+  for (const auto& [name, nu, d] : {std::tuple{"water", 1e-6, &water}, std::tuple{"honey", 2e-3, &honey},
                                     std::tuple{"thick", 0.1, &thick}})
     std::printf("[ measured ] dam break %s (nu=%g): front at t=%.1f s %.4f m (%.2f a), highest point %.4f m, max "
                 "speed %.3f m/s (bound sqrt(2gH) = %.3f), dt max %.2e s (%.1fx the explicit limit 0.4 r^2/nu), %d "
@@ -557,7 +576,7 @@ TEST(ViscosityWeiler2018, HoneyDamBreakStableAtPressureTimeStepAndSlow) {
   }
   EXPECT_TRUE(honey.converged && thick.converged);
   // The thick liquid runs at the pressure solver's step, far beyond the
-  // explicit limit (the 1000x-water one is only at ~1x: r²/ν = 6 ms).
+  // explicit limit (the honey at ~4x: 0.4 r²/ν = 1.25 ms).
   EXPECT_GT(thick.maxDt, 20 * 0.4 * r * r / 0.1);
   EXPECT_GT(water.front, 3 * a) << "water must surge";
   EXPECT_LT(honey.front - a, 0.8 * (water.front - a)) << "honey must spread slower than water";
