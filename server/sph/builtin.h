@@ -14,6 +14,9 @@ template <int D> std::unique_ptr<PressureSolver<D>> makeWCSPH(const ParamValues&
 const ParamSpecs& viscosityStandardParams();
 template <int D> std::unique_ptr<Effect<D>> makeViscosityStandard(const ParamValues&);
 
+const ParamSpecs& viscosityWeiler2018Params();
+template <int D> std::unique_ptr<Effect<D>> makeViscosityWeiler2018(const ParamValues&);
+
 const ParamSpecs& viscosityXSPHParams();
 template <int D> std::unique_ptr<Effect<D>> makeViscosityXSPH(const ParamValues&);
 

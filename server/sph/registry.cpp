@@ -12,6 +12,8 @@ void registerDim() {
   auto& effects = EffectRegistry<D>::instance();
   effects.add("viscosity_standard",
               {"Standard SPH viscosity (Monaghan-type Laplacian)", viscosityStandardParams(), makeViscosityStandard<D>});
+  effects.add("viscosity_weiler2018", {"Implicit viscosity (Weiler, Koschier, Brand & Bender 2018)",
+                                       viscosityWeiler2018Params(), makeViscosityWeiler2018<D>});
   effects.add("viscosity_xsph", {"XSPH velocity smoothing", viscosityXSPHParams(), makeViscosityXSPH<D>});
 }
 }  // namespace

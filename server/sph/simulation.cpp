@@ -71,10 +71,7 @@ Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
     ParamValues ev(ee->params);
     for (const auto& [k, v] : e.values.all()) ev.set(k, v);
     effects_.push_back(ee->make(ev));
-    Effect<D>* eff = effects_.back().get();
-    if (eff->stages() & AddAccelerations) accelerationStages_.push_back(eff);
-    if (eff->stages() & CorrectVelocities) velocityStages_.push_back(eff);
-    if (eff->stages() & FrameBoundary) frameStages_.push_back(eff);
+    addStages(effects_.back().get());
     stageNames_.push_back("effect:" + e.name);
   }
 
@@ -100,12 +97,18 @@ template <int D>
 void Simulation<D>::addEffect(std::unique_ptr<Effect<D>> effect, const std::string& name) {
   Effect<D>* eff = effect.get();
   effects_.push_back(std::move(effect));
-  if (eff->stages() & AddAccelerations) accelerationStages_.push_back(eff);
-  if (eff->stages() & CorrectVelocities) velocityStages_.push_back(eff);
-  if (eff->stages() & FrameBoundary) frameStages_.push_back(eff);
+  addStages(eff);
   stageNames_.push_back(name);
   eff->resize(fluid.size());
   eff->init(*this);
+}
+
+template <int D>
+void Simulation<D>::addStages(Effect<D>* eff) {
+  if (eff->stages() & AddAccelerations) accelerationStages_.push_back(eff);
+  if (eff->stages() & ImplicitVelocities) implicitStages_.push_back(eff);
+  if (eff->stages() & CorrectVelocities) velocityStages_.push_back(eff);
+  if (eff->stages() & FrameBoundary) frameStages_.push_back(eff);
 }
 
 template <int D>
@@ -402,6 +405,18 @@ FrameStats Simulation<D>::advanceFrame() {
 
 #pragma omp parallel for schedule(static)
     for (long i = 0; i < n; ++i) fluid.v[i] += dt * fluid.a[i];
+
+    // Implicit solves on v* (implicit viscosity), before the pressure solve.
+    if (!implicitStages_.empty()) {
+      for (Effect<D>* e : implicitStages_) {
+        const SolverReport rep = e->solveVelocities(*this, dt);
+        fs.viscosityIterations += rep.iterations;
+        fs.viscosityConverged = fs.viscosityConverged && rep.converged;
+        fs.converged = fs.converged && rep.converged;
+        for (int d = 0; d < 3; ++d) fs.boundaryImpulse[d] += rep.boundaryImpulse[d];
+      }
+      fs.nonPressureMs += took();
+    }
 
     const SolverReport dens = pressure_->correctDensity(*this, dt);
     fs.pressureMs += took();

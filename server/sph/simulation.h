@@ -45,6 +45,8 @@ struct FrameStats {
   double avgDensityErrorPct = 0; // worst substep's average error at solver exit
   double maxDensityErrorPct = 0; // worst particle error at solver exit
   bool converged = true;         // every solve reached its tolerance
+  int viscosityIterations = 0;   // implicit viscosity (ImplicitVelocities stages) solver iterations, summed over substeps
+  bool viscosityConverged = true; // every implicit viscosity solve reached its tolerance (also in `converged`)
   size_t particles = 0;          // liquid particles (all kinds)
   size_t boundaryParticles = 0;
   size_t escapedParticles = 0;   // particles outside the tank or inside a solid at frame end (0 unless broken)
@@ -153,6 +155,7 @@ class Simulation {
   Real cflTimeStep() const;
   void reorderParticles();
   void enforceSolidContact(FrameStats& fs);
+  void addStages(Effect<D>* eff);
 
   SimulationSetup<D> setup_;
   Real radius_;
@@ -161,7 +164,7 @@ class Simulation {
   std::unique_ptr<PressureSolver<D>> pressure_;
   std::vector<std::unique_ptr<Effect<D>>> effects_;
   std::unique_ptr<RigidBodies<D>> bodies_;
-  std::vector<Effect<D>*> accelerationStages_, velocityStages_, frameStages_;
+  std::vector<Effect<D>*> accelerationStages_, implicitStages_, velocityStages_, frameStages_;
   bool neighborsFresh_ = false;
   uint32_t nextId_ = 0;
   std::vector<std::string> stageNames_;
