@@ -366,6 +366,30 @@ json rotationToJson(const std::array<double, D == 2 ? 1 : 3>& r) {
   else return json::array({r[0], r[1], r[2]});
 }
 
+// Fails at `where` if the body, placed at `pose`, reaches outside the domain.
+template <int D>
+void checkBodyInDomain(const Body<D>& b, const BodyKey<D>& pose, const AABB<D>& domain, const std::string& where) {
+  constexpr double deg = 3.14159265358979323846 / 180;
+  Eigen::Matrix<double, D, D> R;
+  if constexpr (D == 2) R = Eigen::Rotation2Dd(pose.rotationDeg[0] * deg).toRotationMatrix();
+  else
+    R = (Eigen::AngleAxisd(pose.rotationDeg[0] * deg, Eigen::Vector3d::UnitX()) *
+         Eigen::AngleAxisd(pose.rotationDeg[1] * deg, Eigen::Vector3d::UnitY()) *
+         Eigen::AngleAxisd(pose.rotationDeg[2] * deg, Eigen::Vector3d::UnitZ()))
+            .toRotationMatrix();
+  for (int d = 0; d < D; ++d) {
+    double e = double(b.radius);
+    if (b.shape == ObstacleShape::Box) {
+      e = 0;
+      for (int c = 0; c < D; ++c) e += std::abs(R(d, c)) * double(b.halfSize[c]);
+    }
+    const double lo = double(pose.position[d]) - e, hi = double(pose.position[d]) + e;
+    if (lo < double(domain.min[d]) - kContainTolerance || hi > double(domain.max[d]) + kContainTolerance)
+      fail(where, "the body reaches " + fmt(Real(lo)) + ".." + fmt(Real(hi)) + " m along " + axisName(d) +
+                      ", outside the domain " + fmt(domain.min[d]) + ".." + fmt(domain.max[d]) + " m");
+  }
+}
+
 // Moving solids: "bodies": [{name, type: box|sphere|disk, size | radius,
 // position, rotation, motion: kinematic|dynamic, ...}].
 template <int D>
@@ -405,6 +429,7 @@ std::vector<Body<D>> parseBodies(const json* j, const AABB<D>& domain) {
     // Keyed bodies start at their first key.
     if (!member(o, "keys")) b.position = getVec<D>(required(o, p, "position", "the body centre, m"), key(p, "position"));
     else if (member(o, "position")) fail(key(p, "position"), "a keyed body starts at its first key; give no position");
+    if (member(o, "keys") && member(o, "rotation")) fail(key(p, "rotation"), "a keyed body starts at its first key; give no rotation");
     if (const json* m = member(o, "rotation")) b.rotationDeg = parseRotationDeg<D>(*m, key(p, "rotation"));
     const std::string motion = getString(required(o, p, "motion", "\"kinematic\" or \"dynamic\""), key(p, "motion"));
     if (motion == "kinematic") {
@@ -452,28 +477,17 @@ std::vector<Body<D>> parseBodies(const json* j, const AABB<D>& domain) {
       fail(key(p, "motion"), "unknown motion '" + motion + "'; expected kinematic or dynamic");
     }
     if (const json* m = member(o, "carve_fluid")) b.carveFluid = getBool(*m, key(p, "carve_fluid"));
-    // The body must start inside the tank.
-    const Real reach = b.shape == ObstacleShape::Sphere ? b.radius : Real(0);
-    for (int d = 0; d < D; ++d) {
-      Real lo = b.position[d] - reach, hi = b.position[d] + reach;
-      if (b.shape == ObstacleShape::Box) {
-        // The rotated box's extent along axis d.
-        Eigen::Matrix<double, D, D> R;
-        if constexpr (D == 2) R = Eigen::Rotation2Dd(b.rotationDeg[0] * 3.14159265358979323846 / 180).toRotationMatrix();
-        else
-          R = (Eigen::AngleAxisd(b.rotationDeg[0] * 3.14159265358979323846 / 180, Eigen::Vector3d::UnitX()) *
-               Eigen::AngleAxisd(b.rotationDeg[1] * 3.14159265358979323846 / 180, Eigen::Vector3d::UnitY()) *
-               Eigen::AngleAxisd(b.rotationDeg[2] * 3.14159265358979323846 / 180, Eigen::Vector3d::UnitZ()))
-                  .toRotationMatrix();
-        double e = 0;
-        for (int c = 0; c < D; ++c) e += std::abs(R(d, c)) * double(b.halfSize[c]);
-        lo = b.position[d] - Real(e);
-        hi = b.position[d] + Real(e);
-      }
-      if (lo < domain.min[d] - kContainTolerance || hi > domain.max[d] + kContainTolerance)
-        fail(key(p, "position"), "the body reaches " + fmt(lo) + ".." + fmt(hi) + " m along " + axisName(d) +
-                                     ", outside the domain " + fmt(domain.min[d]) + ".." + fmt(domain.max[d]) + " m");
+    // The body stays inside the tank: at its start and at every key.
+    std::vector<std::pair<std::string, BodyKey<D>>> poses;
+    if (b.keys.empty()) {
+      BodyKey<D> k;
+      k.position = b.position;
+      k.rotationDeg = b.rotationDeg;
+      poses.push_back({key(p, "position"), k});
+    } else {
+      for (size_t k = 0; k < b.keys.size(); ++k) poses.push_back({key(at(key(p, "keys"), k), "position"), b.keys[k]});
     }
+    for (const auto& [where, pose] : poses) checkBodyInDomain<D>(b, pose, domain, where);
     bodies.push_back(b);
   }
   return bodies;

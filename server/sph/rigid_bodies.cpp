@@ -1,6 +1,7 @@
 #include "sph/rigid_bodies.h"
 #include "sph/sampling.h"
 #include "sph/simulation.h"
+#include "core/neighborhood_search.h"
 #include <omp.h>
 #include <algorithm>
 #include <cmath>
@@ -94,13 +95,22 @@ RigidBodies<D>::RigidBodies(const std::vector<Body<D>>& bodies, Real radius, int
       s.orientation = eulerXYZ(b.rotationDeg);
     }
     dynamic_ = dynamic_ || b.motion == BodyMotion::Dynamic;
+    if (b.motion == BodyMotion::Dynamic) s.velocity = b.velocity.template cast<double>();
     // Volumes from the body's own samples (its shape does not change).
     std::vector<Real> volume(s.count);
+    {
+      AABB<D> box;
+      for (const Vec<D>& q : s.local) box.extend(q);
+      NeighborhoodSearch<D> grid;
+      grid.setGrid(box.grown(kernel.radius()), kernel.radius());
+      grid.setStaticPoints(s.local);
 #pragma omp parallel for schedule(static)
-    for (size_t i = 0; i < s.count; ++i) {
-      Real sum = 0;
-      for (const Vec<D>& q : s.local) sum += kernel.W(Vec<D>(s.local[i] - q));
-      volume[i] = sum > 0 ? std::min(latticeVolume, Real(1) / sum) : latticeVolume;
+      for (size_t i = 0; i < s.count; ++i) {
+        Real sum = 0;
+        grid.forEachStaticNear(s.local[i], kernel.radius(),
+                               [&](uint32_t, const Vec<D>& q) { sum += kernel.W(Vec<D>(s.local[i] - q)); });
+        volume[i] = sum > 0 ? std::min(latticeVolume, Real(1) / sum) : latticeVolume;
+      }
     }
     for (size_t i = 0; i < s.count; ++i) {
       boundary.x.push_back(Vec<D>::Zero());
@@ -119,6 +129,7 @@ template <int D>
 void RigidBodies<D>::poseAt(State& s, double time) const {
   const Body<D>& b = s.spec;
   if (b.motion == BodyMotion::Dynamic) return;
+  time += timeOffset_;
   if (!b.keys.empty()) {
     double t = time;
     if (b.period > 0) t = std::fmod(time, b.period);
@@ -126,7 +137,7 @@ void RigidBodies<D>::poseAt(State& s, double time) const {
     size_t i = 0;
     while (i + 1 < keys.size() && keys[i + 1].time <= t) ++i;
     const BodyKey<D>& k0 = keys[i];
-    const bool hold = i + 1 >= keys.size() || t <= keys.front().time;
+    const bool hold = i + 1 >= keys.size() || t < keys.front().time;
     const BodyKey<D>& k1 = hold ? k0 : keys[i + 1];
     const double span = k1.time - k0.time;
     const double u = hold || span <= 0 ? 0.0 : std::clamp((t - k0.time) / span, 0.0, 1.0);
@@ -257,17 +268,24 @@ void RigidBodies<D>::integrate(const Simulation<D>& sim, Real dt, const AABB<D>&
     for (int d = 0; d < D; ++d)
       for (int side = 0; side < 2; ++side) {
         double deepest = 0;
-        VecD at = VecD::Zero();
         const double wall = side == 0 ? double(domain.min[d] + radius) : double(domain.max[d] - radius);
-        for (const Vec<D>& p : s.local) {
+        auto penetration = [&](const Vec<D>& p) {
           const VecD x = s.centre + s.rotation * p.template cast<double>();
-          const double pen = side == 0 ? wall - x[d] : x[d] - wall;
-          if (pen > deepest) {
-            deepest = pen;
-            at = x;
-          }
-        }
+          return side == 0 ? wall - x[d] : x[d] - wall;
+        };
+        for (const Vec<D>& p : s.local) deepest = std::max(deepest, penetration(p));
         if (deepest <= 0) continue;
+        // The contact point: the centroid of the samples within a tenth of a
+        // radius of the deepest (a face resting flat is hit at its middle,
+        // not at one corner, which would spin it).
+        VecD at = VecD::Zero();
+        int hits = 0;
+        for (const Vec<D>& p : s.local)
+          if (penetration(p) >= deepest - 0.1 * double(radius)) {
+            at += s.centre + s.rotation * p.template cast<double>();
+            ++hits;
+          }
+        at /= double(hits);
         touched = true;
         VecD nrm = VecD::Zero();
         nrm[d] = side == 0 ? 1.0 : -1.0;
@@ -330,6 +348,33 @@ void RigidBodies<D>::contact(Vec<D>& x, Vec<D>& v, Real mass, Real distance, boo
       }
     }
   }
+}
+
+template <int D>
+void RigidBodies<D>::continueFrom(const RigidBodies& old, double timeOffset) {
+  timeOffset_ = timeOffset;
+  for (State& s : bodies_) {
+    if (s.spec.motion != BodyMotion::Dynamic) continue;
+    for (const State& o : old.bodies_)
+      if (o.spec.name == s.spec.name && o.spec.motion == BodyMotion::Dynamic) {
+        s.centre = o.centre;
+        s.velocity = o.velocity;
+        s.angle = o.angle;
+        s.orientation = o.orientation;
+        s.rotation = o.rotation;
+        s.angularVelocity = o.angularVelocity;
+        s.contactImpulse = o.contactImpulse;
+        s.contactAngularImpulse = o.contactAngularImpulse;
+      }
+  }
+}
+
+template <int D>
+bool RigidBodies<D>::finite() const {
+  for (const State& s : bodies_)
+    if (!s.centre.allFinite() || !s.velocity.allFinite() || !s.angularVelocity.allFinite() || !s.rotation.allFinite())
+      return false;
+  return true;
 }
 
 template <int D>

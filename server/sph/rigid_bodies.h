@@ -75,6 +75,12 @@ class RigidBodies {
   // Largest speed of a body's material point (for the time step).
   double maxPointSpeed() const;
 
+  // A rebuilt simulation (a settings edit) continues: kinematic motion at
+  // `timeOffset` + its own clock, dynamic bodies in `old`'s state (by name).
+  void continueFrom(const RigidBodies& old, double timeOffset);
+  // Every body's state is finite.
+  bool finite() const;
+
   const std::vector<State>& states() const { return bodies_; }
   bool anyDynamic() const { return dynamic_; }
   // Index of the body a boundary particle samples, or -1 (walls, obstacles).
@@ -86,6 +92,7 @@ class RigidBodies {
   std::vector<int> owner_;
   size_t firstBody_ = 0;
   bool dynamic_ = false;
+  double timeOffset_ = 0;  // s, scene time at this simulation's t = 0
   VecD gravity_ = VecD::Zero();
   friend class Simulation<D>;
 };

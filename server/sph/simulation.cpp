@@ -112,6 +112,15 @@ void Simulation<D>::addStages(Effect<D>* eff) {
 }
 
 template <int D>
+void Simulation<D>::continueBodiesFrom(const Simulation& old, double timeOffset) {
+  if (!bodies_ || !old.bodies_) return;
+  bodies_->continueFrom(*old.bodies_, timeOffset);
+  bodies_->place(time_, boundary);
+  search.setStaticPoints(boundary.x);
+  neighborsFresh_ = false;
+}
+
+template <int D>
 void Simulation<D>::refreshNeighbors() {
   search.update(fluid.x);
   computeDensities();
@@ -465,7 +474,7 @@ FrameStats Simulation<D>::advanceFrame() {
     energy += 0.5 * double(fluid.mass[i]) * v2;
     finite = finite && fluid.x[i].allFinite() && fluid.v[i].allFinite() && std::isfinite(fluid.density[i]);
   }
-  fs.finite = finite;
+  fs.finite = finite && (!bodies_ || bodies_->finite());
   fs.escapedParticles = outside;
   fs.temporaryParticles = temporary;
   fs.maxSpeed = std::sqrt(vmax2);

@@ -117,6 +117,9 @@ class Simulation {
   const std::vector<std::string>& pipelineStages() const { return stageNames_; }
   // Moving bodies (null when the scene has none).
   const RigidBodies<D>* bodies() const { return bodies_.get(); }
+  // A simulation rebuilt mid-scene (a settings edit) continues the bodies of
+  // `old` at scene time `timeOffset` + its own clock.
+  void continueBodiesFrom(const Simulation& old, double timeOffset);
   size_t totalSubsteps() const { return totalSubsteps_; }
   Real restDensity(size_t i) const { return restDensity_[fluid.phase[i]]; }
   // The mass of a liquid particle of `phase` (the fluid blocks' lattice

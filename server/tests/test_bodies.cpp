@@ -198,6 +198,33 @@ TEST(Bodies, Kinematic3DTurnsAndIsReported) {
   EXPECT_NEAR((sim.boundary.v[b.first].cast<double>() - w.cross(r)).norm(), 0, 1e-5);
 }
 
+// A simulation rebuilt mid-scene (a session's settings edit) continues its
+// bodies: the dynamic one where it was with its velocity, the kinematic one
+// at the scene time (not back at its t = 0 pose). A dynamic body's initial
+// velocity is its velocity at the start.
+TEST(Bodies, RebuiltSimulationContinuesItsBodies) {
+  json bodies = json::array(
+      {{{"name", "ball"}, {"type", "disk"}, {"radius", 0.04}, {"position", {0.2, 0.35}}, {"motion", "dynamic"},
+        {"density", 800}, {"velocity", {0.5, 0}}},
+       {{"name", "blade"}, {"type", "box"}, {"size", {0.1, 0.02}}, {"position", {0.45, 0.3}}, {"motion", "kinematic"},
+        {"angular_velocity", 90}}});
+  const SimulationSetup<2> setup = parseScene<2>(pool2D(0.01, 0.6, 0.1, bodies));
+  Simulation<2> a(setup);
+  EXPECT_NEAR(a.bodies()->states()[0].velocity.x(), 0.5, 1e-9);
+  for (int f = 0; f < 12; ++f) ASSERT_TRUE(a.advanceFrame().finite);
+  Simulation<2> b(setup);
+  b.continueBodiesFrom(a, a.time());
+  const auto& ball0 = a.bodies()->states()[0];
+  const auto& ball1 = b.bodies()->states()[0];
+  EXPECT_NEAR((ball1.centre - ball0.centre).norm(), 0, 1e-12);
+  EXPECT_NEAR((ball1.velocity - ball0.velocity).norm(), 0, 1e-12);
+  EXPECT_NEAR(ball1.angle, ball0.angle, 1e-12);
+  // The blade at scene time 0.2 s + b's own clock: 18° now, 18° + 90°·(1/60) after a frame.
+  EXPECT_NEAR(b.bodies()->states()[1].angle, a.bodies()->states()[1].angle, 1e-9);
+  ASSERT_TRUE(b.advanceFrame().finite);
+  EXPECT_NEAR(b.bodies()->states()[1].angle * 180 / 3.14159265358979, 90 * (13.0 / 60), 1e-6);
+}
+
 TEST(Bodies, SceneWithoutBodiesHasNone) {
   Simulation<2> sim(parseScene<2>(pool2D(0.01, 0.6, 0.1, json::array())));
   EXPECT_EQ(sim.bodies(), nullptr);
@@ -237,6 +264,13 @@ TEST(Bodies, BadInputNamesTheKey) {
   expectBodyError(with("spin", 3), "bodies[0].spin", "unknown key");
   json twice = json::array({ok, ok});
   expectBodyError(twice, "bodies[1].name", "duplicate body name");
+  // A keyed body is checked against the domain at every key, and takes no rotation of its own.
+  json keyed = {{"name", "p"}, {"type", "box"}, {"size", {0.05, 0.1}}, {"motion", "kinematic"},
+                {"keys", {{{"time", 0}, {"position", {0.3, 0.3}}}, {{"time", 1}, {"position", {0.59, 0.3}}}}}};
+  expectBodyError(json::array({keyed}), "bodies[0].keys[1].position", "outside the domain");
+  keyed["keys"][1]["position"] = {0.4, 0.3};
+  keyed["rotation"] = 10;
+  expectBodyError(json::array({keyed}), "bodies[0].rotation", "no rotation");
 }
 
 }  // namespace
