@@ -17,4 +17,7 @@ template <int D> std::unique_ptr<Effect<D>> makeViscosityStandard(const ParamVal
 const ParamSpecs& viscosityXSPHParams();
 template <int D> std::unique_ptr<Effect<D>> makeViscosityXSPH(const ParamValues&);
 
+const ParamSpecs& surfaceTensionAkinci2013Params();
+template <int D> std::unique_ptr<Effect<D>> makeSurfaceTensionAkinci2013(const ParamValues&);
+
 }  // namespace fc
