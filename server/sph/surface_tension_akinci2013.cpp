@@ -70,6 +70,7 @@ class SurfaceTensionAkinci2013 final : public Effect<D> {
   }
   void resize(size_t n) override {
     for (auto& c : normal_) c.resize(n);
+    hOverRho_.resize(n);
   }
   void reorder(const std::vector<uint32_t>& perm) override {
     for (auto& c : normal_) applyPermutation(c, perm, scratch_);
@@ -87,9 +88,24 @@ class SurfaceTensionAkinci2013 final : public Effect<D> {
   }
 
   void addAccelerations(Simulation<D>& sim) override {
+    resize(sim.fluid.size());  // no-op unless a caller skipped resize()
+    // One phase: no per-pair phase test (a byte gather per pair).
+    if (sim.setup().phases.size() > 1) apply<true>(sim);
+    else apply<false>(sim);
+  }
+
+  // The normals of the last addAccelerations, n_i = h Σ_j m_j/ρ_j ∇W_ij.
+  Vec<D> normal(size_t i) const {
+    Vec<D> v;
+    for (int d = 0; d < D; ++d) v[d] = normal_[d][i];
+    return v;
+  }
+
+ private:
+  template <bool Multiphase>
+  void apply(Simulation<D>& sim) {
     auto& f = sim.fluid;
     const long n = long(f.size());
-    for (auto& c : normal_) c.resize(size_t(n));  // no-op unless a caller skipped resize()
     const uint32_t* off = sim.pairOffsets();
     const uint32_t* nbr = sim.pairNeighbors();
     const uint8_t* phase = f.phase.data();
@@ -100,23 +116,29 @@ class SurfaceTensionAkinci2013 final : public Effect<D> {
     std::array<const Real*, D> mg;
     std::array<Real*, D> nrm;
     for (int d = 0; d < D; ++d) mg[d] = sim.massGradW[d].data(), nrm[d] = normal_[d].data();
+    auto samePhase = [phase](long i, uint32_t j) { return !Multiphase || phase[j] == phase[i]; };
+    // Plain local pointers: through the arrays the compiler reloads them every pair.
+    const Real *mg0 = mg[0], *mg1 = mg[1], *mg2 = mg[D - 1];
+    Real *n0 = nrm[0], *n1 = nrm[1], *n2 = nrm[D - 1];
 
+    Real* hOverRho = hOverRho_.data();
+#pragma omp parallel for schedule(static)
+    for (long i = 0; i < n; ++i) hOverRho[i] = h / rho[i];
     // equation (3) in [AAT13]: n_i = h Σ_j m_j/ρ_j ∇W_ij, same-phase neighbours
 #pragma omp parallel for schedule(static)
     for (long i = 0; i < n; ++i) {
-      const uint8_t pi = phase[i];
       Real s0 = 0, s1 = 0, s2 = 0;  // s2: 3D only
 #pragma omp simd reduction(+ : s0, s1, s2)
       for (uint32_t k = off[i]; k < off[i + 1]; ++k) {
         const uint32_t j = nbr[k];
-        const Real w = phase[j] == pi ? h / rho[j] : Real(0);
-        s0 += w * mg[0][k];
-        s1 += w * mg[1][k];
-        if constexpr (D == 3) s2 += w * mg[D - 1][k];
+        const Real w = samePhase(i, j) ? hOverRho[j] : Real(0);
+        s0 += w * mg0[k];
+        s1 += w * mg1[k];
+        if constexpr (D == 3) s2 += w * mg2[k];
       }
-      nrm[0][i] = s0;
-      nrm[1][i] = s1;
-      if constexpr (D == 3) nrm[D - 1][i] = s2;
+      n0[i] = s0;
+      n1[i] = s1;
+      if constexpr (D == 3) n2[i] = s2;
     }
 
     const Real gamma = gamma_, beta = beta_;
@@ -126,11 +148,10 @@ class SurfaceTensionAkinci2013 final : public Effect<D> {
     // equations (1), (2), (4) and (5) in [AAT13]: cohesion + curvature, times K_ij
 #pragma omp parallel for schedule(static)
     for (long i = 0; i < n; ++i) {
-      const uint8_t pi = phase[i];
       const Real* xi = xs + size_t(D) * size_t(i);
       Real ni[D], x0[D];
-      for (int d = 0; d < D; ++d) ni[d] = nrm[d][i], x0[d] = xi[d];
-      const Real twoRho0 = Real(2) * rho0[pi], rhoi = rho[i];
+      for (int d = 0; d < D; ++d) ni[d] = nrm[d][i], x0[d] = xi[d];  // copies: not reloaded per pair
+      const Real twoRho0 = Real(2) * rho0[phase[i]], rhoi = rho[i];
       Real s0 = 0, s1 = 0, s2 = 0;  // s2: 3D only
 #pragma omp simd reduction(+ : s0, s1, s2)
       for (uint32_t k = off[i]; k < off[i + 1]; ++k) {
@@ -141,13 +162,16 @@ class SurfaceTensionAkinci2013 final : public Effect<D> {
           r[d] = x0[d] - xj[d];
           r2 += r[d] * r[d];
         }
-        const Real rl = std::sqrt(r2);
-        const Real kij = phase[j] == pi ? twoRho0 / (rhoi + rho[j]) : Real(0);
-        // C(r) x_ij / |x_ij|; a pair at the same position gets no cohesion
-        const Real coh = rl > eps ? mass[j] * cohesion.W(rl) / std::max(rl, eps) : Real(0);
-        s0 += kij * (coh * r[0] + ni[0] - nrm[0][j]);
-        s1 += kij * (coh * r[1] + ni[1] - nrm[1][j]);
-        if constexpr (D == 3) s2 += kij * (coh * r[D - 1] + ni[D - 1] - nrm[D - 1][j]);
+        // One square root and one division per pair: q = 1 / (|x_ij| (ρ_i + ρ_j)),
+        // K_ij = 2ρ0 |x_ij| q, K_ij m_j C / |x_ij| = 2ρ0 m_j C q. A pair at the
+        // same position gets no cohesion.
+        const Real rl = std::sqrt(std::max(r2, eps * eps));
+        const Real q = samePhase(i, j) ? twoRho0 / (rl * (rhoi + rho[j])) : Real(0);
+        const Real kij = rl * q;
+        const Real kcoh = r2 > eps * eps ? mass[j] * cohesion.W(rl) * q : Real(0);
+        s0 += kcoh * r[0] + kij * (ni[0] - n0[j]);
+        s1 += kcoh * r[1] + kij * (ni[1] - n1[j]);
+        if constexpr (D == 3) s2 += kcoh * r[D - 1] + kij * (ni[D - 1] - n2[j]);
       }
       const Real acc[3] = {s0, s1, s2};
       Vec<D> a;
@@ -163,25 +187,18 @@ class SurfaceTensionAkinci2013 final : public Effect<D> {
           const Real l = std::sqrt(l2);
           ad += (sim.boundary.volume[b] * adhesion_.W(l) / l) * rb;
         });
-        a -= (beta * rho0[pi]) * ad;
+        a -= (beta * rho0[phase[i]]) * ad;
       }
       f.a[size_t(i)] += a;
     }
   }
 
-  // The normals of the last addAccelerations, n_i = h Σ_j m_j/ρ_j ∇W_ij.
-  Vec<D> normal(size_t i) const {
-    Vec<D> v;
-    for (int d = 0; d < D; ++d) v[d] = normal_[d][i];
-    return v;
-  }
-
- private:
   Real gamma_, beta_;
   Real rho0Max_ = 0;
   CohesionKernel<D> cohesion_;
   AdhesionKernel<D> adhesion_;
   std::array<std::vector<Real>, D> normal_;  // SoA, one array per axis
+  std::vector<Real> hOverRho_;               // h / ρ_j, per step (no state: not reordered)
   std::vector<Real> scratch_;                // reorder()'s, kept so that reordering allocates nothing
 };
 
