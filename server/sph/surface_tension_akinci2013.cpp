@@ -77,8 +77,10 @@ class SurfaceTensionAkinci2013 final : public Effect<D> {
   }
 
   // The capillary time step with the cohesion term's surface tension. The
-  // adhesion term has the same form with beta for gamma (its kernel has the
-  // same scale), so the larger of the two coefficients sets the bound.
+  // adhesion term is bounded the same way with beta for gamma, which is
+  // conservative (per unit coefficient its work of adhesion is a tenth of the
+  // cohesion's sigma) and not measured separately; the larger of the two
+  // coefficients sets the bound.
   Real maxTimeStep(const Simulation<D>& sim) const override {
     const double g = std::max(gamma_, beta_);
     if (!(g > 0) || !(rho0Max_ > 0)) return Real(1e30);
