@@ -20,4 +20,7 @@ template <int D> std::unique_ptr<Effect<D>> makeViscosityWeiler2018(const ParamV
 const ParamSpecs& viscosityXSPHParams();
 template <int D> std::unique_ptr<Effect<D>> makeViscosityXSPH(const ParamValues&);
 
+const ParamSpecs& surfaceTensionAkinci2013Params();
+template <int D> std::unique_ptr<Effect<D>> makeSurfaceTensionAkinci2013(const ParamValues&);
+
 }  // namespace fc
