@@ -415,7 +415,7 @@ TEST(Recipe, ShippedRecipesParse) {
     for (const auto& c : r.captures) names.push_back(c.name);
   }
   std::sort(names.begin(), names.end());
-  EXPECT_EQ(names, (std::vector<std::string>{"blade2d", "blade3d", "column2d", "doubledam2d", "drop2d", "hand3d", "jet2d", "letter_A",
+  EXPECT_EQ(names, (std::vector<std::string>{"blade2d", "blade3d", "column2d", "doubledam2d", "drop2d", "hand3d", "honey3d", "jet2d", "letter_A",
                                       "letter_C", "letter_S", "waterjet2d", "wave2d"}));
 }
 
