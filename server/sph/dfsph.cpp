@@ -8,6 +8,31 @@
 // Dρ_i/Dt, or (ρ*_i - ρ0)/Δt) gives K_i = r_i / S_i with
 //   S_i = |Σ_j m_j ∇W_ij + Σ_b Ψ_b ∇W_ib|² + Σ_j |m_j ∇W_ij|²,
 // i.e. K_i = r_i · α_i with α_i = 1/S_i, the DFSPH factor (eq. (11) in [BK17]).
+//
+// Number density (Solenthaler & Pajarola, "Density Contrast SPH Interfaces",
+// SCA 2008 [SP08]; chosen once at setup, Simulation::numberDensity()). The
+// density is ρ_i = m_i δ_i + ρ0_i Σ_b V_b W_ib with δ_i = Σ_j W_ij, and the
+// pressure force is [SP08]'s symmetric volume form, F_i = -Σ_j (p_i/δ_i² +
+// p_j/δ_j²) ∇W_ij, the boundary mirroring p_i/δ_i² with the weight V_b/V_i
+// (V_i = m_i/ρ0_i, Akinci's term as before). [SP08] gives an equation of
+// state and explicit forces; DFSPH replaces the equation of state by its two
+// solves, so what carries over is the density, its rate and the force. With
+// K_i = Δt p_i/δ_i² the velocity correction is
+//   Δv_i = -(1/m_i) [Σ_j (K_i + K_j) ∇W_ij + K_i (ρ0_i/m_i) Σ_b V_b ∇W_ib],
+// and both residuals are rates of that density,
+//   Dρ_i/Dt = m_i Σ_j (v_i - v_j)·∇W_ij + ρ0_i Σ_b V_b (v_i - v_b)·∇W_ib.
+// K_i acts on v_i through G_i = Σ_j ∇W_ij + (ρ0_i/m_i) Σ_b V_b ∇W_ib and on
+// each neighbour through Δv_j = +(K_i/m_j) ∇W_ij, so the diagonal of the
+// system, the factor's inverse, is
+//   S_i = |G_i|² + Σ_j (m_i/m_j) |∇W_ij|²,
+// the same Jacobi update K_i = r_i/S_i as above. With equal masses m, S is
+// the mass-sum one over m² and K the mass-sum one times m²: the same solve. Momentum is conserved pairwise (m_i Δv_i from j is -(K_i +
+// K_j) ∇W_ij), and with J = ∂ρ/∂x the correction is Δv = -M⁻¹ Jᵀ λ with
+// λ_i = K_i/m_i: the kinetic-energy-weighted projection onto the linearised
+// density constraint, as the mass-sum solve is for its own density. The
+// residuals stay relative to each particle's own ρ0. The light phase takes
+// the largest velocity corrections (∝ 1/m), which is why the time step is
+// scaled under the number density (Simulation::cflTimeStep).
 #include "sph/builtin.h"
 #include "sph/simulation.h"
 #include <omp.h>
@@ -58,25 +83,9 @@ class DFSPH final : public PressureSolver<D> {
 
   // DFSPH factor α_i = 1/S_i (eq. (11) in [BK17]).
   void prepare(Simulation<D>& sim) override {
-    const uint32_t* off = sim.pairOffsets();
-    const auto& f = sim.fluid;
-    const long n = long(f.size());
-#pragma omp parallel for schedule(static)
-    for (long i = 0; i < n; ++i) {
-      const Real rho0 = sim.restDensity_[f.phase[i]];
-      Vec<D> sum = rho0 * sim.boundaryGradW[i];
-      Real sumSq = 0;
-      for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
-        const Vec<D> g = sim.massGradWAt(k);
-        sum += g;
-        sumSq += g.squaredNorm();
-      }
-      const Real s = sum.squaredNorm() + sumSq;
-      factor_[i] = s > Real(1e-6) * rho0 * rho0 ? Real(1) / s : Real(0);
-      // Too few neighbours: a surface particle cannot be compressed, and its
-      // divergence estimate is unreliable ([BK17], Section 4).
-      deficient_[i] = (off[i + 1] - off[i] + sim.boundaryNeighbors[i]) < (D == 3 ? 20u : 7u);
-    }
+    numberDensity_ = sim.numberDensity();
+    if (numberDensity_) prepareWith<true>(sim);
+    else prepareWith<false>(sim);
   }
 
   SolverReport correctDivergence(Simulation<D>& sim, Real dt) override {
@@ -126,11 +135,20 @@ class DFSPH final : public PressureSolver<D> {
     rep.maxErrorPct = double(maxErr) * 100.0;
     rep.boundaryImpulse = boundaryImpulse_;
     // The pressure both corrections amount to over the step: Δv = -Δt Σ_j m_j
-    // (p_i/ρ_i² + p_j/ρ_j²) ∇W_ij, so p_i = ρ_i² (K_i + K_i^div)/Δt.
+    // (p_i/ρ_i² + p_j/ρ_j²) ∇W_ij, so p_i = ρ_i² (K_i + K_i^div)/Δt; under
+    // the number density K_i = Δt p_i/δ_i², so p_i = δ_i² (K_i + K_i^div)/Δt.
     auto& f = sim.fluid;
+    if (!numberDensity_) {
 #pragma omp parallel for schedule(static)
-    for (long i = 0; i < n; ++i)
-      f.pressure[i] = f.density[i] * f.density[i] * (kappaDensity_[i] + kappaDivergence_[i] / dt);
+      for (long i = 0; i < n; ++i)
+        f.pressure[i] = f.density[i] * f.density[i] * (kappaDensity_[i] + kappaDivergence_[i] / dt);
+    } else {
+#pragma omp parallel for schedule(static)
+      for (long i = 0; i < n; ++i) {
+        const Real delta = f.density[i] / f.mass[i];
+        f.pressure[i] = delta * delta * (kappaDensity_[i] + kappaDivergence_[i] / dt);
+      }
+    }
     return rep;
   }
 
@@ -153,6 +171,47 @@ class DFSPH final : public PressureSolver<D> {
     updateVelocities(sim);
   }
 
+  template <bool ND>
+  void prepareWith(Simulation<D>& sim) {
+    const uint32_t* off = sim.pairOffsets();
+    const uint32_t* nbr = sim.pairNeighbors();
+    const auto& f = sim.fluid;
+    const long n = long(f.size());
+#pragma omp parallel for schedule(static)
+    for (long i = 0; i < n; ++i) {
+      const Real rho0 = sim.restDensity_[f.phase[i]];
+      Real s, floor;
+      if constexpr (!ND) {
+        Vec<D> sum = rho0 * sim.boundaryGradW[i];
+        Real sumSq = 0;
+        for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
+          const Vec<D> g = sim.massGradWAt(k);
+          sum += g;
+          sumSq += g.squaredNorm();
+        }
+        s = sum.squaredNorm() + sumSq;
+        floor = Real(1e-6) * rho0 * rho0;
+      } else {
+        // S_i = |Σ_j ∇W_ij + (ρ0_i/m_i) Σ_b V_b ∇W_ib|² + Σ_j (m_i/m_j)|∇W_ij|² (the diagonal; see the top).
+        const Real mi = f.mass[i];
+        Vec<D> sum = (rho0 / mi) * sim.boundaryGradW[i];
+        Real sumSq = 0;
+        for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
+          Vec<D> g;
+          for (int d = 0; d < D; ++d) g[d] = sim.gradW[d][k];
+          sum += g;
+          sumSq += g.squaredNorm() / f.mass[nbr[k]];
+        }
+        s = sum.squaredNorm() + mi * sumSq;
+        floor = Real(1e-6) * (rho0 / mi) * (rho0 / mi);
+      }
+      factor_[i] = s > floor ? Real(1) / s : Real(0);
+      // Too few neighbours: a surface particle cannot be compressed, and its
+      // divergence estimate is unreliable ([BK17], Section 4).
+      deficient_[i] = (off[i + 1] - off[i] + sim.boundaryNeighbors[i]) < (D == 3 ? 20u : 7u);
+    }
+  }
+
   // Adds this iteration's stiffness K_i = r_i α_i to the accumulated one and
   // corrects the velocities with it.
   void applyStiffness(Simulation<D>& sim, std::vector<Real>& kappa, Real dt) {
@@ -165,13 +224,22 @@ class DFSPH final : public PressureSolver<D> {
     updateVelocities(sim);
   }
 
-  // Δv_i = -Σ_j m_j (K_i + K_j) ∇W_ij - K_i Σ_b Ψ_b ∇W_ib (eqs. (9) and (12) in [BK17]).
   void updateVelocities(Simulation<D>& sim) {
+    if (numberDensity_) updateVelocitiesWith<true>(sim);
+    else updateVelocitiesWith<false>(sim);
+  }
+
+  // Mass sum: Δv_i = -Σ_j m_j (K_i + K_j) ∇W_ij - K_i Σ_b Ψ_b ∇W_ib (eqs. (9) and (12) in [BK17]).
+  // Number density: Δv_i = -(1/m_i) [Σ_j (K_i + K_j) ∇W_ij + K_i (ρ0_i/m_i) Σ_b V_b ∇W_ib],
+  // the pressure force of [SP08] Section 4, F_i = -Σ_j (p_i/δ_i² + p_j/δ_j²) ∇W_ij, with K = Δt p/δ².
+  template <bool ND>
+  void updateVelocitiesWith(Simulation<D>& sim) {
     const uint32_t* off = sim.pairOffsets();
     const uint32_t* nbr = sim.pairNeighbors();
     const Real* stiffness = stiffness_.data();
-    const Real* gx = sim.massGradW[0].data();
-    const Real* gy = sim.massGradW[1].data();
+    const auto& grad = ND ? sim.gradW : sim.massGradW;
+    const Real* gx = grad[0].data();
+    const Real* gy = grad[1].data();
     auto& f = sim.fluid;
     const long n = long(f.size());
     double ix = 0, iy = 0, iz = 0;
@@ -190,7 +258,7 @@ class DFSPH final : public PressureSolver<D> {
           dy += s * gy[k];
         }
       } else {
-        const Real* gz = sim.massGradW[D - 1].data();
+        const Real* gz = grad[D - 1].data();
 #pragma omp simd reduction(+ : dx, dy, dz)
         for (uint32_t k = b; k < e; ++k) {
           const Real s = ki + stiffness[nbr[k]];
@@ -199,7 +267,15 @@ class DFSPH final : public PressureSolver<D> {
           dz += s * gz[k];
         }
       }
-      const Real kb = ki * sim.restDensity_[f.phase[i]];
+      Real kb = ki * sim.restDensity_[f.phase[i]];
+      if constexpr (ND) {
+        // Both terms carry 1/m_i, the boundary one once more (its weight V_b/V_i).
+        const Real inv = Real(1) / f.mass[i];
+        dx *= inv;
+        dy *= inv;
+        dz *= inv;
+        kb *= inv * inv;
+      }
       const Vec<D>& gb = sim.boundaryGradW[i];
       f.v[i][0] -= dx + kb * gb[0];
       f.v[i][1] -= dy + kb * gb[1];
@@ -214,16 +290,24 @@ class DFSPH final : public PressureSolver<D> {
     boundaryImpulse_[2] += iz;
   }
 
+  Real divergenceResidual(Simulation<D>& sim) {
+    return numberDensity_ ? divergenceResidualWith<true>(sim) : divergenceResidualWith<false>(sim);
+  }
+  Real densityResidual(Simulation<D>& sim, Real dt, Real& maxErr) {
+    return numberDensity_ ? densityResidualWith<true>(sim, dt, maxErr) : densityResidualWith<false>(sim, dt, maxErr);
+  }
+
   // Dρ_i/Dt = Σ_j m_j (v_i - v_j)·∇W_ij + Σ_b Ψ_b (v_i - v_b)·∇W_ib (eq. (8) in [BK17]),
   // only compression counts. Returns the average over particles, relative to ρ0.
-  Real divergenceResidual(Simulation<D>& sim) {
+  template <bool ND>
+  Real divergenceResidualWith(Simulation<D>& sim) {
     const auto& f = sim.fluid;
     const long n = long(f.size());
     double sum = 0;
 #pragma omp parallel for schedule(static) reduction(+ : sum)
     for (long i = 0; i < n; ++i) {
       const Real rho0 = sim.restDensity_[f.phase[i]];
-      Real r = rateOfDensity(sim, i, rho0);
+      Real r = rateOfDensity<ND>(sim, i, rho0);
       r = deficient_[i] ? Real(0) : std::max(r, Real(0));
       residual_[i] = r;
       sum += double(r / rho0);
@@ -233,7 +317,8 @@ class DFSPH final : public PressureSolver<D> {
 
   // ρ*_i = ρ_i + Δt Dρ_i/Dt (eq. (13) in [BK17]); residual (ρ*_i - ρ0)/Δt,
   // compression only. Returns the average relative error; maxErr the largest.
-  Real densityResidual(Simulation<D>& sim, Real dt, Real& maxErr) {
+  template <bool ND>
+  Real densityResidualWith(Simulation<D>& sim, Real dt, Real& maxErr) {
     const auto& f = sim.fluid;
     const long n = long(f.size());
     double sum = 0;
@@ -241,7 +326,7 @@ class DFSPH final : public PressureSolver<D> {
 #pragma omp parallel for schedule(static) reduction(+ : sum) reduction(max : mx)
     for (long i = 0; i < n; ++i) {
       const Real rho0 = sim.restDensity_[f.phase[i]];
-      const Real predicted = f.density[i] + dt * rateOfDensity(sim, i, rho0);
+      const Real predicted = f.density[i] + dt * rateOfDensity<ND>(sim, i, rho0);
       const Real err = std::max(predicted - rho0, Real(0));
       residual_[i] = err / dt;
       mx = std::max(mx, err / rho0);
@@ -251,12 +336,17 @@ class DFSPH final : public PressureSolver<D> {
     return n ? Real(sum / double(n)) : Real(0);
   }
 
+  // Mass sum: Σ_j m_j (v_i - v_j)·∇W_ij + ρ0_i Σ_b V_b (v_i - v_b)·∇W_ib.
+  // Number density: the rate of ρ_i = m_i δ_i + ρ0_i Σ_b V_b W_ib,
+  // m_i Σ_j (v_i - v_j)·∇W_ij + the same boundary term ([SP08] Section 4, differentiated).
+  template <bool ND>
   static Real rateOfDensity(const Simulation<D>& sim, long i, Real rho0) {
     const auto& f = sim.fluid;
     const uint32_t* off = sim.pairOffsets();
     const uint32_t* nbr = sim.pairNeighbors();
-    const Real* gx = sim.massGradW[0].data();
-    const Real* gy = sim.massGradW[1].data();
+    const auto& grad = ND ? sim.gradW : sim.massGradW;
+    const Real* gx = grad[0].data();
+    const Real* gy = grad[1].data();
     const Real* v = f.v.data()->data();  // Vec<D> is D packed Reals
     const Vec<D> vi = f.v[i];
     const uint32_t b = off[i], e = off[i + 1];
@@ -268,19 +358,23 @@ class DFSPH final : public PressureSolver<D> {
         r += (vi[0] - vj[0]) * gx[k] + (vi[1] - vj[1]) * gy[k];
       }
     } else {
-      const Real* gz = sim.massGradW[D - 1].data();
+      const Real* gz = grad[D - 1].data();
 #pragma omp simd reduction(+ : r)
       for (uint32_t k = b; k < e; ++k) {
         const Real* vj = v + 3 * size_t(nbr[k]);
         r += (vi[0] - vj[0]) * gx[k] + (vi[1] - vj[1]) * gy[k] + (vi[2] - vj[2]) * gz[k];
       }
     }
+    if constexpr (ND) r *= f.mass[i];
     return r + rho0 * (vi.dot(sim.boundaryGradW[i]) - sim.boundaryFlux[i]);
   }
 
   Real densityTol_, divergenceTol_;
   int minIterations_, maxIterations_, maxDivergenceIterations_;
   bool divergenceSolve_, warmStart_;
+  bool numberDensity_ = false;  // Simulation::numberDensity(), read in prepare()
+
+
   std::vector<Real> factor_, kappaDensity_, kappaDivergence_, residual_, stiffness_, scratch_;
   std::vector<uint8_t> deficient_;
   std::array<double, 3> boundaryImpulse_{};

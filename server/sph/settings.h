@@ -15,6 +15,10 @@ inline const ParamSpecs& simulationSettingsSpecs() {
       {"boundary_layers", "", 1, 4, 2, "layers of boundary particles sampling walls and obstacles", ParamType::Integer},
       {"contact_distance", "r", 0, 1, 0.25,
        "particle centres are kept this many particle radii away from solid surfaces"},
+      {"density_formulation", "", 0, 2, 0,
+       "0: automatic (number density when the phases' rest densities differ, else the mass sum); 1: mass sum "
+       "rho_i = sum_j m_j W_ij; 2: number density rho_i = m_i sum_j W_ij (Solenthaler & Pajarola 2008)",
+       ParamType::Integer},
   };
   return specs;
 }

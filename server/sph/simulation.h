@@ -122,6 +122,12 @@ class Simulation {
   void continueBodiesFrom(const Simulation& old, double timeOffset);
   size_t totalSubsteps() const { return totalSubsteps_; }
   Real restDensity(size_t i) const { return restDensity_[fluid.phase[i]]; }
+  // The density formulation, chosen once at setup (settings
+  // "density_formulation"): false, the mass sum ρ_i = Σ_j m_j W_ij; true,
+  // the number density of Solenthaler & Pajarola 2008, ρ_i = m_i Σ_j W_ij,
+  // for phases of different rest densities (see computeDensities). The
+  // pressure solvers read it once per sweep, never per particle.
+  bool numberDensity() const { return numberDensity_; }
   // The mass of a liquid particle of `phase` (the fluid blocks' lattice
   // particles; temporary particles copy theirs): rest density times the
   // lattice volume.
@@ -135,10 +141,14 @@ class Simulation {
   // Per substep, one entry per fluid neighbour pair, in the CSR order of
   // search.dynamicNeighbors(): m_j ∇W(x_i - x_j), one array per axis so that
   // the solver sweeps vectorise. Masses are folded in because every solver
-  // loop multiplies by them.
+  // loop multiplies by them. (Under the number density as well: effects
+  // read m_j ∇W_ij / ρ_j, which is then the volume form ∇W_ij / δ_j.)
   std::array<std::vector<Real>, D> massGradW;
   const uint32_t* pairOffsets() const { return search.dynamicNeighbors().offsets.data(); }
   const uint32_t* pairNeighbors() const { return search.dynamicNeighbors().indices.data(); }
+  // Under the number density only (empty otherwise): ∇W(x_i - x_j) per pair,
+  // same order, for the pressure solvers' volume-form pair terms.
+  std::array<std::vector<Real>, D> gradW;
   Vec<D> massGradWAt(size_t k) const {
     Vec<D> g;
     for (int d = 0; d < D; ++d) g[d] = massGradW[d][k];
@@ -155,6 +165,8 @@ class Simulation {
   void buildBoundary();
   void buildFluid();
   void computeDensities();
+  template <bool NumberDensity>
+  void computeDensitiesWith();
   Real cflTimeStep() const;
   void reorderParticles();
   void enforceSolidContact(FrameStats& fs);
@@ -169,6 +181,8 @@ class Simulation {
   std::unique_ptr<RigidBodies<D>> bodies_;
   std::vector<Effect<D>*> accelerationStages_, implicitStages_, velocityStages_, frameStages_;
   bool neighborsFresh_ = false;
+  bool numberDensity_ = false;
+  Real contrastStep_ = 1;  // number density: time step scale, see cflTimeStep
   uint32_t nextId_ = 0;
   std::vector<std::string> stageNames_;
   double time_ = 0;

@@ -29,7 +29,6 @@ class WCSPH final : public PressureSolver<D> {
 
   SolverReport correctDensity(Simulation<D>& sim, Real dt) override {
     auto& f = sim.fluid;
-    const uint32_t* off = sim.pairOffsets();
     const long n = long(f.size());
     double sum = 0;
     Real mx = 0;
@@ -44,19 +43,8 @@ class WCSPH final : public PressureSolver<D> {
       sum += double(err);
       mx = std::max(mx, err);
     }
-    // Symmetric pressure acceleration, eq. (6) in [BT07]; boundaries mirror
-    // the particle's own pressure (Akinci et al. 2012, eq. (10)).
-#pragma omp parallel for schedule(static)
-    for (long i = 0; i < n; ++i) {
-      const Real rho0 = sim.restDensity_[f.phase[i]];
-      const Real pi = f.pressure[i] / (f.density[i] * f.density[i]);
-      Vec<D> a = -(rho0 * pi) * sim.boundaryGradW[i];
-      for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
-        const uint32_t j = sim.pairNeighbors()[k];
-        a -= (pi + f.pressure[j] / (f.density[j] * f.density[j])) * sim.massGradWAt(k);
-      }
-      f.v[i] += dt * a;
-    }
+    if (sim.numberDensity()) accelerate<true>(sim, dt);
+    else accelerate<false>(sim, dt);
     SolverReport rep;
     for (long i = 0; i < n; ++i) {
       const Real pi = f.pressure[i] / (f.density[i] * f.density[i]);
@@ -69,7 +57,52 @@ class WCSPH final : public PressureSolver<D> {
   }
 
  private:
+  // Mass sum: symmetric pressure acceleration, eq. (6) in [BT07]; boundaries
+  // mirror the particle's own pressure (Akinci et al. 2012, eq. (10)).
+  // Number density (Solenthaler & Pajarola 2008 [SP08], see dfsph.cpp): the
+  // pressure from the equation of state of ρ_i = m_i δ_i, and the force of
+  // [SP08] Section 4, a_i = -(1/m_i) Σ_j (p_i/δ_i² + p_j/δ_j²) ∇W_ij, the
+  // boundary mirroring p_i/δ_i² with the weight V_b/V_i (the same Akinci
+  // term -ρ0_i p_i/ρ_i² Σ_b V_b ∇W_ib as above).
+  template <bool ND>
+  void accelerate(Simulation<D>& sim, Real dt) {
+    auto& f = sim.fluid;
+    const uint32_t* off = sim.pairOffsets();
+    const long n = long(f.size());
+    if constexpr (ND) {
+      scaled_.resize(f.size());
+#pragma omp parallel for schedule(static)
+      for (long i = 0; i < n; ++i) {
+        const Real delta = f.density[i] / f.mass[i];
+        scaled_[i] = f.pressure[i] / (delta * delta);
+      }
+    }
+#pragma omp parallel for schedule(static)
+    for (long i = 0; i < n; ++i) {
+      const Real rho0 = sim.restDensity_[f.phase[i]];
+      const Real pi = f.pressure[i] / (f.density[i] * f.density[i]);
+      Vec<D> a = -(rho0 * pi) * sim.boundaryGradW[i];
+      if constexpr (!ND) {
+        for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
+          const uint32_t j = sim.pairNeighbors()[k];
+          a -= (pi + f.pressure[j] / (f.density[j] * f.density[j])) * sim.massGradWAt(k);
+        }
+      } else {
+        Vec<D> sum = Vec<D>::Zero();
+        for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
+          const uint32_t j = sim.pairNeighbors()[k];
+          Vec<D> g;
+          for (int d = 0; d < D; ++d) g[d] = sim.gradW[d][k];
+          sum += (scaled_[i] + scaled_[j]) * g;
+        }
+        a -= sum / f.mass[i];
+      }
+      f.v[i] += dt * a;
+    }
+  }
+
   Real stiffness_, exponent_;
+  std::vector<Real> scaled_;  // number density only: p_i / δ_i²
 };
 
 template <int D>
