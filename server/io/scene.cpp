@@ -1,5 +1,6 @@
 #include "io/scene.h"
 
+#include "io/obj_mesh.h"
 #include "io/template_database.h"
 
 #include "sph/pipeline.h"
@@ -313,7 +314,81 @@ std::vector<FluidBlock<D>> parseFluidBlocks(const json& root, const std::vector<
 }
 
 template <int D>
-std::vector<Obstacle<D>> parseObstacles(const json* j) {
+std::array<double, D == 2 ? 1 : 3> parseRotationDeg(const json& j, const std::string& path);
+
+// A mesh obstacle's placement: scale (a number or one per axis, > 0),
+// translation, rotation (Euler XYZ, degrees).
+MeshPlacement parseMeshPlacement(const json& o, const std::string& p) {
+  MeshPlacement pl;
+  const std::string fp = key(p, "file");
+  pl.file = getString(required(o, p, "file", "an OBJ file, relative to the scene file's directory"), fp);
+  if (pl.file.empty()) fail(fp, "must name an OBJ file");
+  std::string ext = std::filesystem::path(pl.file).extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  if (ext != ".obj") fail(fp, "'" + pl.file + "' is not a Wavefront OBJ file (.obj), the only mesh format read");
+  if (const json* m = member(o, "scale")) {
+    const std::string sp = key(p, "scale");
+    if (m->is_number()) {
+      const double v = getNumber(*m, sp);
+      if (!(v > 0)) fail(sp, fmt(v) + " must be > 0");
+      pl.scale = {v, v, v};
+    } else {
+      expectType(m->is_array() && m->size() == 3, *m, sp, "a number (uniform scale) or an array of 3 numbers");
+      for (size_t d = 0; d < 3; ++d) {
+        pl.scale[d] = getNumber((*m)[d], at(sp, d));
+        if (!(pl.scale[d] > 0)) fail(at(sp, d), fmt(pl.scale[d]) + " must be > 0");
+      }
+    }
+  }
+  if (const json* m = member(o, "translation")) {
+    const std::string tp = key(p, "translation");
+    expectType(m->is_array(), *m, tp, "an array of 3 numbers");
+    if (m->size() != 3) fail(tp, "expected 3 components (the scene is 3D), got " + std::to_string(m->size()));
+    for (size_t d = 0; d < 3; ++d) pl.translation[d] = getNumber((*m)[d], at(tp, d));
+  }
+  if (const json* m = member(o, "rotation")) pl.rotationDeg = parseRotationDeg<3>(*m, key(p, "rotation"));
+  return pl;
+}
+
+// Reads, validates and places the mesh, then builds its signed-distance grid
+// at the particle radius over its bounds plus the kernel support and a cell.
+std::shared_ptr<const MeshSdf> buildMeshObstacle(const MeshPlacement& pl, Real particleRadius, const std::string& path) {
+  ObjSolid solid;
+  try {
+    solid = readObjSolid(pl.file);
+  } catch (const MeshFileError& e) {
+    fail(path, e.what());
+  }
+  constexpr double deg = 3.14159265358979323846 / 180;
+  const Eigen::Matrix3d R = (Eigen::AngleAxisd(pl.rotationDeg[0] * deg, Eigen::Vector3d::UnitX()) *
+                             Eigen::AngleAxisd(pl.rotationDeg[1] * deg, Eigen::Vector3d::UnitY()) *
+                             Eigen::AngleAxisd(pl.rotationDeg[2] * deg, Eigen::Vector3d::UnitZ()))
+                                .toRotationMatrix();
+  const Vec3d scale(pl.scale[0], pl.scale[1], pl.scale[2]);
+  const Vec3d t(pl.translation[0], pl.translation[1], pl.translation[2]);
+  for (Vec3d& v : solid.mesh.vertices) {
+    v = R * scale.cwiseProduct(v) + t;
+    if (!v.allFinite() || (v.cwiseAbs().array() > double(std::numeric_limits<Real>::max())).any())
+      fail(path, "'" + pl.file + "': a vertex placed by scale, rotation and translation is not finite in " + realName());
+  }
+  MeshSdf::Options opt;
+  opt.spacing = double(particleRadius);
+  opt.band = 5 * double(particleRadius);
+  // Exact within 1.5 r: contact (contact_distance <= r) and the start checks
+  // (r) then decide on the exact surface, whatever the grid's error (at most
+  // half a cell, measured).
+  opt.exactBand = 1.5 * double(particleRadius);
+  try {
+    return std::make_shared<const MeshSdf>(std::move(solid.mesh), opt);
+  } catch (const MeshGridTooLarge& e) {
+    fail(path, "'" + pl.file + "': " + e.what());
+  } catch (const std::invalid_argument& e) {
+    fail(path, "'" + pl.file + "': " + e.what());
+  }
+}
+
+template <int D>
+std::vector<Obstacle<D>> parseObstacles(const json* j, Real particleRadius) {
   std::vector<Obstacle<D>> obstacles;
   if (!j) return obstacles;
   const std::string path = "obstacles";
@@ -321,7 +396,7 @@ std::vector<Obstacle<D>> parseObstacles(const json* j) {
   for (size_t i = 0; i < j->size(); ++i) {
     const std::string p = at(path, i);
     const json& o = expectObject((*j)[i], p);
-    const std::string type = getString(required(o, p, "type", D == 2 ? "\"box\", \"sphere\" or \"disk\"" : "\"box\" or \"sphere\""),
+    const std::string type = getString(required(o, p, "type", D == 2 ? "\"box\", \"sphere\" or \"disk\"" : "\"box\", \"sphere\" or \"mesh\""),
                                        key(p, "type"));
     Obstacle<D> ob;
     if (type == "box") {
@@ -335,9 +410,19 @@ std::vector<Obstacle<D>> parseObstacles(const json* j) {
       ob.radius = getReal(required(o, p, "radius", "m"), key(p, "radius"));
       if (ob.radius <= 0) fail(key(p, "radius"), fmt(ob.radius) + " m must be > 0");
       ob.box = AABB<D>(ob.center.array() - ob.radius, ob.center.array() + ob.radius);
+    } else if (type == "mesh") {
+      if constexpr (D == 2) {
+        fail(key(p, "type"), "mesh obstacles (OBJ files) are 3D only; a 2D scene takes box and disk obstacles");
+      } else {
+        checkKeys(o, p, {"type", "file", "scale", "translation", "rotation"});
+        ob.shape = ObstacleShape::Mesh;
+        ob.placement = parseMeshPlacement(o, p);
+        ob.mesh = buildMeshObstacle(ob.placement, particleRadius, key(p, "file"));
+        ob.box = ob.mesh->bounds();
+      }
     } else {
       fail(key(p, "type"), "unknown obstacle type '" + type + "'; expected " +
-                               (D == 2 ? "box, sphere or disk" : "box or sphere (disk is 2D only)"));
+                               (D == 2 ? "box, sphere or disk (mesh is 3D only)" : "box, sphere or mesh (disk is 2D only)"));
     }
     obstacles.push_back(ob);
   }
@@ -958,7 +1043,29 @@ json loadSceneJson(const std::string& file) {
   std::ostringstream text;
   text << in.rdbuf();
   if (in.bad()) throw SceneError("", "cannot read scene file '" + file + "'");
-  return parseSceneText(text.str(), file);
+  json scene = parseSceneText(text.str(), file);
+  resolveSceneFilePaths(scene, file);
+  return scene;
+}
+
+void resolveSceneFilePaths(json& scene, const std::string& sceneFile) {
+  namespace fs = std::filesystem;
+  if (!scene.is_object()) return;
+  const auto obstacles = scene.find("obstacles");
+  if (obstacles == scene.end() || !obstacles->is_array()) return;
+  const fs::path dir = fs::path(sceneFile).parent_path();
+  for (json& o : *obstacles) {
+    if (!o.is_object()) continue;
+    const auto type = o.find("type");
+    const auto file = o.find("file");
+    if (type == o.end() || *type != "mesh" || file == o.end() || !file->is_string()) continue;
+    const fs::path f = file->get<std::string>();
+    if (f.empty() || f.is_absolute()) continue;
+    std::error_code ec;
+    fs::path resolved = fs::absolute(dir / f, ec);
+    if (ec) resolved = dir / f;
+    *file = resolved.lexically_normal().string();
+  }
 }
 
 int sceneDimension(const json& scene) {
@@ -1024,7 +1131,7 @@ SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
 
   s.phases = parsePhases(member(root, "phases"));
   s.fluidBlocks = parseFluidBlocks<D>(root, s.phases);
-  s.obstacles = parseObstacles<D>(member(root, "obstacles"));
+  s.obstacles = parseObstacles<D>(member(root, "obstacles"), s.particleRadius);
   s.bodies = parseBodies<D>(member(root, "bodies"), s.domain);
   s.solver = parseSolver<D>(member(root, "solver"));
   s.settings = parseSettings(member(root, "settings"));
@@ -1071,8 +1178,14 @@ json sceneToJson(const SimulationSetup<D>& s) {
   for (const Obstacle<D>& o : s.obstacles) {
     if (o.shape == ObstacleShape::Box)
       obstacles.push_back({{"type", "box"}, {"min", vecToJson<D>(o.box.min)}, {"max", vecToJson<D>(o.box.max)}});
-    else
+    else if (o.shape == ObstacleShape::Sphere)
       obstacles.push_back({{"type", "sphere"}, {"center", vecToJson<D>(o.center)}, {"radius", toJsonNumber(o.radius)}});
+    else
+      obstacles.push_back({{"type", "mesh"},
+                           {"file", o.placement.file},
+                           {"scale", o.placement.scale},
+                           {"translation", o.placement.translation},
+                           {"rotation", o.placement.rotationDeg}});
   }
   j["obstacles"] = obstacles;
   if (!s.bodies.empty()) {

@@ -2,6 +2,7 @@
 // Regular particle sampling shared by the simulation and by scene validation
 // (which must count particles before creating them).
 #include "core/aabb.h"
+#include "core/mesh_sdf.h"
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -113,5 +114,12 @@ void sampleSphereShell(const Vec<D>& c, Real radius, Real spacing, int layers, s
     }
   }
 }
+
+// Boundary samples of a closed triangle mesh, `layers` deep, as a box is
+// sampled: layer l on the surface offset `radius + l·spacing` into the solid
+// (one particle radius behind the surface, where the fluid lattice would
+// continue, then a spacing deeper per layer). sph/mesh_sampling.cpp says how.
+// Returns the lattice points examined.
+size_t sampleMeshShell(const MeshSdf& mesh, Real radius, Real spacing, int layers, std::vector<Vec3>& out);
 
 }  // namespace fc

@@ -2,9 +2,12 @@
 // Everything a simulation is built from: what a scene file describes, in
 // plain C++ (io/scene.cpp parses and validates JSON into this).
 #include "core/aabb.h"
+#include "core/mesh_sdf.h"
 #include "sph/parameters.h"
 #include "sph/phase.h"
 #include <array>
+#include <limits>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -17,17 +20,35 @@ struct FluidBlock {
   Vec<D> velocity = Vec<D>::Zero();
 };
 
-enum class ObstacleShape { Box, Sphere };
+enum class ObstacleShape { Box, Sphere, Mesh };
+
+// Where a mesh obstacle's file puts its solid: x_world = R (s ∘ x_file) + t,
+// R = Rx·Ry·Rz from the Euler angles (as bodies). `file` is the path as
+// resolved (io/scene.h: relative to the scene file's directory).
+struct MeshPlacement {
+  std::string file;
+  std::array<double, 3> scale{1, 1, 1};
+  std::array<double, 3> translation{};
+  std::array<double, 3> rotationDeg{};
+};
 
 template <int D>
 struct Obstacle {
   ObstacleShape shape = ObstacleShape::Box;
-  AABB<D> box;                          // Box
+  AABB<D> box;                          // Box; for a sphere and a mesh their bounds
   Vec<D> center = Vec<D>::Zero();       // Sphere / disk
   Real radius = 0;
+  // Mesh (3D only): the placed solid's signed-distance grid, shared by every
+  // copy of the setup.
+  MeshPlacement placement;
+  std::shared_ptr<const MeshSdf> mesh;
   // Signed distance to the surface, negative inside the solid.
   Real signedDistance(const Vec<D>& p) const {
     if (shape == ObstacleShape::Sphere) return (p - center).norm() - radius;
+    if (shape == ObstacleShape::Mesh) {
+      if constexpr (D == 3) return mesh->signedDistance(p);
+      else return std::numeric_limits<Real>::max();
+    }
     const Vec<D> q = (p - box.center()).cwiseAbs() - Real(0.5) * box.size();
     const Real outside = q.cwiseMax(Vec<D>::Zero()).norm();
     const Real inside = std::min(q.maxCoeff(), Real(0));

@@ -192,7 +192,13 @@ void Simulation<D>::buildBoundary() {
   sampleBoxShell<D>(setup_.domain.grown(radius_), spacing, layers, true, pts);
   for (const auto& o : setup_.obstacles) {
     if (o.shape == ObstacleShape::Box) sampleBoxShell<D>(o.box.grown(-radius_), spacing, layers, false, pts);
-    else sampleSphereShell<D>(o.center, o.radius - radius_, spacing, layers, pts);
+    else if (o.shape == ObstacleShape::Sphere) sampleSphereShell<D>(o.center, o.radius - radius_, spacing, layers, pts);
+    else if constexpr (D == 3) {
+      if (!o.mesh) throw std::invalid_argument("mesh obstacle without its mesh");
+      sampleMeshShell(*o.mesh, radius_, spacing, layers, pts);
+    } else {
+      throw std::invalid_argument("mesh obstacles are 3D only");
+    }
   }
   boundary.x = pts;
   boundary.v.assign(pts.size(), Vec<D>::Zero());

@@ -34,6 +34,13 @@ set(FC_BAD_SCENE_CASES
   "block_near_obstacle=fluid_blocks[0]:"
   "obstacle_radius_zero=obstacles[0].radius:"
   "disk_in_3d=obstacles[0].type:"
+  "mesh_in_2d=obstacles[0].type:"
+  # Bad OBJ files of mesh obstacles (bad_scenes/meshes/): the file key path.
+  "mesh_malformed=obstacles[1].file:"
+  "mesh_index_out_of_range=obstacles[1].file:"
+  "mesh_open_box=obstacles[1].file:"
+  "mesh_nonfinite=obstacles[1].file:"
+  "mesh_missing=obstacles[1].file:"
   "unknown_phase=fluid_blocks[0].phase:"
   "duplicate_phase=phases[1].name:"
   "rest_density_zero=phases[0].rest_density:"
@@ -58,6 +65,9 @@ foreach(case IN LISTS FC_BAD_SCENE_CASES)
   fc_cli_expect(cli_bad_scene_${file} 2 "${text}" run ${FC_BAD_SCENES}/${file}.json --frames 1)
 endforeach()
 
+# The open box's message says what is wrong with the mesh and where.
+fc_cli_expect(cli_bad_scene_mesh_not_closed 2 "the mesh is not closed: 4 edges belong to one face only, e.g. the edge from vertex"
+  run ${FC_BAD_SCENES}/mesh_open_box.json --frames 1)
 fc_cli_expect(cli_bad_scene_missing_file 2 "does_not_exist.json" run ${FC_BAD_SCENES}/does_not_exist.json --frames 1)
 fc_cli_expect(cli_bad_particle_radius_override 2 "fluid_blocks:"
   run ${FC_BAD_SCENES}/../../../scenes/bench/dambreak2d_r010.json --particle-radius 0.0001 --frames 1)
