@@ -8,7 +8,7 @@ CMAKE_FLAGS ?=
 PORT ?= 8080
 ABS_BUILD_DIR = $(abspath $(BUILD_DIR))
 
-.PHONY: all setup build web templates run run-headless test test-web test-web-only bench clean
+.PHONY: all setup build web templates run run-headless test test-web test-web-only bench bench-web clean
 
 # 2D templates are recorded when missing (seconds); larger ones on demand:
 # build/flowclip record templates/recipes/letters3d.json
@@ -59,6 +59,13 @@ test-web-only:
 
 bench: build
 	$(BUILD_DIR)/flowclip bench solver
+
+# The editor's browser benchmark (headless Chromium, software GL): decode +
+# upload + draw per frame at 100k and 300k particles, bytes per frame.
+# `make bench-web BENCH_WEB_ARGS=--quick` for a short run.
+BENCH_WEB_ARGS ?=
+bench-web: build templates web
+	@cd web && FLOWCLIP_BUILD_DIR=$(ABS_BUILD_DIR) node scripts/bench-browser.mjs $(BENCH_WEB_ARGS)
 
 clean:
 	rm -rf $(BUILD_DIR)

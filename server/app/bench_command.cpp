@@ -216,6 +216,7 @@ void addBenchCommand(CLI::App& app) {
 
   addBenchControlCommand(*bench);
   addBenchServiceCommand(*bench);
+  addBenchScenesCommand(*bench);
 }
 
 }  // namespace fc::app

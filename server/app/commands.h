@@ -12,6 +12,7 @@ void addTemplatesCommands(CLI::App& app);
 void addServeCommand(CLI::App& app);      // serve (serve_command.cpp)  // record, templates list|inspect|remove
 void addBenchControlCommand(CLI::App& bench);  // bench control (bench_control.cpp)
 void addBenchServiceCommand(CLI::App& bench);  // bench service (bench_service.cpp)
+void addBenchScenesCommand(CLI::App& bench);   // bench scenes (bench_scenes.cpp)
 
 // Exit codes shared by every command.
 enum ExitCode { Ok = 0, Failure = 1, BadInput = 2, SimulationFailed = 3, Interrupted = 130 };

@@ -130,6 +130,12 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
     std::fprintf(stderr, "%s: %dD, %zu liquid + %zu boundary particles, solver %s, %d threads, Real=%s\n",
                  setup.name.c_str(), D, sim.fluid.size(), sim.boundary.size(),
                  setup.solver.name.empty() ? "dfsph" : setup.solver.name.c_str(), omp_get_max_threads(), realName());
+  if (!opt.quiet)
+    for (size_t i = 0; i < setup.obstacles.size(); ++i)
+      if (const auto& m = setup.obstacles[i].mesh)
+        std::fprintf(stderr, "obstacles[%zu]: mesh %s, %zu triangles, signed-distance grid %dx%dx%d (%.1f MB) built in %.0f ms\n",
+                     i, setup.obstacles[i].placement.file.c_str(), m->mesh().triangles.size(), m->dims()[0], m->dims()[1],
+                     m->dims()[2], double(m->nodes() * sizeof(Real)) / 1e6, m->buildMs());
   if (!opt.quiet && instances)
     std::fprintf(stderr, "%zu template instances, templates loaded with their repulsion layers in %.2f s\n", instances,
                  bindS);

@@ -166,6 +166,8 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
         if (!dom.grown(-radius).contains(xtp)) continue;
         bool nearSolid = false;
         for (const auto& o : obstacles) nearSolid = nearSolid || o.signedDistance(xtp) < radius;
+        if (const auto* bodies = sim.bodies())
+          for (const auto& b : bodies->states()) nearSolid = nearSolid || b.signedDistance(xtp) < radius;
         if (nearSolid) continue;
         bool crowded = false;
         Real rho = 0;

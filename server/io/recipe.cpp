@@ -144,7 +144,9 @@ Recipe loadRecipe(const std::string& file) {
   std::stringstream ss;
   ss << in.rdbuf();
   const std::string text = ss.str();
-  return parseRecipe(parseSceneText(text, file), text);
+  nlohmann::json recipe = parseSceneText(text, file);
+  resolveSceneFilePaths(recipe, file);
+  return parseRecipe(recipe, text);
 }
 
 template <int D>

@@ -1,5 +1,6 @@
 #include "io/scene.h"
 
+#include "io/obj_mesh.h"
 #include "io/template_database.h"
 
 #include "sph/pipeline.h"
@@ -313,7 +314,81 @@ std::vector<FluidBlock<D>> parseFluidBlocks(const json& root, const std::vector<
 }
 
 template <int D>
-std::vector<Obstacle<D>> parseObstacles(const json* j) {
+std::array<double, D == 2 ? 1 : 3> parseRotationDeg(const json& j, const std::string& path);
+
+// A mesh obstacle's placement: scale (a number or one per axis, > 0),
+// translation, rotation (Euler XYZ, degrees).
+MeshPlacement parseMeshPlacement(const json& o, const std::string& p) {
+  MeshPlacement pl;
+  const std::string fp = key(p, "file");
+  pl.file = getString(required(o, p, "file", "an OBJ file, relative to the scene file's directory"), fp);
+  if (pl.file.empty()) fail(fp, "must name an OBJ file");
+  std::string ext = std::filesystem::path(pl.file).extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  if (ext != ".obj") fail(fp, "'" + pl.file + "' is not a Wavefront OBJ file (.obj), the only mesh format read");
+  if (const json* m = member(o, "scale")) {
+    const std::string sp = key(p, "scale");
+    if (m->is_number()) {
+      const double v = getNumber(*m, sp);
+      if (!(v > 0)) fail(sp, fmt(v) + " must be > 0");
+      pl.scale = {v, v, v};
+    } else {
+      expectType(m->is_array() && m->size() == 3, *m, sp, "a number (uniform scale) or an array of 3 numbers");
+      for (size_t d = 0; d < 3; ++d) {
+        pl.scale[d] = getNumber((*m)[d], at(sp, d));
+        if (!(pl.scale[d] > 0)) fail(at(sp, d), fmt(pl.scale[d]) + " must be > 0");
+      }
+    }
+  }
+  if (const json* m = member(o, "translation")) {
+    const std::string tp = key(p, "translation");
+    expectType(m->is_array(), *m, tp, "an array of 3 numbers");
+    if (m->size() != 3) fail(tp, "expected 3 components (the scene is 3D), got " + std::to_string(m->size()));
+    for (size_t d = 0; d < 3; ++d) pl.translation[d] = getNumber((*m)[d], at(tp, d));
+  }
+  if (const json* m = member(o, "rotation")) pl.rotationDeg = parseRotationDeg<3>(*m, key(p, "rotation"));
+  return pl;
+}
+
+// Reads, validates and places the mesh, then builds its signed-distance grid
+// at the particle radius over its bounds plus the kernel support and a cell.
+std::shared_ptr<const MeshSdf> buildMeshObstacle(const MeshPlacement& pl, Real particleRadius, const std::string& path) {
+  ObjSolid solid;
+  try {
+    solid = readObjSolid(pl.file);
+  } catch (const MeshFileError& e) {
+    fail(path, e.what());
+  }
+  constexpr double deg = 3.14159265358979323846 / 180;
+  const Eigen::Matrix3d R = (Eigen::AngleAxisd(pl.rotationDeg[0] * deg, Eigen::Vector3d::UnitX()) *
+                             Eigen::AngleAxisd(pl.rotationDeg[1] * deg, Eigen::Vector3d::UnitY()) *
+                             Eigen::AngleAxisd(pl.rotationDeg[2] * deg, Eigen::Vector3d::UnitZ()))
+                                .toRotationMatrix();
+  const Vec3d scale(pl.scale[0], pl.scale[1], pl.scale[2]);
+  const Vec3d t(pl.translation[0], pl.translation[1], pl.translation[2]);
+  for (Vec3d& v : solid.mesh.vertices) {
+    v = R * scale.cwiseProduct(v) + t;
+    if (!v.allFinite() || (v.cwiseAbs().array() > double(std::numeric_limits<Real>::max())).any())
+      fail(path, "'" + pl.file + "': a vertex placed by scale, rotation and translation is not finite in " + realName());
+  }
+  MeshSdf::Options opt;
+  opt.spacing = double(particleRadius);
+  opt.band = 5 * double(particleRadius);
+  // Exact within 1.5 r: contact (contact_distance <= r) and the start checks
+  // (r) then decide on the exact surface, whatever the grid's error (at most
+  // half a cell, measured).
+  opt.exactBand = 1.5 * double(particleRadius);
+  try {
+    return std::make_shared<const MeshSdf>(std::move(solid.mesh), opt);
+  } catch (const MeshGridTooLarge& e) {
+    fail(path, "'" + pl.file + "': " + e.what());
+  } catch (const std::invalid_argument& e) {
+    fail(path, "'" + pl.file + "': " + e.what());
+  }
+}
+
+template <int D>
+std::vector<Obstacle<D>> parseObstacles(const json* j, Real particleRadius) {
   std::vector<Obstacle<D>> obstacles;
   if (!j) return obstacles;
   const std::string path = "obstacles";
@@ -321,7 +396,7 @@ std::vector<Obstacle<D>> parseObstacles(const json* j) {
   for (size_t i = 0; i < j->size(); ++i) {
     const std::string p = at(path, i);
     const json& o = expectObject((*j)[i], p);
-    const std::string type = getString(required(o, p, "type", D == 2 ? "\"box\", \"sphere\" or \"disk\"" : "\"box\" or \"sphere\""),
+    const std::string type = getString(required(o, p, "type", D == 2 ? "\"box\", \"sphere\" or \"disk\"" : "\"box\", \"sphere\" or \"mesh\""),
                                        key(p, "type"));
     Obstacle<D> ob;
     if (type == "box") {
@@ -335,13 +410,172 @@ std::vector<Obstacle<D>> parseObstacles(const json* j) {
       ob.radius = getReal(required(o, p, "radius", "m"), key(p, "radius"));
       if (ob.radius <= 0) fail(key(p, "radius"), fmt(ob.radius) + " m must be > 0");
       ob.box = AABB<D>(ob.center.array() - ob.radius, ob.center.array() + ob.radius);
+    } else if (type == "mesh") {
+      if constexpr (D == 2) {
+        fail(key(p, "type"), "mesh obstacles (OBJ files) are 3D only; a 2D scene takes box and disk obstacles");
+      } else {
+        checkKeys(o, p, {"type", "file", "scale", "translation", "rotation"});
+        ob.shape = ObstacleShape::Mesh;
+        ob.placement = parseMeshPlacement(o, p);
+        ob.mesh = buildMeshObstacle(ob.placement, particleRadius, key(p, "file"));
+        ob.box = ob.mesh->bounds();
+      }
     } else {
       fail(key(p, "type"), "unknown obstacle type '" + type + "'; expected " +
-                               (D == 2 ? "box, sphere or disk" : "box or sphere (disk is 2D only)"));
+                               (D == 2 ? "box, sphere or disk (mesh is 3D only)" : "box, sphere or mesh (disk is 2D only)"));
     }
     obstacles.push_back(ob);
   }
   return obstacles;
+}
+
+bool getBool(const json& j, const std::string& path);
+
+// Rotation in degrees: 2D a number (counter-clockwise), 3D [x, y, z] Euler
+// angles, intrinsic XYZ.
+template <int D>
+std::array<double, D == 2 ? 1 : 3> parseRotationDeg(const json& j, const std::string& path) {
+  std::array<double, D == 2 ? 1 : 3> r{};
+  if constexpr (D == 2) {
+    r[0] = getNumber(j, path);
+  } else {
+    expectType(j.is_array() && j.size() == 3, j, path, "[x, y, z] Euler angles in degrees");
+    for (size_t a = 0; a < 3; ++a) r[a] = getNumber(j[a], at(path, a));
+  }
+  return r;
+}
+
+template <int D>
+json rotationToJson(const std::array<double, D == 2 ? 1 : 3>& r) {
+  if constexpr (D == 2) return r[0];
+  else return json::array({r[0], r[1], r[2]});
+}
+
+// Fails at `where` if the body, placed at `pose`, reaches outside the domain.
+template <int D>
+void checkBodyInDomain(const Body<D>& b, const BodyKey<D>& pose, const AABB<D>& domain, const std::string& where) {
+  constexpr double deg = 3.14159265358979323846 / 180;
+  Eigen::Matrix<double, D, D> R;
+  if constexpr (D == 2) R = Eigen::Rotation2Dd(pose.rotationDeg[0] * deg).toRotationMatrix();
+  else
+    R = (Eigen::AngleAxisd(pose.rotationDeg[0] * deg, Eigen::Vector3d::UnitX()) *
+         Eigen::AngleAxisd(pose.rotationDeg[1] * deg, Eigen::Vector3d::UnitY()) *
+         Eigen::AngleAxisd(pose.rotationDeg[2] * deg, Eigen::Vector3d::UnitZ()))
+            .toRotationMatrix();
+  for (int d = 0; d < D; ++d) {
+    double e = double(b.radius);
+    if (b.shape == ObstacleShape::Box) {
+      e = 0;
+      for (int c = 0; c < D; ++c) e += std::abs(R(d, c)) * double(b.halfSize[c]);
+    }
+    const double lo = double(pose.position[d]) - e, hi = double(pose.position[d]) + e;
+    if (lo < double(domain.min[d]) - kContainTolerance || hi > double(domain.max[d]) + kContainTolerance)
+      fail(where, "the body reaches " + fmt(Real(lo)) + ".." + fmt(Real(hi)) + " m along " + axisName(d) +
+                      ", outside the domain " + fmt(domain.min[d]) + ".." + fmt(domain.max[d]) + " m");
+  }
+}
+
+// Moving solids: "bodies": [{name, type: box|sphere|disk, size | radius,
+// position, rotation, motion: kinematic|dynamic, ...}].
+template <int D>
+std::vector<Body<D>> parseBodies(const json* j, const AABB<D>& domain) {
+  std::vector<Body<D>> bodies;
+  if (!j) return bodies;
+  const std::string path = "bodies";
+  expectArray(*j, path);
+  for (size_t i = 0; i < j->size(); ++i) {
+    const std::string p = at(path, i);
+    const json& o = expectObject((*j)[i], p);
+    checkKeys(o, p, {"name", "type", "size", "radius", "position", "rotation", "motion", "velocity",
+                     "angular_velocity", "keys", "period", "density", "carve_fluid"});
+    Body<D> b;
+    b.name = getString(required(o, p, "name", "a name unique among the bodies"), key(p, "name"));
+    if (!isValidTemplateName(b.name)) fail(key(p, "name"), "\"" + b.name.substr(0, 40) + "\" is not a name ([A-Za-z0-9_-]{1,64})");
+    for (const Body<D>& other : bodies)
+      if (other.name == b.name) fail(key(p, "name"), "duplicate body name \"" + b.name + "\"");
+    const std::string type = getString(required(o, p, "type", D == 2 ? "\"box\" or \"disk\"" : "\"box\" or \"sphere\""), key(p, "type"));
+    if (type == "box") {
+      b.shape = ObstacleShape::Box;
+      if (member(o, "radius")) fail(key(p, "radius"), "a box has a size, not a radius");
+      const Vec<D> size = getVec<D>(required(o, p, "size", "edge lengths, m"), key(p, "size"));
+      for (int d = 0; d < D; ++d)
+        if (!(size[d] > 0)) fail(at(key(p, "size"), size_t(d)), fmt(size[d]) + " m must be > 0");
+      b.halfSize = Real(0.5) * size;
+    } else if (type == "sphere" || (D == 2 && type == "disk")) {
+      b.shape = ObstacleShape::Sphere;
+      if (member(o, "size")) fail(key(p, "size"), "a " + type + " has a radius, not a size");
+      b.radius = getReal(required(o, p, "radius", "m"), key(p, "radius"));
+      if (!(b.radius > 0)) fail(key(p, "radius"), fmt(b.radius) + " m must be > 0");
+    } else {
+      fail(key(p, "type"), "unknown body type '" + type + "'; expected " + (D == 2 ? "box or disk" : "box or sphere"));
+    }
+    if (member(o, "keys") && member(o, "motion") && (*member(o, "motion")) == "dynamic")
+      fail(key(p, "keys"), "a dynamic body moves by the liquid's forces; it has no keys");
+    // Keyed bodies start at their first key.
+    if (!member(o, "keys")) b.position = getVec<D>(required(o, p, "position", "the body centre, m"), key(p, "position"));
+    else if (member(o, "position")) fail(key(p, "position"), "a keyed body starts at its first key; give no position");
+    if (member(o, "keys") && member(o, "rotation")) fail(key(p, "rotation"), "a keyed body starts at its first key; give no rotation");
+    if (const json* m = member(o, "rotation")) b.rotationDeg = parseRotationDeg<D>(*m, key(p, "rotation"));
+    const std::string motion = getString(required(o, p, "motion", "\"kinematic\" or \"dynamic\""), key(p, "motion"));
+    if (motion == "kinematic") {
+      b.motion = BodyMotion::Kinematic;
+      if (member(o, "density")) fail(key(p, "density"), "only a dynamic body has a density");
+      if (const json* m = member(o, "velocity")) b.velocity = getVec<D>(*m, key(p, "velocity"));
+      if (const json* m = member(o, "angular_velocity"))
+        b.angularVelocityDeg = parseRotationDeg<D>(*m, key(p, "angular_velocity"));
+      if (const json* m = member(o, "keys")) {
+        const std::string kp = key(p, "keys");
+        expectArray(*m, kp);
+        if (m->empty()) fail(kp, "needs at least one key");
+        if (member(o, "velocity") || member(o, "angular_velocity"))
+          fail(kp, "give either keys or velocity/angular_velocity, not both");
+        for (size_t k = 0; k < m->size(); ++k) {
+          const std::string q = at(kp, k);
+          const json& ko = expectObject((*m)[k], q);
+          checkKeys(ko, q, {"time", "position", "rotation"});
+          BodyKey<D> key0;
+          key0.time = getNumber(required(ko, q, "time", "s"), key(q, "time"));
+          key0.position = getVec<D>(required(ko, q, "position", "m"), key(q, "position"));
+          if (const json* r = member(ko, "rotation")) key0.rotationDeg = parseRotationDeg<D>(*r, key(q, "rotation"));
+          if (!b.keys.empty() && !(key0.time > b.keys.back().time))
+            fail(key(q, "time"), fmt(key0.time) + " s must be after the previous key's " + fmt(b.keys.back().time) + " s");
+          b.keys.push_back(key0);
+        }
+        b.position = b.keys.front().position;
+        b.rotationDeg = b.keys.front().rotationDeg;
+      }
+      if (const json* m = member(o, "period")) {
+        b.period = getNumber(*m, key(p, "period"));
+        if (b.keys.empty()) fail(key(p, "period"), "a period repeats keys; this body has none");
+        if (!(b.period >= b.keys.back().time) || !(b.period > 0))
+          fail(key(p, "period"), fmt(b.period) + " s must be > 0 and at least the last key's time");
+      }
+    } else if (motion == "dynamic") {
+      b.motion = BodyMotion::Dynamic;
+      for (const char* k : {"velocity", "angular_velocity", "keys", "period"})
+        if (const json* m = member(o, k); m && std::string(k) != "velocity")
+          fail(key(p, k), "a dynamic body moves by the liquid's forces; it has no " + std::string(k));
+      if (const json* m = member(o, "velocity")) b.velocity = getVec<D>(*m, key(p, "velocity"));
+      b.density = getReal(required(o, p, "density", "kg/m^3"), key(p, "density"));
+      if (!(b.density > 0)) fail(key(p, "density"), fmt(b.density) + " kg/m^3 must be > 0");
+    } else {
+      fail(key(p, "motion"), "unknown motion '" + motion + "'; expected kinematic or dynamic");
+    }
+    if (const json* m = member(o, "carve_fluid")) b.carveFluid = getBool(*m, key(p, "carve_fluid"));
+    // The body stays inside the tank: at its start and at every key.
+    std::vector<std::pair<std::string, BodyKey<D>>> poses;
+    if (b.keys.empty()) {
+      BodyKey<D> k;
+      k.position = b.position;
+      k.rotationDeg = b.rotationDeg;
+      poses.push_back({key(p, "position"), k});
+    } else {
+      for (size_t k = 0; k < b.keys.size(); ++k) poses.push_back({key(at(key(p, "keys"), k), "position"), b.keys[k]});
+    }
+    for (const auto& [where, pose] : poses) checkBodyInDomain<D>(b, pose, domain, where);
+    bodies.push_back(b);
+  }
+  return bodies;
 }
 
 template <int D>
@@ -677,6 +911,41 @@ void checkFluidBlocks(const SimulationSetup<D>& s, bool overridden) {
   }
 }
 
+// A body whose solid overlaps a fluid block would start with liquid inside
+// it: an error, unless the body says carve_fluid (the liquid it overlaps is
+// left out, as a boat placed on a pool displaces it).
+template <int D>
+void checkBodies(const SimulationSetup<D>& s) {
+  const Real r = s.particleRadius;
+  const Real spacing = 2 * r;
+  for (size_t k = 0; k < s.bodies.size(); ++k) {
+    const Body<D>& b = s.bodies[k];
+    if (b.carveFluid) continue;
+    Eigen::Matrix<double, D, D> R;
+    constexpr double deg = 3.14159265358979323846 / 180;
+    if constexpr (D == 2) R = Eigen::Rotation2Dd(b.rotationDeg[0] * deg).toRotationMatrix();
+    else
+      R = (Eigen::AngleAxisd(b.rotationDeg[0] * deg, Eigen::Vector3d::UnitX()) *
+           Eigen::AngleAxisd(b.rotationDeg[1] * deg, Eigen::Vector3d::UnitY()) *
+           Eigen::AngleAxisd(b.rotationDeg[2] * deg, Eigen::Vector3d::UnitZ()))
+              .toRotationMatrix();
+    const Real reach = b.boundingRadius() + r;
+    for (size_t i = 0; i < s.fluidBlocks.size(); ++i) {
+      const AABB<D>& blk = s.fluidBlocks[i].box;
+      if (!AABB<D>(Vec<D>(b.position.array() - reach), Vec<D>(b.position.array() + reach)).intersects(blk)) continue;
+      forEachLatticePoint(blk, spacing, [&](const Vec<D>& x) {
+        const Eigen::Matrix<double, D, 1> local = R.transpose() * (x - b.position).template cast<double>();
+        const Real dist = b.localSignedDistance(local.template cast<Real>());
+        if (dist < r)
+          fail(at("bodies", k),
+               "body \"" + b.name + "\" overlaps " + at("fluid_blocks", i) + " (its particle at " + fmtVec<D>(x) +
+                   " would start " + (dist < 0 ? "inside the body" : "closer than particle_radius to it") +
+                   "); move the body or the block, or set \"carve_fluid\": true to leave that liquid out");
+      });
+    }
+  }
+}
+
 // ----------------------------------------------- duplicate-key detection ---
 // A parser callback that tracks the key path, so a key written twice in one
 // object (which JSON parsers silently resolve to the last value) is reported
@@ -774,7 +1043,29 @@ json loadSceneJson(const std::string& file) {
   std::ostringstream text;
   text << in.rdbuf();
   if (in.bad()) throw SceneError("", "cannot read scene file '" + file + "'");
-  return parseSceneText(text.str(), file);
+  json scene = parseSceneText(text.str(), file);
+  resolveSceneFilePaths(scene, file);
+  return scene;
+}
+
+void resolveSceneFilePaths(json& scene, const std::string& sceneFile) {
+  namespace fs = std::filesystem;
+  if (!scene.is_object()) return;
+  const auto obstacles = scene.find("obstacles");
+  if (obstacles == scene.end() || !obstacles->is_array()) return;
+  const fs::path dir = fs::path(sceneFile).parent_path();
+  for (json& o : *obstacles) {
+    if (!o.is_object()) continue;
+    const auto type = o.find("type");
+    const auto file = o.find("file");
+    if (type == o.end() || *type != "mesh" || file == o.end() || !file->is_string()) continue;
+    const fs::path f = file->get<std::string>();
+    if (f.empty() || f.is_absolute()) continue;
+    std::error_code ec;
+    fs::path resolved = fs::absolute(dir / f, ec);
+    if (ec) resolved = dir / f;
+    *file = resolved.lexically_normal().string();
+  }
 }
 
 int sceneDimension(const json& scene) {
@@ -792,7 +1083,7 @@ SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
     fail("dimension", "the scene is " + std::to_string(sceneDimension(root)) + "D but was loaded as " +
                           std::to_string(D) + "D");
   checkKeys(root, "", {"name", "dimension", "particle_radius", "domain", "gravity", "duration", "max_particles",
-                       "phases", "fluid_blocks", "obstacles", "solver", "settings", "effects", "control",
+                       "phases", "fluid_blocks", "obstacles", "bodies", "solver", "settings", "effects", "control",
                        "instances"});
   // "control" and "instances" are read by parseSceneControl.
 
@@ -840,12 +1131,14 @@ SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
 
   s.phases = parsePhases(member(root, "phases"));
   s.fluidBlocks = parseFluidBlocks<D>(root, s.phases);
-  s.obstacles = parseObstacles<D>(member(root, "obstacles"));
+  s.obstacles = parseObstacles<D>(member(root, "obstacles"), s.particleRadius);
+  s.bodies = parseBodies<D>(member(root, "bodies"), s.domain);
   s.solver = parseSolver<D>(member(root, "solver"));
   s.settings = parseSettings(member(root, "settings"));
   s.effects = parseEffects<D>(member(root, "effects"));
 
   checkFluidBlocks(s, overridden);
+  checkBodies(s);
   return s;
 }
 
@@ -885,10 +1178,51 @@ json sceneToJson(const SimulationSetup<D>& s) {
   for (const Obstacle<D>& o : s.obstacles) {
     if (o.shape == ObstacleShape::Box)
       obstacles.push_back({{"type", "box"}, {"min", vecToJson<D>(o.box.min)}, {"max", vecToJson<D>(o.box.max)}});
-    else
+    else if (o.shape == ObstacleShape::Sphere)
       obstacles.push_back({{"type", "sphere"}, {"center", vecToJson<D>(o.center)}, {"radius", toJsonNumber(o.radius)}});
+    else
+      obstacles.push_back({{"type", "mesh"},
+                           {"file", o.placement.file},
+                           {"scale", o.placement.scale},
+                           {"translation", o.placement.translation},
+                           {"rotation", o.placement.rotationDeg}});
   }
   j["obstacles"] = obstacles;
+  if (!s.bodies.empty()) {
+    json bodies = json::array();
+    for (const Body<D>& b : s.bodies) {
+      json o = {{"name", b.name}, {"position", vecToJson<D>(b.position)}, {"rotation", rotationToJson<D>(b.rotationDeg)}};
+      if (b.shape == ObstacleShape::Box) {
+        o["type"] = "box";
+        o["size"] = vecToJson<D>(Vec<D>(2 * b.halfSize));
+      } else {
+        o["type"] = D == 2 ? "disk" : "sphere";
+        o["radius"] = toJsonNumber(b.radius);
+      }
+      if (b.motion == BodyMotion::Dynamic) {
+        o["motion"] = "dynamic";
+        o["density"] = toJsonNumber(b.density);
+        if (!b.velocity.isZero()) o["velocity"] = vecToJson<D>(b.velocity);
+      } else {
+        o["motion"] = "kinematic";
+        if (!b.keys.empty()) {
+          json keys = json::array();
+          for (const BodyKey<D>& k : b.keys)
+            keys.push_back({{"time", k.time}, {"position", vecToJson<D>(k.position)}, {"rotation", rotationToJson<D>(k.rotationDeg)}});
+          o["keys"] = keys;
+          if (b.period > 0) o["period"] = b.period;
+          o.erase("position");
+          o.erase("rotation");
+        } else {
+          o["velocity"] = vecToJson<D>(b.velocity);
+          o["angular_velocity"] = rotationToJson<D>(b.angularVelocityDeg);
+        }
+      }
+      if (b.carveFluid) o["carve_fluid"] = true;
+      bodies.push_back(o);
+    }
+    j["bodies"] = bodies;
+  }
 
   const auto* solverEntry = PressureSolverRegistry<D>::instance().find(s.solver.name);
   json solver = paramsToJson(s.solver.values, solverEntry ? &solverEntry->params : nullptr);

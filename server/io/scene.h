@@ -27,8 +27,17 @@ struct SceneError : std::runtime_error {
 // name) in error messages.
 nlohmann::json parseSceneText(const std::string& text, const std::string& origin = "scene");
 
-// Reads and parses a scene file (see parseSceneText).
+// Reads and parses a scene file (see parseSceneText), then resolves the
+// files it names (resolveSceneFilePaths).
 nlohmann::json loadSceneJson(const std::string& file);
+
+// Mesh obstacles name their OBJ file relative to the scene file's directory:
+// this rewrites every relative `obstacles[i].file` of a "mesh" obstacle in
+// `scene` to an absolute path, from the directory of `sceneFile`. JSON that
+// comes from no file (parseScene on an inline scene, a REST request) keeps
+// its paths as written: absolute, or relative to the current directory.
+// Anything malformed is left for parseScene to report.
+void resolveSceneFilePaths(nlohmann::json& scene, const std::string& sceneFile);
 
 // The scene's "dimension" (2 or 3), so callers can pick parseScene<2> or <3>.
 int sceneDimension(const nlohmann::json& scene);

@@ -12,6 +12,8 @@ nlohmann::json frameStatsToJson(const FrameStats& s, bool controlled) {
                       {"avg_density_error_pct", s.avgDensityErrorPct},
                       {"max_density_error_pct", s.maxDensityErrorPct},
                       {"converged", s.converged},
+                      {"viscosity_iterations", s.viscosityIterations},
+                      {"viscosity_converged", s.viscosityConverged},
                       {"finite", s.finite},
                       {"particles", s.particles},
                       {"boundary_particles", s.boundaryParticles},
@@ -49,6 +51,18 @@ nlohmann::json frameStatsToJson(const FrameStats& s, bool controlled) {
                     {"control_particles", i.controlParticles},
                     {"repulsion_particles", i.repulsionParticles}});
   j["instances"] = inst;
+  // Moving bodies, only in scenes that have them.
+  if (!s.bodies.empty()) {
+    nlohmann::json bodies = nlohmann::json::array();
+    for (const auto& b : s.bodies)
+      bodies.push_back({{"name", b.name},
+                        {"position", b.position},
+                        {"velocity", b.velocity},
+                        {"rotation_deg", b.rotationDeg},
+                        {"force", b.force},
+                        {"wall_contacts", b.wallContacts}});
+    j["bodies"] = bodies;
+  }
   return j;
 }
 

@@ -1078,6 +1078,7 @@ class SessionImpl final : public Session {
         throw;
       }
     }
+    sim->continueBodiesFrom(*sim_, timeBase);
     sim_ = std::move(sim);
     frameBase_ = frameBase;
     timeBase_ = timeBase;

@@ -14,7 +14,13 @@ template <int D> std::unique_ptr<PressureSolver<D>> makeWCSPH(const ParamValues&
 const ParamSpecs& viscosityStandardParams();
 template <int D> std::unique_ptr<Effect<D>> makeViscosityStandard(const ParamValues&);
 
+const ParamSpecs& viscosityWeiler2018Params();
+template <int D> std::unique_ptr<Effect<D>> makeViscosityWeiler2018(const ParamValues&);
+
 const ParamSpecs& viscosityXSPHParams();
 template <int D> std::unique_ptr<Effect<D>> makeViscosityXSPH(const ParamValues&);
+
+const ParamSpecs& surfaceTensionAkinci2013Params();
+template <int D> std::unique_ptr<Effect<D>> makeSurfaceTensionAkinci2013(const ParamValues&);
 
 }  // namespace fc

@@ -45,7 +45,11 @@ class PressureSolver {
 };
 
 // Stages an effect takes part in; the pipeline only calls what is declared.
-enum EffectStage : unsigned { AddAccelerations = 1, CorrectVelocities = 2, FrameBoundary = 4 };
+// Order within a substep: AddAccelerations (a, before Δt is known), then
+// v* = v + Δt·a, then ImplicitVelocities (v* and Δt: implicit solves that
+// must act before the pressure solve, e.g. implicit viscosity), then the
+// density solve, then CorrectVelocities (after it).
+enum EffectStage : unsigned { AddAccelerations = 1, CorrectVelocities = 2, FrameBoundary = 4, ImplicitVelocities = 8 };
 
 template <int D>
 class Effect {
@@ -55,6 +59,15 @@ class Effect {
   virtual void init(Simulation<D>&) {}
   virtual void addAccelerations(Simulation<D>&) {}
   virtual void correctVelocities(Simulation<D>&, Real /*dt*/) {}
+  // ImplicitVelocities: replaces the predicted velocities v* = v + Δt·a of
+  // this substep (every non-pressure acceleration, control forces included)
+  // with the solution of an implicit system in Δt, before the pressure solve
+  // sees them. Reports its solve (iterations, convergence, boundary impulse).
+  // It exists because neither of the other stages can express this:
+  // AddAccelerations runs before Δt is chosen (the CFL step depends on the
+  // accelerations), and CorrectVelocities runs after the pressure solve,
+  // whose divergence-free result a viscosity solve would then undo.
+  virtual SolverReport solveVelocities(Simulation<D>&, Real /*dt*/) { return {}; }
   // FrameBoundary: before the first substep of a frame (the only place where
   // particles may be added or removed) and after its last one.
   virtual void beginFrame(Simulation<D>&, FrameStats&) {}

@@ -12,7 +12,11 @@ void registerDim() {
   auto& effects = EffectRegistry<D>::instance();
   effects.add("viscosity_standard",
               {"Standard SPH viscosity (Monaghan-type Laplacian)", viscosityStandardParams(), makeViscosityStandard<D>});
+  effects.add("viscosity_weiler2018", {"Implicit viscosity (Weiler, Koschier, Brand & Bender 2018)",
+                                       viscosityWeiler2018Params(), makeViscosityWeiler2018<D>});
   effects.add("viscosity_xsph", {"XSPH velocity smoothing", viscosityXSPHParams(), makeViscosityXSPH<D>});
+  effects.add("surface_tension_akinci2013", {"Surface tension and adhesion (Akinci, Akinci & Teschner 2013)",
+                                             surfaceTensionAkinci2013Params(), makeSurfaceTensionAkinci2013<D>});
 }
 }  // namespace
 

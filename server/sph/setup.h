@@ -2,8 +2,12 @@
 // Everything a simulation is built from: what a scene file describes, in
 // plain C++ (io/scene.cpp parses and validates JSON into this).
 #include "core/aabb.h"
+#include "core/mesh_sdf.h"
 #include "sph/parameters.h"
 #include "sph/phase.h"
+#include <array>
+#include <limits>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -16,22 +20,85 @@ struct FluidBlock {
   Vec<D> velocity = Vec<D>::Zero();
 };
 
-enum class ObstacleShape { Box, Sphere };
+enum class ObstacleShape { Box, Sphere, Mesh };
+
+// Where a mesh obstacle's file puts its solid: x_world = R (s ∘ x_file) + t,
+// R = Rx·Ry·Rz from the Euler angles (as bodies). `file` is the path as
+// resolved (io/scene.h: relative to the scene file's directory).
+struct MeshPlacement {
+  std::string file;
+  std::array<double, 3> scale{1, 1, 1};
+  std::array<double, 3> translation{};
+  std::array<double, 3> rotationDeg{};
+};
 
 template <int D>
 struct Obstacle {
   ObstacleShape shape = ObstacleShape::Box;
-  AABB<D> box;                          // Box
+  AABB<D> box;                          // Box; for a sphere and a mesh their bounds
   Vec<D> center = Vec<D>::Zero();       // Sphere / disk
   Real radius = 0;
+  // Mesh (3D only): the placed solid's signed-distance grid, shared by every
+  // copy of the setup.
+  MeshPlacement placement;
+  std::shared_ptr<const MeshSdf> mesh;
   // Signed distance to the surface, negative inside the solid.
   Real signedDistance(const Vec<D>& p) const {
     if (shape == ObstacleShape::Sphere) return (p - center).norm() - radius;
+    if (shape == ObstacleShape::Mesh) {
+      if constexpr (D == 3) return mesh->signedDistance(p);
+      else return std::numeric_limits<Real>::max();
+    }
     const Vec<D> q = (p - box.center()).cwiseAbs() - Real(0.5) * box.size();
     const Real outside = q.cwiseMax(Vec<D>::Zero()).norm();
     const Real inside = std::min(q.maxCoeff(), Real(0));
     return outside + inside;
   }
+};
+
+// A rigid body (Akinci et al. 2012 boundary particles on its surface):
+// kinematic (its motion is given) or dynamic (two-way coupled: the liquid's
+// pressure moves it, it moves the liquid). Its shape is described in its own
+// frame, centred on the origin; `position` and `rotationDeg` place it.
+enum class BodyMotion { Kinematic, Dynamic };
+
+template <int D>
+struct BodyKey {
+  double time = 0;                        // s
+  Vec<D> position = Vec<D>::Zero();       // m, the body centre
+  std::array<double, D == 2 ? 1 : 3> rotationDeg{};  // 2D angle; 3D Euler XYZ (R = Rx·Ry·Rz)
+};
+
+template <int D>
+struct Body {
+  std::string name;
+  ObstacleShape shape = ObstacleShape::Box;
+  Vec<D> halfSize = Vec<D>::Zero();       // Box: half extents, m
+  Real radius = 0;                        // Sphere / disk, m
+  Vec<D> position = Vec<D>::Zero();       // initial centre, m
+  std::array<double, D == 2 ? 1 : 3> rotationDeg{};  // initial orientation
+  BodyMotion motion = BodyMotion::Kinematic;
+  // Kinematic: keys (piecewise linear; slerp in 3D), repeated every
+  // `period` s when > 0; without keys, constant velocity and angular
+  // velocity (deg/s: 2D counter-clockwise, 3D about the world axes).
+  std::vector<BodyKey<D>> keys;
+  double period = 0;
+  Vec<D> velocity = Vec<D>::Zero();
+  std::array<double, D == 2 ? 1 : 3> angularVelocityDeg{};
+  // Dynamic:
+  Real density = 500;                     // kg/m^3 (2D: kg/m^3 per metre of depth)
+  // Liquid of the fluid blocks that would start inside the body is left out
+  // (otherwise a block overlapping a body is an error).
+  bool carveFluid = false;
+
+  // Signed distance in the body's own frame, negative inside.
+  Real localSignedDistance(const Vec<D>& p) const {
+    if (shape == ObstacleShape::Sphere) return p.norm() - radius;
+    const Vec<D> q = p.cwiseAbs() - halfSize;
+    return q.cwiseMax(Vec<D>::Zero()).norm() + std::min(q.maxCoeff(), Real(0));
+  }
+  // Radius of the sphere about the centre that holds the body.
+  Real boundingRadius() const { return shape == ObstacleShape::Sphere ? radius : halfSize.norm(); }
 };
 
 struct NamedParams {
@@ -48,6 +115,7 @@ struct SimulationSetup {
   std::vector<Phase> phases{Phase{}};
   std::vector<FluidBlock<D>> fluidBlocks;
   std::vector<Obstacle<D>> obstacles;
+  std::vector<Body<D>> bodies;          // moving solids (none: no stage, no cost)
   NamedParams solver;                   // pressure solver name and its parameters
   ParamValues settings;                 // scene-level solver settings (simulationSettingsSpecs)
   std::vector<NamedParams> effects;     // in the order the scene lists them

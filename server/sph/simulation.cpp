@@ -16,71 +16,6 @@ double msSince(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
-// Per-axis coordinates of a box shell lattice: the two faces, evenly spaced
-// points between them (spacing close to `spacing`, faces hit exactly), and
-// `extra` further layers beyond each face.
-std::vector<Real> axisCoords(Real lo, Real hi, Real spacing, int extra) {
-  const int n = std::max(1, int(std::lround((hi - lo) / spacing)));
-  std::vector<Real> c;
-  for (int l = extra; l >= 1; --l) c.push_back(lo - l * spacing);
-  for (int k = 0; k <= n; ++k) c.push_back(lo + (hi - lo) * Real(k) / Real(n));
-  for (int l = 1; l <= extra; ++l) c.push_back(hi + l * spacing);
-  return c;
-}
-
-// Boundary samples of a box surface, `layers` deep: outward for the tank
-// walls (the fluid is inside), inward for a solid box obstacle.
-template <int D>
-void sampleBoxShell(const AABB<D>& box, Real spacing, int layers, bool outward, std::vector<Vec<D>>& out) {
-  std::array<std::vector<Real>, D> coords;
-  for (int d = 0; d < D; ++d) coords[d] = axisCoords(box.min[d], box.max[d], spacing, outward ? layers - 1 : 0);
-  const Real depth = (layers - Real(0.5)) * spacing;
-  std::array<size_t, D> i{};
-  while (true) {
-    Vec<D> p;
-    for (int d = 0; d < D; ++d) p[d] = coords[d][i[d]];
-    bool keep;
-    if (outward) {
-      keep = !((p.array() > box.min.array() + spacing * Real(0.01)).all() &&
-               (p.array() < box.max.array() - spacing * Real(0.01)).all());
-    } else {
-      const Real inside = std::min((p - box.min).minCoeff(), (box.max - p).minCoeff());
-      keep = inside < depth;
-    }
-    if (keep) out.push_back(p);
-    int d = 0;
-    while (d < D && ++i[d] == coords[d].size()) i[d++] = 0;
-    if (d == D) break;
-  }
-}
-
-template <int D>
-void sampleSphereShell(const Vec<D>& c, Real radius, Real spacing, int layers, std::vector<Vec<D>>& out) {
-  for (int l = 0; l < layers; ++l) {
-    const Real rr = radius - l * spacing;
-    if (rr <= Real(0.25) * spacing) {
-      if (rr > -Real(0.5) * spacing) out.push_back(c);
-      break;
-    }
-    if constexpr (D == 2) {
-      const int n = std::max(3, int(std::lround(2 * std::numbers::pi * rr / spacing)));
-      for (int k = 0; k < n; ++k) {
-        const double t = 2 * std::numbers::pi * k / n;
-        out.push_back(c + rr * Vec<D>(Real(std::cos(t)), Real(std::sin(t))));
-      }
-    } else {
-      // Fibonacci sphere: near-uniform area per point.
-      const int n = std::max(4, int(std::lround(4 * std::numbers::pi * rr * rr / (spacing * spacing))));
-      const double golden = std::numbers::pi * (3 - std::sqrt(5.0));
-      for (int k = 0; k < n; ++k) {
-        const double y = 1 - 2 * (k + 0.5) / n;
-        const double rxy = std::sqrt(std::max(0.0, 1 - y * y));
-        const double t = golden * k;
-        out.push_back(c + rr * Vec<D>(Real(rxy * std::cos(t)), Real(y), Real(rxy * std::sin(t))));
-      }
-    }
-  }
-}
 }  // namespace
 
 namespace {
@@ -149,10 +84,7 @@ Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
     ParamValues ev(ee->params);
     for (const auto& [k, v] : e.values.all()) ev.set(k, v);
     effects_.push_back(ee->make(ev));
-    Effect<D>* eff = effects_.back().get();
-    if (eff->stages() & AddAccelerations) accelerationStages_.push_back(eff);
-    if (eff->stages() & CorrectVelocities) velocityStages_.push_back(eff);
-    if (eff->stages() & FrameBoundary) frameStages_.push_back(eff);
+    addStages(effects_.back().get());
     stageNames_.push_back("effect:" + e.name);
   }
 
@@ -178,12 +110,27 @@ template <int D>
 void Simulation<D>::addEffect(std::unique_ptr<Effect<D>> effect, const std::string& name) {
   Effect<D>* eff = effect.get();
   effects_.push_back(std::move(effect));
-  if (eff->stages() & AddAccelerations) accelerationStages_.push_back(eff);
-  if (eff->stages() & CorrectVelocities) velocityStages_.push_back(eff);
-  if (eff->stages() & FrameBoundary) frameStages_.push_back(eff);
+  addStages(eff);
   stageNames_.push_back(name);
   eff->resize(fluid.size());
   eff->init(*this);
+}
+
+template <int D>
+void Simulation<D>::addStages(Effect<D>* eff) {
+  if (eff->stages() & AddAccelerations) accelerationStages_.push_back(eff);
+  if (eff->stages() & ImplicitVelocities) implicitStages_.push_back(eff);
+  if (eff->stages() & CorrectVelocities) velocityStages_.push_back(eff);
+  if (eff->stages() & FrameBoundary) frameStages_.push_back(eff);
+}
+
+template <int D>
+void Simulation<D>::continueBodiesFrom(const Simulation& old, double timeOffset) {
+  if (!bodies_ || !old.bodies_) return;
+  bodies_->continueFrom(*old.bodies_, timeOffset);
+  bodies_->place(time_, boundary);
+  search.setStaticPoints(boundary.x);
+  neighborsFresh_ = false;
 }
 
 template <int D>
@@ -245,7 +192,13 @@ void Simulation<D>::buildBoundary() {
   sampleBoxShell<D>(setup_.domain.grown(radius_), spacing, layers, true, pts);
   for (const auto& o : setup_.obstacles) {
     if (o.shape == ObstacleShape::Box) sampleBoxShell<D>(o.box.grown(-radius_), spacing, layers, false, pts);
-    else sampleSphereShell<D>(o.center, o.radius - radius_, spacing, layers, pts);
+    else if (o.shape == ObstacleShape::Sphere) sampleSphereShell<D>(o.center, o.radius - radius_, spacing, layers, pts);
+    else if constexpr (D == 3) {
+      if (!o.mesh) throw std::invalid_argument("mesh obstacle without its mesh");
+      sampleMeshShell(*o.mesh, radius_, spacing, layers, pts);
+    } else {
+      throw std::invalid_argument("mesh obstacles are 3D only");
+    }
   }
   boundary.x = pts;
   boundary.v.assign(pts.size(), Vec<D>::Zero());
@@ -263,6 +216,11 @@ void Simulation<D>::buildBoundary() {
     search.forEachStaticNear(pts[b], kernel.radius(), [&](uint32_t, const Vec<D>& q) { sum += kernel.W(Vec<D>(pts[b] - q)); });
     boundary.volume[b] = sum > 0 ? std::min(latticeVolume_, Real(1) / sum) : latticeVolume_;
   }
+  // Moving bodies follow the static solids in the boundary arrays.
+  if (!setup_.bodies.empty()) {
+    bodies_ = std::make_unique<RigidBodies<D>>(setup_.bodies, radius_, layers, kernel, latticeVolume_, boundary, gravity_);
+    search.setStaticPoints(boundary.x);
+  }
 }
 
 template <int D>
@@ -273,6 +231,9 @@ void Simulation<D>::buildFluid() {
     forEachLatticePoint<D>(blk.box, spacing, [&](const Vec<D>& p) {
       for (const auto& o : setup_.obstacles)
         if (o.signedDistance(p) < radius_) return;  // never start inside a solid
+      if (bodies_)
+        for (const auto& b : bodies_->states())
+          if (b.signedDistance(p) < radius_) return;
       fluid.add(p, blk.velocity, m, uint8_t(blk.phase));
     });
   }
@@ -376,7 +337,9 @@ Real Simulation<D>::cflTimeStep() const {
   const Real cfl = Real(setup_.settings.get("cfl_factor"));
   const Real vmax = std::sqrt(vmax2);
   Real dtMax = Real(setup_.settings.get("dt_max"));
-  Real dt = vmax > 0 ? cfl * Real(0.4) * (2 * radius_) / vmax : dtMax;
+  // Moving bodies: their fastest material point counts as a particle's speed.
+  const Real vfast = bodies_ ? std::max(vmax, Real(bodies_->maxPointSpeed())) : vmax;
+  Real dt = vfast > 0 ? cfl * Real(0.4) * (2 * radius_) / vfast : dtMax;
   // Under the number density the step (its CFL part and dt_max) is scaled by
   // sqrt(ρ0_min/ρ0_max): the pressure solve corrects a compression by moving
   // each particle in inverse proportion to its mass, so the light phase takes
@@ -441,6 +404,7 @@ void Simulation<D>::enforceSolidContact(FrameStats& fs) {
         touched = true;
       }
     }
+    if (bodies_) bodies_->contact(x, v, fluid.mass[i], c, touched, through);
     for (const auto& o : setup_.obstacles) {
       const Real sd = o.signedDistance(x);
       if (sd >= c) continue;
@@ -519,6 +483,18 @@ FrameStats Simulation<D>::advanceFrame() {
 #pragma omp parallel for schedule(static)
     for (long i = 0; i < n; ++i) fluid.v[i] += dt * fluid.a[i];
 
+    // Implicit solves on v* (implicit viscosity), before the pressure solve.
+    if (!implicitStages_.empty()) {
+      for (Effect<D>* e : implicitStages_) {
+        const SolverReport rep = e->solveVelocities(*this, dt);
+        fs.viscosityIterations += rep.iterations;
+        fs.viscosityConverged = fs.viscosityConverged && rep.converged;
+        fs.converged = fs.converged && rep.converged;
+        for (int d = 0; d < 3; ++d) fs.boundaryImpulse[d] += rep.boundaryImpulse[d];
+      }
+      fs.nonPressureMs += took();
+    }
+
     const SolverReport dens = pressure_->correctDensity(*this, dt);
     fs.pressureMs += took();
     fs.densityIterations += dens.iterations;
@@ -528,14 +504,19 @@ FrameStats Simulation<D>::advanceFrame() {
     fs.maxDensityErrorPct = std::max(fs.maxDensityErrorPct, dens.maxErrorPct);
 
     for (Effect<D>* e : velocityStages_) e->correctVelocities(*this, dt);
+    if (bodies_) bodies_->integrate(*this, dt, setup_.domain, radius_);
 
 #pragma omp parallel for schedule(static)
     for (long i = 0; i < n; ++i) fluid.x[i] += dt * fluid.v[i];
-    enforceSolidContact(fs);
-
     time_ += double(dt);
     // Keep time exact at frame boundaries despite rounding.
     if (time_ >= frameEnd - 1e-9) time_ = frameEnd;
+    if (bodies_) {
+      // Bodies at the step's end, before the liquid's contact with them.
+      bodies_->place(time_, boundary);
+      search.setStaticPoints(boundary.x);
+    }
+    enforceSolidContact(fs);
     lastDt_ = dt;
     fs.minDt = std::min(fs.minDt, double(dt));
     fs.maxDt = std::max(fs.maxDt, double(dt));
@@ -554,13 +535,14 @@ FrameStats Simulation<D>::advanceFrame() {
     temporary += fluid.kind[i] == uint8_t(ParticleKind::Temporary) ? 1 : 0;
     bool out = !setup_.domain.contains(fluid.x[i]);
     for (const auto& o : setup_.obstacles) out = out || o.signedDistance(fluid.x[i]) < 0;
+    if (bodies_) out = out || bodies_->inside(fluid.x[i]);
     outside += out ? 1 : 0;
     const double v2 = double(fluid.v[i].squaredNorm());
     vmax2 = std::max(vmax2, v2);
     energy += 0.5 * double(fluid.mass[i]) * v2;
     finite = finite && fluid.x[i].allFinite() && fluid.v[i].allFinite() && std::isfinite(fluid.density[i]);
   }
-  fs.finite = finite;
+  fs.finite = finite && (!bodies_ || bodies_->finite());
   fs.escapedParticles = outside;
   fs.temporaryParticles = temporary;
   fs.maxSpeed = std::sqrt(vmax2);
@@ -573,6 +555,7 @@ FrameStats Simulation<D>::advanceFrame() {
   for (uint16_t c : boundaryNeighbors) boundaryPairs += c;
   fs.avgNeighbors = n ? double(search.dynamicNeighbors().pairs() + boundaryPairs) / double(n) : 0;
   if (fs.substeps == 0) fs.minDt = 0;
+  if (bodies_) bodies_->reportFrame(fs);
   fs.wallMs = msSince(t0);
   return fs;
 }

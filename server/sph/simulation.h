@@ -5,6 +5,7 @@
 #include "core/neighborhood_search.h"
 #include "sph/particles.h"
 #include "sph/pipeline.h"
+#include "sph/rigid_bodies.h"
 #include "sph/setup.h"
 #include <array>
 #include <memory>
@@ -24,6 +25,16 @@ struct InstanceFrameStats {
   size_t repulsionParticles = 0; // its repulsion layer's particles (0 when repulsion is off)
 };
 
+// A body's state at the end of a frame (sph/rigid_bodies.h).
+struct BodyFrameStats {
+  std::string name;
+  std::array<double, 3> position{};     // m, centre
+  std::array<double, 3> velocity{};     // m/s
+  std::array<double, 3> rotationDeg{};  // 2D: [0, 0, angle]; 3D: Euler XYZ
+  std::array<double, 3> force{};        // N (2D: N/m), the liquid's pressure force in the last substep
+  size_t wallContacts = 0;              // substeps of the frame it touched a tank wall
+};
+
 struct FrameStats {
   int frame = 0;                 // index of the frame just completed (1-based)
   double time = 0;               // simulated time at its end, s
@@ -34,6 +45,8 @@ struct FrameStats {
   double avgDensityErrorPct = 0; // worst substep's average error at solver exit
   double maxDensityErrorPct = 0; // worst particle error at solver exit
   bool converged = true;         // every solve reached its tolerance
+  int viscosityIterations = 0;   // implicit viscosity (ImplicitVelocities stages) solver iterations, summed over substeps
+  bool viscosityConverged = true; // every implicit viscosity solve reached its tolerance (also in `converged`)
   size_t particles = 0;          // liquid particles (all kinds)
   size_t boundaryParticles = 0;
   size_t escapedParticles = 0;   // particles outside the tank or inside a solid at frame end (0 unless broken)
@@ -63,6 +76,7 @@ struct FrameStats {
   size_t removedParticles = 0;   // temporary particles removed this frame
   double controlMs = 0;          // of wallMs, spent in control (forces, temporary particles, fidelity)
   std::vector<InstanceFrameStats> instances;
+  std::vector<BodyFrameStats> bodies;  // empty without bodies
 };
 
 // A particle to insert (temporary particles).
@@ -101,6 +115,11 @@ class Simulation {
   int frame() const { return frame_; }
   double frameDuration() const { return 1.0 / setup_.settings.get("frame_rate"); }
   const std::vector<std::string>& pipelineStages() const { return stageNames_; }
+  // Moving bodies (null when the scene has none).
+  const RigidBodies<D>* bodies() const { return bodies_.get(); }
+  // A simulation rebuilt mid-scene (a settings edit) continues the bodies of
+  // `old` at scene time `timeOffset` + its own clock.
+  void continueBodiesFrom(const Simulation& old, double timeOffset);
   size_t totalSubsteps() const { return totalSubsteps_; }
   Real restDensity(size_t i) const { return restDensity_[fluid.phase[i]]; }
   // The density formulation, chosen once at setup (settings
@@ -151,6 +170,7 @@ class Simulation {
   Real cflTimeStep() const;
   void reorderParticles();
   void enforceSolidContact(FrameStats& fs);
+  void addStages(Effect<D>* eff);
 
   SimulationSetup<D> setup_;
   Real radius_;
@@ -158,7 +178,8 @@ class Simulation {
   Vec<D> gravity_;
   std::unique_ptr<PressureSolver<D>> pressure_;
   std::vector<std::unique_ptr<Effect<D>>> effects_;
-  std::vector<Effect<D>*> accelerationStages_, velocityStages_, frameStages_;
+  std::unique_ptr<RigidBodies<D>> bodies_;
+  std::vector<Effect<D>*> accelerationStages_, implicitStages_, velocityStages_, frameStages_;
   bool neighborsFresh_ = false;
   bool numberDensity_ = false;
   Real contrastStep_ = 1;  // number density: time step scale, see cflTimeStep

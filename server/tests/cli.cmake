@@ -34,6 +34,13 @@ set(FC_BAD_SCENE_CASES
   "block_near_obstacle=fluid_blocks[0]:"
   "obstacle_radius_zero=obstacles[0].radius:"
   "disk_in_3d=obstacles[0].type:"
+  "mesh_in_2d=obstacles[0].type:"
+  # Bad OBJ files of mesh obstacles (bad_scenes/meshes/): the file key path.
+  "mesh_malformed=obstacles[1].file:"
+  "mesh_index_out_of_range=obstacles[1].file:"
+  "mesh_open_box=obstacles[1].file:"
+  "mesh_nonfinite=obstacles[1].file:"
+  "mesh_missing=obstacles[1].file:"
   "unknown_phase=fluid_blocks[0].phase:"
   "duplicate_phase=phases[1].name:"
   "rest_density_zero=phases[0].rest_density:"
@@ -58,13 +65,18 @@ foreach(case IN LISTS FC_BAD_SCENE_CASES)
   fc_cli_expect(cli_bad_scene_${file} 2 "${text}" run ${FC_BAD_SCENES}/${file}.json --frames 1)
 endforeach()
 
+# The open box's message says what is wrong with the mesh and where.
+fc_cli_expect(cli_bad_scene_mesh_not_closed 2 "the mesh is not closed: 4 edges belong to one face only, e.g. the edge from vertex"
+  run ${FC_BAD_SCENES}/mesh_open_box.json --frames 1)
 fc_cli_expect(cli_bad_scene_missing_file 2 "does_not_exist.json" run ${FC_BAD_SCENES}/does_not_exist.json --frames 1)
 fc_cli_expect(cli_bad_particle_radius_override 2 "fluid_blocks:"
   run ${FC_BAD_SCENES}/../../../scenes/bench/dambreak2d_r010.json --particle-radius 0.0001 --frames 1)
 
-# Every shipped scene loads, binds its template instances and builds its
-# simulation (no step is taken). The templates come from a fixture that
-# records every recipe into the build tree.
+# Every shipped scene loads, binds its template instances and runs 15
+# frames (past every shipped instance's start) without a non-finite value
+# (run exits non-zero on one), at a coarse particle radius (2D 0.01 m, 3D
+# 0.03 m). The templates come from a fixture that records every recipe into
+# the build tree at the same radii.
 set(FC_TEST_TEMPLATES ${CMAKE_BINARY_DIR}/test-templates)
 add_test(NAME cli_record_test_templates
   COMMAND ${CMAKE_COMMAND} -DFLOWCLIP=$<TARGET_FILE:flowclip> -DRECIPES=${FC_CLI_TESTS_DIR}/../../templates/recipes
@@ -75,8 +87,16 @@ foreach(scene IN LISTS FC_SHIPPED_SCENES)
   get_filename_component(stem ${scene} NAME_WE)
   get_filename_component(dir ${scene} DIRECTORY)
   get_filename_component(dir ${dir} NAME)
-  fc_cli_expect(cli_scene_loads_${dir}_${stem} 0 "" run ${scene} --frames 0 --quiet --templates ${FC_TEST_TEMPLATES})
-  set_tests_properties(cli_scene_loads_${dir}_${stem} PROPERTIES FIXTURES_REQUIRED test_templates)
+  file(READ ${scene} scene_text)
+  string(JSON scene_dim GET "${scene_text}" dimension)
+  if(scene_dim EQUAL 3)
+    set(smoke_radius 0.03)
+  else()
+    set(smoke_radius 0.01)
+  endif()
+  fc_cli_expect(cli_scene_runs_${dir}_${stem} 0 "" run ${scene} --frames 15 --particle-radius ${smoke_radius} --quiet
+                --templates ${FC_TEST_TEMPLATES})
+  set_tests_properties(cli_scene_runs_${dir}_${stem} PROPERTIES FIXTURES_REQUIRED test_templates)
 endforeach()
 # A scene naming a template the database lacks: status 2, the path named.
 fc_cli_expect(cli_scene_missing_template 2 "instances[0].template: no template 'drop2d'"
@@ -96,6 +116,10 @@ fc_cli_expect(cli_templates_inspect_missing 2 "no template 'nosuch'" templates i
 fc_cli_expect(cli_bench_control 0 "drop2d: control is"
   bench control ${FC_CLI_TESTS_DIR}/../../scenes/drop2d.json --frames 14 --threads 1 --templates ${FC_TEST_TEMPLATES})
 set_tests_properties(cli_bench_control PROPERTIES FIXTURES_REQUIRED test_templates)
+# bench scenes: the paper's Table 1 columns beside its own row.
+fc_cli_expect(cli_bench_scenes 0 "2D Rectangular drop"
+  bench scenes ${FC_CLI_TESTS_DIR}/../../scenes/drop2d.json --frames 14 --threads 1 --templates ${FC_TEST_TEMPLATES})
+set_tests_properties(cli_bench_scenes PROPERTIES FIXTURES_REQUIRED test_templates)
 # run --control-setting is checked as the scene file's "control" object.
 fc_cli_expect(cli_run_bad_control_setting 2 "control.forces_every_substep: '2' given by --control-setting"
   run ${FC_CLI_TESTS_DIR}/../../scenes/drop2d.json --frames 1 --control-setting forces_every_substep=2)

@@ -651,6 +651,10 @@ void checkRoundTrip(const SimulationSetup<D>& a, const std::string& label) {
     EXPECT_EQ(a.obstacles[i].box.max, b.obstacles[i].box.max) << label;
     EXPECT_EQ(a.obstacles[i].center, b.obstacles[i].center) << label;
     EXPECT_EQ(a.obstacles[i].radius, b.obstacles[i].radius) << label;
+    EXPECT_EQ(a.obstacles[i].placement.file, b.obstacles[i].placement.file) << label;
+    EXPECT_EQ(a.obstacles[i].placement.scale, b.obstacles[i].placement.scale) << label;
+    EXPECT_EQ(a.obstacles[i].placement.translation, b.obstacles[i].placement.translation) << label;
+    EXPECT_EQ(a.obstacles[i].placement.rotationDeg, b.obstacles[i].placement.rotationDeg) << label;
   }
   EXPECT_EQ(a.solver.name, b.solver.name) << label;
   EXPECT_EQ(a.solver.values.all(), b.solver.values.all()) << label;

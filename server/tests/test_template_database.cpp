@@ -415,7 +415,8 @@ TEST(Recipe, ShippedRecipesParse) {
     for (const auto& c : r.captures) names.push_back(c.name);
   }
   std::sort(names.begin(), names.end());
-  EXPECT_EQ(names, (std::vector<std::string>{"column2d", "drop2d", "jet2d", "letter_A", "letter_C", "letter_S"}));
+  EXPECT_EQ(names, (std::vector<std::string>{"blade2d", "blade3d", "column2d", "doubledam2d", "drop2d", "hand3d", "honey3d", "jet2d", "letter_A",
+                                      "letter_C", "letter_S", "waterjet2d", "wave2d"}));
 }
 
 // Array form: key paths carry the capture's index.

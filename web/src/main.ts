@@ -2,12 +2,15 @@
 // a scene: ?scene=NAME (empty: none), ?session=ID attaches to an existing
 // session, default drop2d (or the first scene listed).
 import './styles.css';
+import * as flatbuffers from 'flatbuffers';
+import { Envelope, Frame } from '@wire';
 import { Editor } from './core/Editor';
 import { Viewport } from './viewport/Viewport';
 import { Toolbar } from './ui/Toolbar';
 import { StatusBar } from './ui/StatusBar';
 import { LayerPanel, StatsOverlay } from './ui/Overlays';
 import { Messages } from './ui/Messages';
+import { Timeline } from './ui/Timeline';
 import { installKeyboard } from './ui/Keyboard';
 import { TemplateLibrary } from './ui/TemplateLibrary';
 import { Outliner } from './ui/Outliner';
@@ -37,15 +40,19 @@ app.append(toolbar.dom, leftPanel, viewportDom, rightPanel, timelineDom, statusB
 viewportDom.append(messages.dom, new LayerPanel(editor).dom, new StatsOverlay(editor).dom);
 leftPanel.append(new TemplateLibrary(editor).dom);
 rightPanel.append(new Outliner(editor).dom, new Inspector(editor).dom);
+timelineDom.append(new Timeline(editor).dom);
 const viewport = new Viewport(viewportDom, editor);
 installKeyboard(editor);
 
-// For debugging from the console and for tests (never used by the editor itself).
+// For debugging from the console, tests and the browser benchmark
+// (scripts/bench-browser.mjs decodes fetched frames with `wire`); never used
+// by the editor itself.
 (window as unknown as { flowclip: unknown }).flowclip = {
   editor,
   viewport,
   commands: { SetInstanceTransformCommand, SetInstanceValueCommand },
   track,
+  wire: { ByteBuffer: flatbuffers.ByteBuffer, Envelope, Frame },
 };
 
 // Sessions this editor created are deleted when the page goes away.

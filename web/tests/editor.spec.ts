@@ -35,9 +35,15 @@ test('play drop2d: frames arrive, liquid is drawn, the particle count matches th
   // Pause, then the count shown equals the server's at the frame it stopped at.
   await page.getByTestId('pause').click();
   await expect(page.getByTestId('session-status')).toHaveAttribute('data-value', 'paused');
-  const res = await request.get(`${serverUrl()}/api/sessions/${sid}`);
-  expect(res.ok(), `GET /api/sessions/${sid}: ${res.status()} ${await res.text()}`).toBeTruthy();
-  const state = await res.json();
+  // Under load the frame in progress may finish after the pause's answer:
+  // read the state once the session is no longer computing.
+  let state: any;
+  await expect.poll(async () => {
+    const res = await request.get(`${serverUrl()}/api/sessions/${sid}`);
+    expect(res.ok(), `GET /api/sessions/${sid}: ${res.status()} ${await res.text()}`).toBeTruthy();
+    state = await res.json();
+    return state.computing === true;
+  }).toBe(false);
   expect(state.status).toBe('paused');
   await expect(frame).toHaveAttribute('data-value', String(state.frame));
   const expected = state.particles.liquid + state.particles.temporary;

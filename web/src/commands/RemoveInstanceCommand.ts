@@ -1,32 +1,38 @@
 // Removes an instance (DELETE .../instances/{name}); undo adds it back with
-// every key it had (the server's full instance JSON) at its place in the scene
-// order's end.
+// every key it had when it was removed (the server's full instance JSON,
+// copied when the command runs, so that edits still landing before it are
+// kept), at the end of the scene order.
 import { Command } from '../core/Command';
 import type { Editor } from '../core/Editor';
 import type { InstanceJson } from '../net/types';
 
 export class RemoveInstanceCommand extends Command {
   readonly name: string;
-  private readonly instance: InstanceJson;
+  private readonly sid: string;
+  private removed: InstanceJson | null = null;
 
   constructor(
     private readonly editor: Editor,
-    instance: InstanceJson,
+    private readonly instanceName: string,
   ) {
     super();
-    this.name = `Remove ${instance.name}`;
-    this.instance = structuredClone(instance);
+    this.sid = editor.session?.id ?? '';
+    this.name = `Remove ${instanceName}`;
   }
 
   async execute() {
-    const sid = this.editor.requireSession();
-    await this.editor.api.removeInstance(sid, this.instance.name);
-    this.editor.instanceRemoved(this.instance.name);
+    const sid = this.editor.sessionFor(this.sid);
+    const current = this.editor.instances.get(this.instanceName);
+    if (!current) throw new Error(`no instance ${this.instanceName}`);
+    this.removed = structuredClone(current);
+    await this.editor.api.removeInstance(sid, this.instanceName);
+    this.editor.instanceRemoved(this.instanceName, sid);
   }
 
   async undo() {
-    const sid = this.editor.requireSession();
-    const res = await this.editor.api.addInstance(sid, this.instance);
-    this.editor.instanceUpdated(await this.editor.settleInstanceEdit(sid, this.instance.name, res));
+    const sid = this.editor.sessionFor(this.sid);
+    if (!this.removed) return;
+    const res = await this.editor.api.addInstance(sid, this.removed);
+    this.editor.instanceUpdated(await this.editor.settleInstanceEdit(sid, this.instanceName, res), sid);
   }
 }

@@ -1,48 +1,69 @@
 // Replaces an instance's transform track on the server (PATCH
 // /api/sessions/{id}/instances/{name} with {transform}); undo PATCHes the
-// old track back. A gizmo drag issues one per pointer move; they merge into
-// one history entry.
+// old track back. The new track is built when the command runs, from the
+// track the instance has then (a function of the current track), so that
+// edits issued in quick succession never overwrite each other with stale
+// copies; the old track is the one found at the first run. A gizmo drag
+// issues one per pointer move; they merge into one history entry.
 import { Command } from '../core/Command';
 import type { Editor } from '../core/Editor';
 import type { TransformKey } from '../net/types';
 
+export type TrackEdit = TransformKey[] | ((current: TransformKey[]) => TransformKey[]);
+
 export class SetInstanceTransformCommand extends Command {
   readonly name: string;
-  override readonly mergeKey: string;
+  override readonly mergeKey: string | null;
   override readonly mergeWindowMs: number | null;
-  private newValue: TransformKey[];
+  private readonly sid: string;
+  private edit: TrackEdit;
+  private resolved: TransformKey[] | null = null;
+  private oldValue: TransformKey[] | undefined;
 
-  /** `drag`: an id unique to one gizmo drag; its commands all merge, however slow the drag. */
+  /**
+   * `drag`: an id unique to one gizmo drag; its commands all merge, however
+   * slow the drag. `options.name` / `options.merge = false`: a distinct entry
+   * (adding or removing a key never merges with a move).
+   */
   constructor(
     private readonly editor: Editor,
     private readonly instance: string,
-    newValue: TransformKey[],
-    private readonly oldValue: TransformKey[],
+    edit: TrackEdit,
+    oldValue?: TransformKey[],
     drag?: number,
+    options: { name?: string; merge?: boolean } = {},
   ) {
     super();
-    this.name = `Move ${instance}`;
-    this.mergeKey = drag === undefined ? `transform:${instance}` : `transform:${instance}:drag${drag}`;
+    this.sid = editor.session?.id ?? '';
+    this.name = options.name ?? `Move ${instance}`;
+    this.mergeKey = options.merge === false ? null : drag === undefined ? `transform:${instance}` : `transform:${instance}:drag${drag}`;
     this.mergeWindowMs = drag === undefined ? null : Infinity;
-    this.newValue = structuredClone(newValue);
-    this.oldValue = structuredClone(oldValue);
+    this.edit = typeof edit === 'function' ? edit : structuredClone(edit);
+    this.oldValue = oldValue === undefined ? undefined : structuredClone(oldValue);
   }
 
   execute() {
-    return this.apply(this.newValue);
+    if (!this.resolved) {
+      const current = this.editor.instances.get(this.instance)?.transform ?? [];
+      if (this.oldValue === undefined) this.oldValue = structuredClone(current);
+      this.resolved = typeof this.edit === 'function' ? this.edit(structuredClone(current)) : this.edit;
+    }
+    return this.apply(this.resolved);
   }
 
   undo() {
-    return this.apply(this.oldValue);
+    return this.apply(this.oldValue ?? []);
   }
 
   override merge(newer: Command) {
-    this.newValue = (newer as SetInstanceTransformCommand).newValue;
+    const n = newer as SetInstanceTransformCommand;
+    this.edit = n.edit;
+    this.resolved = n.resolved;
   }
 
   private async apply(transform: TransformKey[]) {
-    const sid = this.editor.requireSession();
+    const sid = this.editor.sessionFor(this.sid);
     const res = await this.editor.api.patchInstance(sid, this.instance, { transform });
-    this.editor.instanceUpdated(await this.editor.settleInstanceEdit(sid, this.instance, res));
+    this.editor.instanceUpdated(await this.editor.settleInstanceEdit(sid, this.instance, res), sid);
   }
 }

@@ -8,6 +8,7 @@ export class SetInstanceValueCommand extends Command {
   readonly name: string;
   override readonly mergeKey: string;
   private newValue: unknown;
+  private readonly sid: string;
 
   constructor(
     private readonly editor: Editor,
@@ -17,6 +18,7 @@ export class SetInstanceValueCommand extends Command {
     private readonly oldValue: unknown,
   ) {
     super();
+    this.sid = editor.session?.id ?? '';
     this.name = `Set ${instance}.${key}`;
     this.mergeKey = `value:${instance}.${key}`;
     this.newValue = structuredClone(newValue);
@@ -36,8 +38,8 @@ export class SetInstanceValueCommand extends Command {
   }
 
   private async apply(value: unknown) {
-    const sid = this.editor.requireSession();
+    const sid = this.editor.sessionFor(this.sid);
     const res = await this.editor.api.patchInstance(sid, this.instance, { [this.key]: value });
-    this.editor.instanceUpdated(await this.editor.settleInstanceEdit(sid, this.instance, res));
+    this.editor.instanceUpdated(await this.editor.settleInstanceEdit(sid, this.instance, res), sid);
   }
 }

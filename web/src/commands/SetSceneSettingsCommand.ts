@@ -11,6 +11,7 @@ export class SetSceneSettingsCommand extends Command {
   override readonly mergeKey: string;
   private patch: SettingsPatch;
   private readonly old: SettingsPatch;
+  private readonly sid: string;
 
   constructor(
     private readonly editor: Editor,
@@ -18,6 +19,7 @@ export class SetSceneSettingsCommand extends Command {
     old: SettingsPatch,
   ) {
     super();
+    this.sid = editor.session?.id ?? '';
     const keys = Object.entries(patch).flatMap(([group, obj]) => Object.keys(obj ?? {}).map((k) => `${group}.${k}`));
     this.name = `Set ${keys.join(', ')}`;
     this.mergeKey = `settings:${keys.sort().join(',')}`;
@@ -26,11 +28,11 @@ export class SetSceneSettingsCommand extends Command {
   }
 
   execute() {
-    return this.editor.applySettings(this.patch);
+    return this.editor.applySettings(this.patch, this.sid);
   }
 
   undo() {
-    return this.editor.applySettings(this.old);
+    return this.editor.applySettings(this.old, this.sid);
   }
 
   override merge(newer: Command) {

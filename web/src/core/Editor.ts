@@ -8,7 +8,7 @@ import { FrameDecoder, type FrameInfo } from '../net/FrameDecoder';
 import { Stream, type ConnectionStatus, type StreamState } from '../net/Stream';
 import { Layer } from '@wire';
 import type {
-  InstanceEditResponse, InstanceJson, ParametersJson, SceneJson, SceneSummary, SessionState, SessionStatusName,
+  EditJson, InstanceEditResponse, InstanceJson, ParametersJson, SceneJson, SceneSummary, SessionState, SessionStatusName,
   SettingsPatch, TemplateInfo, TransportName,
 } from '../net/types';
 import { AddInstanceCommand } from '../commands/AddInstanceCommand';
@@ -72,6 +72,8 @@ export class Editor {
     /** A session was opened (or closed: null). */
     sessionChanged: new Signal<SessionInfo | null>(),
     sessionView: new Signal<SessionView>(),
+    /** The frame shown changed (the playhead): scene time playheadTime(). */
+    playheadChanged: new Signal<number>(),
     /** A frame was decoded into the particle buffers (the FrameInfo object is reused). */
     frameDecoded: new Signal<FrameInfo>(),
     connection: new Signal<{ status: ConnectionStatus; attempt: number; retryInMs: number }>(),
@@ -102,6 +104,12 @@ export class Editor {
   maxFrameRate = 30;
   readonly layers: LayerToggles = { liquid: true, control: false, repulsion: false, boundary: false, speed: false };
   private healthTimer: ReturnType<typeof setInterval> | null = null;
+  /** The frame the viewport shows (from the decoded frames, which are newer than any REST answer). */
+  private shownFrame = 0;
+  /** Instance names of adds still in flight (two quick adds get two names). */
+  private readonly reservedNames = new Set<string>();
+  /** Bumped by each openScene / attachSession: a slower earlier one gives up. */
+  private openSeq = 0;
 
   constructor(api = new Api('', tokenFromPage())) {
     this.api = api;
@@ -154,28 +162,36 @@ export class Editor {
 
   /** Creates a session of scene `name` and streams it (the previous session, if ours, is deleted). */
   async openScene(name: string): Promise<SessionInfo | null> {
+    const seq = ++this.openSeq;
     let state: SessionState;
     try {
       state = await this.api.createSession(name);
     } catch (e) {
-      this.reportError(e, `open scene ${name}`);
+      if (seq === this.openSeq) this.reportError(e, `open scene ${name}`);
+      return null;
+    }
+    if (seq !== this.openSeq) {
+      // Another scene was picked meanwhile: this session is nobody's.
+      void this.api.deleteSession(state.id).catch(() => undefined);
       return null;
     }
     await this.closeSession();
-    return this.attach(state, name, true);
+    return this.attach(state, name, true, seq);
   }
 
   /** Streams an existing session (not deleted when the editor leaves it). */
   async attachSession(id: string): Promise<SessionInfo | null> {
+    const seq = ++this.openSeq;
     let state: SessionState;
     try {
       state = await this.api.getSession(id);
     } catch (e) {
-      this.reportError(e, `attach to session ${id}`);
+      if (seq === this.openSeq) this.reportError(e, `attach to session ${id}`);
       return null;
     }
+    if (seq !== this.openSeq) return null;
     await this.closeSession();
-    return this.attach(state, state.name, false);
+    return this.attach(state, state.name, false, seq);
   }
 
   async closeSession(): Promise<void> {
@@ -200,26 +216,34 @@ export class Editor {
     }
   }
 
-  private async attach(state: SessionState, scene: string, owned: boolean): Promise<SessionInfo> {
+  private async attach(state: SessionState, scene: string, owned: boolean, seq: number): Promise<SessionInfo | null> {
     let sceneJson: SceneJson | null = null;
     try {
       sceneJson = await this.api.getSessionScene(state.id);
     } catch (e) {
       this.reportError(e, 'read the session scene');
     }
-    const info: SessionInfo = { id: state.id, scene, dimension: state.dimension, sceneJson, owned };
-    this.session = info;
-    this.history.clear();
     let instances = sceneJson?.instances ?? [];
     try {
       instances = await this.api.listInstances(state.id); // every key, defaults written
     } catch (e) {
       this.reportError(e, 'list instances');
     }
+    if (seq !== this.openSeq) {
+      if (owned) void this.api.deleteSession(state.id).catch(() => undefined);
+      return null;
+    }
+    const info: SessionInfo = { id: state.id, scene, dimension: state.dimension, sceneJson, owned };
+    this.session = info;
+    this.history.clear();
+    this.shownFrame = state.shown.frame;
     this.setInstances(instances);
     this.applyState(state);
     this.signals.sessionChanged.dispatch(info);
     void this.loadParameters(state.dimension);
+    // Moving bodies are boundary particles: show them in scenes that have some.
+    const bodies = sceneJson?.['bodies'];
+    if (Array.isArray(bodies) && bodies.length > 0 && !this.layers.boundary) this.setLayers({ boundary: true });
     this.connectStream(info);
     return info;
   }
@@ -273,7 +297,13 @@ export class Editor {
       token: this.api.token, maxFrameRate: this.maxFrameRate, layers: this.layerFlags(),
     });
     this.stream = stream;
-    stream.frame.add((f) => this.signals.frameDecoded.dispatch(f));
+    stream.frame.add((f) => {
+      if (f.frame !== this.shownFrame && this.stream === stream) {
+        this.shownFrame = f.frame;
+        this.signals.playheadChanged.dispatch(this.playheadTime());
+      }
+      this.signals.frameDecoded.dispatch(f);
+    });
     stream.state.add((s) => this.applyStreamState(s));
     stream.error.add((e) => this.message('error', `server: ${e.message} (${e.codeName})`));
     let lost = false;
@@ -319,8 +349,12 @@ export class Editor {
       this.message('warning', 'open a scene first');
       return;
     }
+    // The stream's StateChange messages are newer than a REST answer that
+    // arrives after them: the answer is applied only if none came meanwhile.
+    const seq = this.streamStates;
     try {
-      this.applyState(await this.api.transport(s.id, command, args));
+      const state = await this.api.transport(s.id, command, args);
+      if (this.streamStates === seq) this.applyState(state);
     } catch (e) {
       this.reportError(e, command);
     }
@@ -350,22 +384,35 @@ export class Editor {
    */
   async settleInstanceEdit(sid: string, name: string, res: InstanceEditResponse): Promise<InstanceJson> {
     if (res.instance) return res.instance;
-    const deadline = performance.now() + 30_000;
+    await this.settleEdit(sid, res.edit);
+    return this.api.getInstance(sid, name);
+  }
+
+  /** Waits for a pending edit (HTTP 202) to be applied; a rejected one throws like a 422. */
+  async settleEdit(sid: string, edit: EditJson): Promise<void> {
+    if (edit.accepted === true) return;
+    if (edit.accepted === false) throw new ApiError(422, 'unprocessable', edit.error?.message ?? 'edit rejected', edit.error?.path);
+    const deadline = performance.now() + 60_000;
     for (;;) {
-      const r = await this.api.getEdit(sid, res.edit.id);
-      const edit = r.edit ?? r;
-      if (edit.accepted === false) {
-        throw new ApiError(422, 'unprocessable', edit.error?.message ?? 'edit rejected', edit.error?.path);
-      }
-      if (edit.accepted === true) return this.api.getInstance(sid, name);
-      if (performance.now() > deadline) throw new Error(`edit ${res.edit.id} still pending after 30 s`);
-      await new Promise((r) => setTimeout(r, 100));
+      const r = await this.api.getEdit(sid, edit.id);
+      const e = r.edit ?? r;
+      if (e.accepted === false) throw new ApiError(422, 'unprocessable', e.error?.message ?? 'edit rejected', e.error?.path);
+      if (e.accepted === true) return;
+      if (performance.now() > deadline) throw new Error(`edit ${edit.id} still pending after 60 s`);
+      await new Promise((resolve) => setTimeout(resolve, 100));
     }
+  }
+
+  /** The session a command was made in, if it is still the open one (else it must not run). */
+  sessionFor(sid: string): string {
+    if (!sid) throw new Error('no session is open');
+    if (this.session?.id !== sid) throw new Error(`session ${sid} is no longer open`);
+    return sid;
   }
 
   /** Scene time of the frame shown (frame n ends at n / frame_rate): the playhead. */
   playheadTime(): number {
-    return this.view.shownFrame / this.frameRate();
+    return this.shownFrame / this.frameRate();
   }
 
   frameRate(): number {
@@ -387,8 +434,15 @@ export class Editor {
   /** `base`, or base_2, base_3, … : a name no instance has (names follow [A-Za-z0-9_-]{1,64}). */
   uniqueInstanceName(base: string): string {
     const clean = base.replace(/[^A-Za-z0-9_-]/g, '_').slice(0, 56) || 'instance';
-    if (!this.instances.has(clean)) return clean;
-    for (let k = 2; ; k++) if (!this.instances.has(`${clean}_${k}`)) return `${clean}_${k}`;
+    const taken = (n: string) => this.instances.has(n) || this.reservedNames.has(n);
+    let name = clean;
+    for (let k = 2; taken(name); k++) name = `${clean}_${k}`;
+    this.reservedNames.add(name);
+    return name;
+  }
+
+  releaseName(name: string) {
+    this.reservedNames.delete(name);
   }
 
   /**
@@ -414,10 +468,11 @@ export class Editor {
   }
 
   /** PATCHes the scene settings and re-reads the session's scene (the inspector shows it). */
-  async applySettings(patch: SettingsPatch): Promise<void> {
-    const s = this.requireSession();
-    await this.api.patchSettings(s, patch);
-    await this.refreshScene();
+  async applySettings(patch: SettingsPatch, sid: string): Promise<void> {
+    const s = this.sessionFor(sid);
+    const res = await this.api.patchSettings(s, patch);
+    await this.settleEdit(s, res.edit);
+    if (this.session?.id === s) await this.refreshScene();
   }
 
   async refreshScene(): Promise<void> {
@@ -435,6 +490,7 @@ export class Editor {
       return false;
     }
     try {
+      await this.history.idle(); // edits still queued belong in the file
       const r = await this.api.saveScene(s.id, name, force);
       this.message('info', `saved scene ${r.name} (${r.path})`);
       await this.loadScenes();
@@ -450,6 +506,7 @@ export class Editor {
     const s = this.session;
     if (!s) return null;
     try {
+      await this.history.idle();
       return await this.api.getSessionScene(s.id);
     } catch (e) {
       this.reportError(e, 'read the scene');
@@ -458,12 +515,14 @@ export class Editor {
   }
 
   /** The server's answer to an instance edit. */
-  instanceUpdated(instance: InstanceJson) {
+  instanceUpdated(instance: InstanceJson, sid?: string) {
+    if (sid !== undefined && sid !== this.session?.id) return; // an answer for a session since closed
     this.instances.set(instance.name, instance);
     this.signals.instancesChanged.dispatch(this.instances);
   }
 
-  instanceRemoved(name: string) {
+  instanceRemoved(name: string, sid?: string) {
+    if (sid !== undefined && sid !== this.session?.id) return;
     this.instances.delete(name);
     this.signals.instancesChanged.dispatch(this.instances);
     if (this.selected === name) this.select(null);
@@ -515,7 +574,11 @@ export class Editor {
     this.signals.sessionView.dispatch(this.view);
   }
 
+  /** StateChange messages received (REST answers older than the newest are not applied). */
+  private streamStates = 0;
+
   private applyStreamState(s: StreamState) {
+    this.streamStates++;
     if (s.state) {
       this.applyState(s.state);
       return;

@@ -20,6 +20,8 @@ export class History {
   private redos: Command[] = [];
   private queue: Promise<void> = Promise.resolve();
   private pending = 0;
+  /** Bumped by clear(): commands queued before it do not run or record. */
+  private epoch = 0;
 
   get canUndo(): boolean {
     return this.undos.length > 0;
@@ -40,19 +42,24 @@ export class History {
 
   /** Executes `cmd` and records it (merged into the last entry when it may). */
   execute(cmd: Command): Promise<void> {
-    const last = this.undos[this.undos.length - 1];
-    const merges =
-      last !== undefined &&
-      cmd.mergeKey !== null &&
-      last.mergeKey === cmd.mergeKey &&
-      cmd.createdAt - last.createdAt < (cmd.mergeWindowMs ?? this.mergeWindowMs);
+    const epoch = this.epoch;
     return this.enqueue(async () => {
+      if (epoch !== this.epoch) return; // queued before clear(): another document
+      // Whether it merges is decided when it runs (in order), so that an
+      // undo issued between two commands of one drag ends the merge.
+      const last = this.undos[this.undos.length - 1];
+      const merges =
+        last !== undefined &&
+        cmd.mergeKey !== null &&
+        last.mergeKey === cmd.mergeKey &&
+        cmd.createdAt - last.createdAt < (cmd.mergeWindowMs ?? this.mergeWindowMs);
       try {
         await cmd.execute();
       } catch (error) {
         this.failed.dispatch({ command: cmd, error, phase: 'execute' });
         return;
       }
+      if (epoch !== this.epoch) return;
       if (merges && this.undos[this.undos.length - 1] === last) {
         last.merge(cmd);
         last.createdAt = cmd.createdAt;
@@ -65,12 +72,14 @@ export class History {
   }
 
   undo(): Promise<void> {
+    const epoch = this.epoch;
     return this.enqueue(async () => {
+      if (epoch !== this.epoch) return;
       const cmd = this.undos.pop();
       if (!cmd) return;
       try {
         await cmd.undo();
-        this.redos.push(cmd);
+        if (epoch === this.epoch) this.redos.push(cmd);
       } catch (error) {
         // The server refused to restore: keep the command where it was.
         this.undos.push(cmd);
@@ -81,12 +90,14 @@ export class History {
   }
 
   redo(): Promise<void> {
+    const epoch = this.epoch;
     return this.enqueue(async () => {
+      if (epoch !== this.epoch) return;
       const cmd = this.redos.pop();
       if (!cmd) return;
       try {
         await cmd.execute();
-        this.undos.push(cmd);
+        if (epoch === this.epoch) this.undos.push(cmd);
       } catch (error) {
         this.redos.push(cmd);
         this.failed.dispatch({ command: cmd, error, phase: 'redo' });
@@ -97,6 +108,7 @@ export class History {
 
   /** Forgets every command (a new scene or session). */
   clear(): void {
+    this.epoch++;
     this.undos = [];
     this.redos = [];
     this.changed.dispatch();

@@ -72,6 +72,8 @@ export function evaluateTrack(track: TransformKey[] | undefined, time: number, d
   while (i + 1 < keys.length && keys[i + 1]!.time <= time) i++;
   const a = keys[i]!, b = keys[i + 1]!;
   const u = b.time > a.time ? (time - a.time) / (b.time - a.time) : 0;
+  // At a key its stored values, as written (slerp would re-derive equivalent angles).
+  if (u <= 0) return { ...a, time };
   const lerp = (x: number[], y: number[]) => x.map((v, d) => v + (y[d]! - v) * u);
   return {
     time,

@@ -2,7 +2,7 @@
 // ApiError carrying the server's Error object (status, code, message, path),
 // or status 0 when the server could not be reached.
 import type {
-  EditResultJson, InstanceEditResponse, InstanceJson, ParametersJson, SceneJson, SceneSummary, SessionState, SettingsPatch,
+  EditJson, EditResultJson, InstanceEditResponse, InstanceJson, ParametersJson, SceneJson, SceneSummary, SessionState, SettingsPatch,
   TemplateInfo, TemplatePreviewJson, TransportName,
 } from './types';
 
@@ -94,7 +94,7 @@ export class Api {
     return this.request<EditResultJson>('GET', `/api/sessions/${enc(id)}/edits/${edit}`);
   }
   patchSettings(id: string, patch: SettingsPatch) {
-    return this.request<{ edit: unknown }>('PATCH', `/api/sessions/${enc(id)}/settings`, patch);
+    return this.request<{ edit: EditJson }>('PATCH', `/api/sessions/${enc(id)}/settings`, patch);
   }
   createSession(scene: string | SceneJson, options: { name?: string; playback_speed?: number } = {}) {
     return this.request<SessionState>('POST', '/api/sessions', { scene, ...options });

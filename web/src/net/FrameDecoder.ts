@@ -3,14 +3,23 @@
 // straight into the float buffers of a ParticleTarget (the viewport's
 // BufferGeometry attributes), which grow by doubling; the frame's header,
 // counts and instance records go into objects reused from frame to frame.
+// Colours are written only from the first particle whose kind or phase
+// differs from the previous frame's (same buffer, same palette), and the
+// target is told so (commit's colorsFrom): a frame whose kinds and phases are
+// unchanged, as in a one-phase scene without temporary particles however the
+// simulation reorders them, rewrites and uploads no colour.
 import { ControlLayer, Frame, Instance, Layer, Points, Stats, Vec3 } from '@wire';
 
 /** Where decoded particles go: xyz positions and rgb colours, 3 floats per particle. */
 export interface ParticleTarget {
   /** Buffers with room for at least n particles (the target grows them, keeping none of the old values). */
   reserve(n: number): { positions: Float32Array; colors: Float32Array };
-  /** The first n particles of the buffers returned by reserve() are the new frame. */
-  commit(n: number): void;
+  /**
+   * The first n particles of the buffers returned by reserve() are the new
+   * frame; the colours of particles before `colorsFrom` (default 0) are
+   * those of the previous commit (nothing to upload for them).
+   */
+  commit(n: number, colorsFrom?: number): void;
 }
 
 /** A ParticleTarget of plain growable arrays (no viewport: tests, benchmarks). */
@@ -27,7 +36,7 @@ export class ArrayParticleTarget implements ParticleTarget {
     }
     return this;
   }
-  commit(n: number) {
+  commit(n: number, _colorsFrom = 0) {
     this.count = n;
   }
 }
@@ -82,6 +91,37 @@ export const enum Kind {
 }
 
 const Q = 1 / 65535;
+
+/** What a target's colour buffer holds, so that colours still valid are neither rewritten nor uploaded. */
+class ColorState {
+  /** The buffer last written, with the palette version it was written with. */
+  private colors: Float32Array | null = null;
+  private palette = -1;
+  /** Particles [0, valid) of it hold the colours of the last frame written. */
+  private valid = 0;
+  /** Lowest particle written since the last commit (a frame that threw in between included). */
+  private dirty = Infinity;
+
+  /** Particles before the returned index still hold valid colours in `colors` (0 after a new buffer or palette). */
+  reusable(colors: Float32Array, palette: number, n: number): number {
+    return colors === this.colors && palette === this.palette ? Math.min(this.valid, n) : 0;
+  }
+
+  /** Colours [from, n) were written into `colors`; [0, n) now valid (0: none kept for the next frame). */
+  wrote(colors: Float32Array, palette: number, from: number, n: number, keep = true) {
+    this.colors = colors;
+    this.palette = palette;
+    this.valid = keep ? n : 0;
+    this.dirty = Math.min(this.dirty, from);
+  }
+
+  /** colorsFrom for the target's commit(n). */
+  committed(n: number): number {
+    const from = Math.min(this.dirty, n);
+    this.dirty = Infinity;
+    return from;
+  }
+}
 
 export class FrameDecoder {
   /** Liquid and temporary particles. */
@@ -138,6 +178,15 @@ export class FrameDecoder {
   private readonly inst = new Instance();
   private readonly control = new ControlLayer();
 
+  // Colour reuse: bumped by setColors / invalidateColors; each target's state;
+  // the kinds and phases the liquid colours were computed from.
+  private paletteVersion = 0;
+  private readonly liquidColors = new ColorState();
+  private readonly boundaryColors = new ColorState();
+  private readonly repulsionColors = new ColorState();
+  private lastKind = new Uint8Array(0);
+  private lastPhase = new Uint8Array(0);
+
   constructor() {
     this.setColors([0.45, 0.7, 1.0], [], [1.0, 0.62, 0.25], [0.55, 0.55, 0.6]);
     const stops = [[0.05, 0.12, 0.45], [0.45, 0.7, 1.0], [1, 1, 1]];
@@ -157,6 +206,12 @@ export class FrameDecoder {
     }
     this.temporaryColor.set([temporary[0]!, temporary[1]!, temporary[2]!]);
     this.boundaryColor.set([boundary[0]!, boundary[1]!, boundary[2]!]);
+    this.invalidateColors();
+  }
+
+  /** The next frame rewrites every colour (after changing a colour array such as repulsionColor in place). */
+  invalidateColors() {
+    this.paletteVersion++;
   }
 
   /** Decodes `frame` into the target and `info`. Throws on a malformed frame (nothing committed). */
@@ -185,10 +240,18 @@ export class FrameDecoder {
     if (n > 0 && pts) {
       this.dequantize(pts, n, dim, 0, nl, positions, `frame ${info.frame}: particles`);
       this.dequantize(pts, n, dim, nl, n - nl, b.positions, `frame ${info.frame}: particles`);
-      this.colorize(nl, kinds, phases, colors);
-      if (this.colorBySpeed && info.layers & Layer.Speed) this.colorizeSpeed(frame, nl, kinds, colors);
-      fillColor(b.colors, n - nl, this.boundaryColor);
     }
+    if (this.colorBySpeed && info.layers & Layer.Speed) {
+      // Speeds change every frame: every colour is written, none kept.
+      this.colorize(0, nl, kinds, phases, colors);
+      this.colorizeSpeed(frame, nl, kinds, colors);
+      this.liquidColors.wrote(colors, this.paletteVersion, 0, nl, false);
+    } else {
+      this.colorizeLiquid(nl, kinds, phases, colors);
+    }
+    const bFrom = this.boundaryColors.reusable(b.colors, this.paletteVersion, n - nl);
+    fillColor(b.colors, bFrom, n - nl, this.boundaryColor);
+    this.boundaryColors.wrote(b.colors, this.paletteVersion, bFrom, n - nl);
 
     // Control points with α, repulsion points (optional layers).
     let nc = 0, nr = 0;
@@ -213,12 +276,14 @@ export class FrameDecoder {
       nr = rpts.count();
       const r = this.repulsionTarget.reserve(nr);
       this.dequantize(rpts, nr, dim, 0, nr, r.positions, `frame ${info.frame}: repulsion`);
-      fillColor(r.colors, nr, this.repulsionColor);
+      const from = this.repulsionColors.reusable(r.colors, this.paletteVersion, nr);
+      fillColor(r.colors, from, nr, this.repulsionColor);
+      this.repulsionColors.wrote(r.colors, this.paletteVersion, from, nr);
     }
-    this.target.commit(nl);
-    this.boundaryTarget.commit(n - nl);
+    this.target.commit(nl, this.liquidColors.committed(nl));
+    this.boundaryTarget.commit(n - nl, this.boundaryColors.committed(n - nl));
     this.controlTarget.commit(nc);
-    this.repulsionTarget.commit(nr);
+    this.repulsionTarget.commit(nr, this.repulsionColors.committed(nr));
     info.count = nl;
     info.boundaryCount = n - nl;
     info.controlCount = nc;
@@ -262,11 +327,38 @@ export class FrameDecoder {
     }
   }
 
-  private colorize(n: number, kinds: Uint8Array | null, phases: Uint8Array | null, colors: Float32Array) {
+  /**
+   * Liquid colours: particles whose kind and phase equal the previous frame's
+   * (same buffer, same palette) keep their colour; from the first that
+   * differs on, every colour is looked up again.
+   */
+  private colorizeLiquid(n: number, kinds: Uint8Array | null, phases: Uint8Array | null, colors: Float32Array) {
+    const state = this.liquidColors;
+    const complete = kinds !== null && kinds.length >= n && phases !== null && phases.length >= n;
+    let from = 0;
+    if (complete) {
+      const reusable = state.reusable(colors, this.paletteVersion, n);
+      if (reusable > 0) from = firstDifference(phases!, this.lastPhase, firstDifference(kinds!, this.lastKind, reusable));
+      if (this.lastKind.length < n) {
+        let cap = Math.max(4096, this.lastKind.length);
+        while (cap < n) cap *= 2;
+        this.lastKind = new Uint8Array(cap);
+        this.lastPhase = new Uint8Array(cap);
+        from = 0;
+      }
+      this.lastKind.set(kinds!.subarray(from, n), from);
+      this.lastPhase.set(phases!.subarray(from, n), from);
+    }
+    this.colorize(from, n, kinds, phases, colors);
+    // Without kinds and phases nothing is kept: the next frame looks every colour up again.
+    state.wrote(colors, this.paletteVersion, from, n, complete);
+  }
+
+  private colorize(from: number, n: number, kinds: Uint8Array | null, phases: Uint8Array | null, colors: Float32Array) {
     const pc = this.phaseColors, tc = this.temporaryColor, bc = this.boundaryColor;
     const haveKinds = kinds !== null && kinds.length >= n;
     const havePhases = phases !== null && phases.length >= n;
-    for (let i = 0, o = 0; i < n; i++, o += 3) {
+    for (let i = from, o = 3 * from; i < n; i++, o += 3) {
       const kind = haveKinds ? kinds![i]! : Kind.Liquid;
       if (kind === Kind.Liquid) {
         const p = havePhases ? 3 * phases![i]! : 0;
@@ -332,8 +424,23 @@ export class FrameDecoder {
   }
 }
 
-function fillColor(colors: Float32Array, n: number, c: Float32Array) {
-  for (let i = 0, o = 0; i < n; i++, o += 3) {
+/** Index of the first i < n with a[i] ≠ b[i], else n (4 bytes at a time where both are aligned). */
+function firstDifference(a: Uint8Array, b: Uint8Array, n: number): number {
+  let i = 0;
+  if (n >= 64 && (a.byteOffset & 3) === 0 && (b.byteOffset & 3) === 0) {
+    const words = n >> 2;
+    const a32 = new Uint32Array(a.buffer, a.byteOffset, words);
+    const b32 = new Uint32Array(b.buffer, b.byteOffset, words);
+    let k = 0;
+    while (k < words && a32[k] === b32[k]) k++;
+    i = k << 2;
+  }
+  while (i < n && a[i] === b[i]) i++;
+  return i;
+}
+
+function fillColor(colors: Float32Array, from: number, n: number, c: Float32Array) {
+  for (let i = from, o = 3 * from; i < n; i++, o += 3) {
     colors[o] = c[0]!;
     colors[o + 1] = c[1]!;
     colors[o + 2] = c[2]!;

@@ -10,7 +10,7 @@ import { SetInstanceTransformCommand } from '../commands/SetInstanceTransformCom
 import { SetInstanceValueCommand } from '../commands/SetInstanceValueCommand';
 import { SetSceneSettingsCommand } from '../commands/SetSceneSettingsCommand';
 import { addKeyAt, editTrackAt, evaluateTrack, keyIndexAt, removeKeyAt, type FullKey } from '../core/TransformTrack';
-import type { InstanceJson, ParametersJson, ParamSpecJson, SettingsPatch } from '../net/types';
+import type { InstanceJson, ParametersJson, ParamSpecJson, SettingsPatch, TransformKey } from '../net/types';
 import { el } from './dom';
 import { checkboxField, formatNumber, numberField, paramField, selectField, type Field } from './fields';
 
@@ -53,7 +53,7 @@ export class Inspector {
 
     editor.signals.selectionChanged.add(() => this.update());
     editor.signals.instancesChanged.add(() => this.update());
-    editor.signals.sessionView.add(() => this.update()); // the playhead moved: transform at it
+    editor.signals.playheadChanged.add(() => this.update()); // the transform at the playhead
     editor.signals.parametersChanged.add(() => {
       this.buildParamFields();
       this.buildSceneFields();
@@ -198,20 +198,22 @@ export class Inspector {
   private editTransform(change: (k: FullKey) => void): Promise<void> | void {
     const inst = this.selectedInstance();
     if (!inst) return;
-    const e = this.editor;
-    const track = editTrackAt(inst.transform, e.playheadTime(), this.tolerance(), this.dim(), e.templateCentre(inst.template), change);
-    return e.execute(new SetInstanceTransformCommand(e, inst.name, track, inst.transform ?? [])).then(() => this.update());
+    const e = this.editor, time = e.playheadTime(), tol = this.tolerance(), dim = this.dim();
+    const centre = e.templateCentre(inst.template);
+    // Built from the track as it is when the command runs (edits in flight land first).
+    const edit = (track: TransformKey[]) => editTrackAt(track, time, tol, dim, centre, change);
+    return e.execute(new SetInstanceTransformCommand(e, inst.name, edit)).then(() => this.update());
   }
 
   private keyAtPlayhead(add: boolean) {
     const inst = this.selectedInstance();
     if (!inst) return;
-    const e = this.editor, t = e.playheadTime();
-    const old = inst.transform ?? [];
-    const track = add
-      ? addKeyAt(old, t, this.tolerance(), this.dim(), e.templateCentre(inst.template))
-      : removeKeyAt(old, t, this.tolerance());
-    void e.execute(new SetInstanceTransformCommand(e, inst.name, track, old)).then(() => this.update());
+    const e = this.editor, t = e.playheadTime(), tol = this.tolerance(), dim = this.dim();
+    const centre = e.templateCentre(inst.template);
+    const edit = (track: TransformKey[]) => (add ? addKeyAt(track, t, tol, dim, centre) : removeKeyAt(track, t, tol));
+    const name = `${add ? 'Add' : 'Remove'} key of ${inst.name} at ${t.toFixed(3)} s`;
+    void e.execute(new SetInstanceTransformCommand(e, inst.name, edit, undefined, undefined, { name, merge: false }))
+      .then(() => this.update());
   }
 
   // --------------------------------------------------------------- scene ---

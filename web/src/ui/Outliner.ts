@@ -21,10 +21,16 @@ export class Outliner {
   }
 
   private onFrame(f: FrameInfo) {
-    const now = new Set<string>();
-    for (let k = 0; k < f.instanceCount; k++) if (f.instances[k]!.active) now.add(f.instances[k]!.name);
-    if (now.size === this.active.size && [...now].every((n) => this.active.has(n))) return;
-    this.active = now;
+    // Re-render only when the set of playing instances changed (no allocation otherwise).
+    let same = true, n = 0;
+    for (let k = 0; k < f.instanceCount; k++) {
+      if (!f.instances[k]!.active) continue;
+      n++;
+      if (!this.active.has(f.instances[k]!.name)) same = false;
+    }
+    if (same && n === this.active.size) return;
+    this.active = new Set();
+    for (let k = 0; k < f.instanceCount; k++) if (f.instances[k]!.active) this.active.add(f.instances[k]!.name);
     this.render();
   }
 
@@ -39,7 +45,7 @@ export class Outliner {
       const remove = el('button', { text: '✕', testid: `outliner-remove-${inst.name}`, title: `Remove ${inst.name}`, attrs: { type: 'button' } });
       remove.addEventListener('click', (ev) => {
         ev.stopPropagation();
-        void e.execute(new RemoveInstanceCommand(e, inst));
+        void e.execute(new RemoveInstanceCommand(e, inst.name));
       });
       const active = this.active.has(inst.name);
       const item = el('div', {

@@ -95,9 +95,12 @@ export class TemplateLibrary {
     let p;
     try {
       p = await this.editor.api.templatePreview(name, 1500);
-    } catch {
-      // The list entry already shows an unreadable template; no thumbnail.
+    } catch (e) {
       c.dataset['points'] = '0';
+      c.title = `no preview: ${e instanceof Error ? e.message : String(e)}`;
+      ctx.fillStyle = '#ff6b6b';
+      ctx.fillText('no preview', 6, c.height / 2);
+      this.editor.reportError(e, `preview of template ${name}`);
       return;
     }
     const d = p.dimension, mn = p.region_min, mx = p.region_max;

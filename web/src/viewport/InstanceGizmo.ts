@@ -26,9 +26,10 @@ export class InstanceGizmo {
   /** Pointer-move changes sent as commands during drags (tests read it). */
   sent = 0;
   private dim: 2 | 3 = 2;
-  private drag: { id: number; name: string; oldTrack: TransformKey[]; start: FullKey } | null = null;
+  /** The drag in progress: its key time (the playhead at mouse-down) and the pose there, the proxy's z angle then. */
+  private drag: { id: number; name: string; time: number; start: FullKey; startZ: number; lastZ: number; turns: number } | null = null;
   private inFlight = false;
-  private pendingTrack: TransformKey[] | null = null;
+  private pendingTrack: ((track: TransformKey[]) => TransformKey[]) | null = null;
   private readonly euler = new THREE.Euler();
 
   constructor(
@@ -56,8 +57,12 @@ export class InstanceGizmo {
 
     editor.signals.selectionChanged.add(() => this.place());
     editor.signals.instancesChanged.add(() => this.place());
-    editor.signals.sessionView.add(() => this.place());
+    editor.signals.playheadChanged.add(() => this.place());
     editor.signals.sessionChanged.add((s) => {
+      // A drag or its last pose never carries over to another session.
+      this.drag = null;
+      this.lastDrag = null;
+      this.pendingTrack = null;
       if (s) this.setDimension(s.dimension);
       this.place();
     });
@@ -125,15 +130,24 @@ export class InstanceGizmo {
     const e = this.editor;
     const inst = e.selected ? e.instances.get(e.selected) : undefined;
     if (!inst) return;
+    const time = e.playheadTime();
     this.drag = {
       id: nextDrag++,
       name: inst.name,
-      oldTrack: structuredClone(inst.transform ?? []),
-      start: evaluateTrack(inst.transform, e.playheadTime(), this.dim, e.templateCentre(inst.template)),
+      time,
+      start: evaluateTrack(inst.transform, time, this.dim, e.templateCentre(inst.template)),
+      startZ: this.proxy.rotation.z,
+      lastZ: this.proxy.rotation.z,
+      turns: 0,
     };
   }
 
-  /** The proxy's pose → the key at the playhead (rounded to 0.1 mm, 0.01°, 1e-4 in scale). */
+  /**
+   * The proxy's pose → the key at the drag's time (rounded to 0.1 mm, 0.01°,
+   * 1e-4 in scale), as an edit of the track the instance has when the
+   * command runs. 2D angles accumulate from the key's own (three.js wraps
+   * the proxy's to ±180°, the server interpolates angles linearly).
+   */
   private onChange() {
     const d = this.drag;
     if (!d) return;
@@ -142,31 +156,41 @@ export class InstanceGizmo {
     const p = this.proxy, dim = this.dim;
     const r4 = (v: number) => Math.round(v * 1e4) / 1e4;
     const r2 = (v: number) => Math.round(v * 100) / 100;
-    const track = editTrackAt(d.oldTrack, e.playheadTime(), 0.5 / e.frameRate(), dim, e.templateCentre(inst.template), (k) => {
-      k.translation = [r4(p.position.x), r4(p.position.y), r4(p.position.z)].slice(0, dim);
-      if (dim === 2) {
-        k.rotation = [r2(p.rotation.z * DEG)];
-      } else {
-        this.euler.copy(p.rotation).reorder('XYZ');
-        k.rotation = [r2(this.euler.x * DEG), r2(this.euler.y * DEG), r2(this.euler.z * DEG)];
-      }
-      // Scale is a magnitude: reflection stays as it was (the inspector's).
-      const s = [p.scale.x, p.scale.y, p.scale.z].map((v) => Math.max(1e-3, r4(Math.abs(v))));
-      k.scale = s.slice(0, dim);
-    });
-    this.pendingTrack = track;
+    let step = p.rotation.z - d.lastZ;
+    if (step > Math.PI) step -= 2 * Math.PI;
+    else if (step < -Math.PI) step += 2 * Math.PI;
+    d.turns += step;
+    d.lastZ = p.rotation.z;
+    const translation = [r4(p.position.x), r4(p.position.y), r4(p.position.z)].slice(0, dim);
+    let rotation: number[];
+    if (dim === 2) {
+      rotation = [r2(d.start.rotation[0]! + d.turns * DEG)];
+    } else {
+      this.euler.copy(p.rotation).reorder('XYZ');
+      rotation = [r2(this.euler.x * DEG), r2(this.euler.y * DEG), r2(this.euler.z * DEG)];
+    }
+    // Scale is a magnitude: reflection stays as it was (the inspector's).
+    const scale = [p.scale.x, p.scale.y, p.scale.z].map((v) => Math.max(1e-3, r4(Math.abs(v)))).slice(0, dim);
+    const time = d.time, tol = 0.5 / e.frameRate(), centre = e.templateCentre(inst.template);
+    this.pendingTrack = (track: TransformKey[]) =>
+      editTrackAt(track, time, tol, dim, centre, (k) => {
+        k.translation = translation;
+        k.rotation = rotation;
+        k.scale = scale;
+      });
     this.pump();
   }
 
-  private pump() {
+  /** One PATCH in flight during a drag (the newest pose wins); the release's pose is queued at once. */
+  private pump(force = false) {
     const d = this.drag ?? this.lastDrag;
-    if (this.inFlight || !this.pendingTrack || !d) return;
-    const track = this.pendingTrack;
+    if ((this.inFlight && !force) || !this.pendingTrack || !d) return;
+    const edit = this.pendingTrack;
     this.pendingTrack = null;
     this.inFlight = true;
     this.sent++;
     void this.editor
-      .execute(new SetInstanceTransformCommand(this.editor, d.name, track, d.oldTrack, d.id))
+      .execute(new SetInstanceTransformCommand(this.editor, d.name, edit, undefined, d.id))
       .finally(() => {
         this.inFlight = false;
         if (this.pendingTrack) this.pump();
@@ -174,12 +198,14 @@ export class InstanceGizmo {
       });
   }
 
-  private lastDrag: { id: number; name: string; oldTrack: TransformKey[] } | null = null;
+  private lastDrag: { id: number; name: string } | null = null;
 
   private endDrag() {
     this.lastDrag = this.drag;
     this.drag = null;
-    if (this.pendingTrack) this.pump();
+    // Queued now, behind the PATCH in flight: an undo pressed after the
+    // release then undoes the whole drag.
+    if (this.pendingTrack) this.pump(true);
     else if (!this.inFlight) this.place();
   }
 

@@ -2,7 +2,11 @@
 // decoder's ParticleTarget: the decoder writes positions and colours straight
 // into this geometry's attribute arrays; they grow by doubling (a new
 // geometry, the old one's GPU buffers freed), and only the frame's range is
-// uploaded (setDrawRange, addUpdateRange, needsUpdate).
+// uploaded (setDrawRange, addUpdateRange, needsUpdate): all its positions,
+// and the colours from the first one the decoder changed (none when the
+// particles' kinds and phases are those of the previous frame). An empty
+// range uploads nothing (WebGL2's bufferSubData reads a length of 0 as "to the
+// end of the array", so a range of 0 would upload the whole capacity).
 //
 // Points are discs of the particles' world diameter in both cameras. Colours
 // are sRGB and written to the framebuffer as they are, so a liquid particle
@@ -49,6 +53,11 @@ export class ParticleLayer implements ParticleTarget {
   private position!: THREE.BufferAttribute;
   private color!: THREE.BufferAttribute;
   private capacity = 0;
+  // Upload bookkeeping, reset when three.js uploads the attribute: an upload
+  // is pending (needsUpdate set), and the lowest particle whose colour changed.
+  private positionPending = false;
+  private colorPending = false;
+  private colorDirtyFrom = Infinity;
   count = 0;
 
   constructor(name = 'particles') {
@@ -80,14 +89,14 @@ export class ParticleLayer implements ParticleTarget {
     return { positions: this.position.array as Float32Array, colors: this.color.array as Float32Array };
   }
 
-  commit(n: number) {
+  /** The first n particles are the new frame; the colours of those before `colorsFrom` are unchanged since the last commit. */
+  commit(n: number, colorsFrom = 0) {
     this.count = n;
     this.geometry.setDrawRange(0, n);
-    for (const a of [this.position, this.color]) {
-      a.clearUpdateRanges();
-      a.addUpdateRange(0, 3 * n);
-      a.needsUpdate = true;
-    }
+    this.positionPending = markRange(this.position, 0, n, this.positionPending);
+    // Colours to upload: from the lowest particle any commit changed since the last upload.
+    this.colorDirtyFrom = Math.min(this.colorDirtyFrom, colorsFrom);
+    this.colorPending = markRange(this.color, Math.min(this.colorDirtyFrom, n), n, this.colorPending);
   }
 
   setRadius(r: number) {
@@ -111,6 +120,18 @@ export class ParticleLayer implements ParticleTarget {
     this.capacity = cap;
     this.position = new THREE.BufferAttribute(new Float32Array(3 * cap), 3).setUsage(THREE.DynamicDrawUsage);
     this.color = new THREE.BufferAttribute(new Float32Array(3 * cap), 3).setUsage(THREE.DynamicDrawUsage);
+    const position = this.position, color = this.color;
+    position.onUpload(() => {
+      if (this.position === position) this.positionPending = false;
+    });
+    color.onUpload(() => {
+      if (this.color !== color) return;
+      this.colorPending = false;
+      this.colorDirtyFrom = Infinity;
+    });
+    // A new buffer is uploaded whole when first drawn.
+    this.positionPending = this.colorPending = false;
+    this.colorDirtyFrom = Infinity;
     g.setAttribute('position', this.position);
     g.setAttribute('color', this.color);
     g.setDrawRange(0, 0);
@@ -121,4 +142,22 @@ export class ParticleLayer implements ParticleTarget {
     this.geometry.dispose();
     this.material.dispose();
   }
+}
+
+/**
+ * Marks particles [from, to) of `a` for upload, replacing earlier marks (which
+ * cover at most what is still pending); returns whether an upload is pending.
+ * An empty range marks nothing, unless an upload is already pending
+ * (needsUpdate cannot be withdrawn, and a pending upload without a range
+ * would send the whole array): then it keeps one particle.
+ */
+function markRange(a: THREE.BufferAttribute, from: number, to: number, pending: boolean): boolean {
+  a.clearUpdateRanges();
+  if (to > from) {
+    a.addUpdateRange(3 * from, 3 * (to - from));
+    a.needsUpdate = true;
+    return true;
+  }
+  if (pending) a.addUpdateRange(0, Math.min(3, a.array.length));
+  return pending;
 }

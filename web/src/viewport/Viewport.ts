@@ -91,9 +91,14 @@ export class Viewport {
     });
   }
 
+  private readonly bufferSize = new THREE.Vector2();
+
   render() {
-    const h = this.renderer.getDrawingBufferSize(new THREE.Vector2()).y;
-    for (const l of this.layers()) l.updateScale(this.camera, h);
+    const h = this.renderer.getDrawingBufferSize(this.bufferSize).y;
+    this.particles.updateScale(this.camera, h);
+    this.boundary.updateScale(this.camera, h);
+    this.control.updateScale(this.camera, h);
+    this.repulsion.updateScale(this.camera, h);
     this.renderer.render(this.scene, this.camera);
     this.renders++;
   }
@@ -216,14 +221,15 @@ export class Viewport {
    */
   private installPicking() {
     const dom = this.renderer.domElement;
-    let down: { x: number; y: number } | null = null;
+    let down: { x: number; y: number; onGizmo: boolean } | null = null;
     dom.addEventListener('pointerdown', (e) => {
-      down = e.button === 0 ? { x: e.clientX, y: e.clientY } : null;
+      // TransformControls has run its hover test by now; its pointerup clears the axis.
+      down = e.button === 0 ? { x: e.clientX, y: e.clientY, onGizmo: this.gizmo.controls.axis !== null } : null;
     });
     dom.addEventListener('pointerup', (e) => {
-      if (!down || Math.hypot(e.clientX - down.x, e.clientY - down.y) > 4) return;
+      const d = down;
       down = null;
-      if (this.gizmo.controls.axis !== null || this.gizmo.controls.dragging) return;
+      if (!d || d.onGizmo || Math.hypot(e.clientX - d.x, e.clientY - d.y) > 4) return;
       this.editor.select(this.instanceAt(e.clientX, e.clientY));
     });
   }

@@ -1,0 +1,204 @@
+// `flowclip bench scenes`: every shipped scene for a fixed number of frames,
+// each in its own child process (`flowclip run --stats`, so that peak RSS is
+// that run's), printed with the columns of the paper's Table 1 (Schoentgen
+// et al. 2020) beside the paper's own figures: average liquid, control,
+// repulsion and temporary particles per frame (over the frames with an
+// active instance), simulation and control ms per frame, control share,
+// memory and template storage.
+#include "app/commands.h"
+#include "io/scene.h"
+#include "io/template_database.h"
+#include <nlohmann/json.hpp>
+#include <unistd.h>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <set>
+
+namespace fc::app {
+
+namespace {
+
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+
+// Table 1 of the paper (i9-9900K, 8 cores): particles per frame, ms per
+// frame, memory (GB) and template storage (MB).
+struct PaperRow {
+  const char* name;
+  double liquid, control, repulsion, temporary, simMs, controlMs, memoryGb, storageMb;
+};
+const std::map<std::string, PaperRow>& paperTable() {
+  static const std::map<std::string, PaperRow> t = {
+      {"drop2d", {"2D Rectangular drop", 6.7e3, 1.3e3, 88, 36, 190.2, 5.6, 0.33, 3.87}},
+      {"wave2d", {"2D Wave machine", 6.7e3, 2.3e3, 130, 14, 128.7, 13.7, 0.34, 7.44}},
+      {"blade2d", {"2D Rotating blade", 2.2e3, 1.3e3, 79, 0, 32.4, 6.7, 0.24, 12.0}},
+      {"waterjet2d", {"2D Water jet", 6.7e3, 1.3e3, 217, 138, 96.7, 3.9, 0.35, 4.19}},
+      {"zero_gravity2d", {"2D Zero gravity", 6.7e3, 0.6e3, 209, 0, 116.5, 3.4, 0.46, 3.02}},
+      {"doubledam2d", {"2D Double dam", 6.7e3, 1.0e3, 92, 43, 143.1, 4.0, 0.46, 3.50}},
+      {"viscous3d", {"3D Viscous", 298.7e3, 1.3e3, 713, 76, 6566.5, 53.2, 5.81, 5.11}},
+      {"blade3d", {"3D Rotating blade", 56.2e3, 20.0e3, 2.3e3, 0, 807.2, 135.4, 2.4, 82.7}},
+      {"letters3d", {"3D Letters", 298.7e3, 39.8e3, 8.2e3, 329, 5207.5, 474.8, 7.4, 274.1}},
+      {"multiphase3d", {"3D Multiphase", 106.4e3, 2.6e3, 1.4e3, 74, 2274.5, 125.7, 3.2, 5.12}},
+      {"boat3d", {"3D Boat", 2.49e6, 363.3e3, 30.1e3, 994, 44585.2, 3921.6, 80.6, 3488.0}},
+      {"composition3d", {"3D Composition", 298.7e3, 12.2e3, 1.7e3, 43, 4900.1, 112.4, 7.8, 90.0}},
+  };
+  return t;
+}
+
+struct Options {
+  std::vector<std::string> scenes;
+  int frames = 60;
+  std::string templates = "templates";
+  int threads = 0;
+  std::string out;
+};
+
+std::vector<std::string> shippedScenes() {
+  std::vector<std::string> found;
+  for (const fs::path& dir : {fs::path("scenes"), fs::path(FLOWCLIP_SOURCE_DIR) / "scenes"}) {
+    if (!fs::is_directory(dir)) continue;
+    for (const auto& e : fs::directory_iterator(dir))
+      if (e.path().extension() == ".json") found.push_back(e.path().string());
+    break;
+  }
+  std::sort(found.begin(), found.end());
+  return found;
+}
+
+std::string count(double v) {
+  char b[32];
+  if (v >= 1e6) std::snprintf(b, sizeof b, "%.2fM", v / 1e6);
+  else if (v >= 1e4) std::snprintf(b, sizeof b, "%.1fk", v / 1e3);
+  else std::snprintf(b, sizeof b, "%.0f", v);
+  return b;
+}
+
+int benchScenes(const Options& opt) {
+  const std::vector<std::string> scenes = opt.scenes.empty() ? shippedScenes() : opt.scenes;
+  if (scenes.empty()) {
+    std::fprintf(stderr, "error: no scenes found (scenes/*.json)\n");
+    return BadInput;
+  }
+  const std::string self = selfExecutable();
+  const fs::path tmp = fs::temp_directory_path() / ("flowclip-bench-scenes-" + std::to_string(getpid()));
+  fs::create_directories(tmp);
+  json results = json::array();
+  std::printf("%-15s %7s %7s %6s %5s %9s %9s %6s %7s %7s | %-27s %7s %7s %6s %5s %8s %7s %6s %6s %7s\n", "scene",
+              "liquid", "control", "repul", "temp", "sim ms", "ctl ms", "ctl %", "RSS MB", "tpl MB", "paper (Table 1)", "liquid",
+              "control", "repul", "temp", "sim ms", "ctl ms", "ctl %", "GB", "MB");
+  int failures = 0;
+  for (size_t k = 0; k < scenes.size(); ++k) {
+    const std::string& scene = scenes[k];
+    const std::string stem = fs::path(scene).stem().string();
+    std::fprintf(stderr, "[%zu/%zu] %s: %d frames…\n", k + 1, scenes.size(), stem.c_str(), opt.frames);
+    const std::string statsPath = (tmp / (stem + ".json")).string();
+    std::vector<std::string> args = {self, "run", scene, "--frames", std::to_string(opt.frames), "--stats", statsPath,
+                                     "--templates", opt.templates, "--quiet"};
+    if (opt.threads > 0) args.insert(args.end(), {"--threads", std::to_string(opt.threads)});
+    const int rc = runChild(args);
+    json stats;
+    try {
+      std::ifstream in(statsPath);
+      stats = json::parse(in);
+    } catch (const std::exception&) {
+    }
+    if (rc != 0 || !stats.contains("summary")) {
+      std::printf("%-15s failed (exit %d%s)\n", stem.c_str(), rc,
+                  stats.contains("summary") && stats["summary"].contains("error")
+                      ? (", " + stats["summary"]["error"].get<std::string>()).c_str()
+                      : "");
+      ++failures;
+      continue;
+    }
+    // Averages over the frames where an instance plays (as the paper's),
+    // the timings over every frame.
+    double liquid = 0, control = 0, repulsion = 0, temporary = 0, simMs = 0, controlMs = 0;
+    size_t active = 0, frames = 0;
+    std::set<std::string> templatesUsed;
+    for (const json& f : stats["frames"]) {
+      ++frames;
+      simMs += f.value("simulation_ms", f.value("wall_ms", 0.0));
+      controlMs += f.value("control_ms", 0.0);
+      bool anyActive = false;
+      for (const json& i : f.value("instances", json::array())) anyActive = anyActive || i.value("active", false);
+      const double temp = f.value("temporary_particles", 0.0);
+      if (!anyActive && f.contains("instances") && !f["instances"].empty()) continue;
+      ++active;
+      liquid += f.value("particles", 0.0) - temp;
+      control += f.value("control_particles", 0.0);
+      repulsion += f.value("repulsion_particles", 0.0);
+      temporary += temp;
+    }
+    const double na = double(std::max<size_t>(active, 1)), nf = double(std::max<size_t>(frames, 1));
+    // Template storage: the files of the templates the scene names.
+    double storage = 0;
+    try {
+      const json sceneJson = loadSceneJson(scene);
+      for (const json& inst : sceneJson.value("instances", json::array()))
+        if (inst.contains("template") && templatesUsed.insert(inst["template"].get<std::string>()).second) {
+          std::error_code ec;
+          const auto bytes = fs::file_size(fs::path(opt.templates) / (inst["template"].get<std::string>() + ".h5"), ec);
+          if (!ec) storage += double(bytes) / 1e6;
+        }
+    } catch (const std::exception&) {
+    }
+    const double rss = stats["summary"].value("peak_rss_mb", 0.0);
+    const double sim = simMs / nf, ctl = controlMs / nf;
+    const double pct = sim > 0 ? 100.0 * ctl / sim : 0;
+    std::printf("%-15s %7s %7s %6s %5s %9.1f %9.1f %5.1f%% %7.0f %7.2f", stem.c_str(), count(liquid / na).c_str(),
+                count(control / na).c_str(), count(repulsion / na).c_str(), count(temporary / na).c_str(), sim, ctl, pct, rss,
+                storage);
+    const auto it = paperTable().find(stem);
+    if (it != paperTable().end()) {
+      const PaperRow& p = it->second;
+      std::printf(" | %-27s %7s %7s %6s %5s %8.1f %7.1f %5.1f%% %6.2f %7.2f", p.name, count(p.liquid).c_str(),
+                  count(p.control).c_str(), count(p.repulsion).c_str(), count(p.temporary).c_str(), p.simMs, p.controlMs,
+                  100.0 * p.controlMs / p.simMs, p.memoryGb, p.storageMb);
+    }
+    std::printf("\n");
+    std::fflush(stdout);
+    results.push_back({{"scene", stem},
+                       {"frames", frames},
+                       {"active_frames", active},
+                       {"liquid", liquid / na},
+                       {"control", control / na},
+                       {"repulsion", repulsion / na},
+                       {"temporary", temporary / na},
+                       {"simulation_ms_per_frame", sim},
+                       {"control_ms_per_frame", ctl},
+                       {"control_pct", pct},
+                       {"peak_rss_mb", rss},
+                       {"template_storage_mb", storage}});
+  }
+  std::error_code ec;
+  fs::remove_all(tmp, ec);
+  std::printf("(ours: this machine, %s threads; control %% is of the simulation ms, as the paper's. Paper: i9-9900K, 8 cores.)\n",
+              opt.threads > 0 ? std::to_string(opt.threads).c_str() : "all");
+  if (!opt.out.empty()) {
+    std::ofstream o(opt.out + ".tmp");
+    o << json{{"scenes", results}}.dump(1) << "\n";
+    o.close();
+    fs::rename(opt.out + ".tmp", opt.out, ec);
+  }
+  return failures ? SimulationFailed : Ok;
+}
+
+}  // namespace
+
+void addBenchScenesCommand(CLI::App& bench) {
+  auto opt = std::make_shared<Options>();
+  CLI::App* cmd = bench.add_subcommand("scenes", "every shipped scene, with the columns of the paper's Table 1 beside its figures");
+  cmd->add_option("scenes", opt->scenes, "scene files (default: every scenes/*.json)");
+  cmd->add_option("--frames", opt->frames, "frames per scene (default 60)")->check(CLI::PositiveNumber);
+  cmd->add_option("--templates", opt->templates, "template database directory (default: templates)");
+  cmd->add_option("--threads", opt->threads, "OpenMP threads (default: all cores)")->check(CLI::PositiveNumber);
+  cmd->add_option("--out", opt->out, "also write the results as JSON");
+  cmd->callback([opt] {
+    const int code = benchScenes(*opt);
+    if (code != Ok) throw ExitCode(code);
+  });
+}
+
+}  // namespace fc::app
