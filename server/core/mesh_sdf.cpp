@@ -127,11 +127,14 @@ void MeshSdf::nearest(const Vec3d& p, double bound2, double& best2, uint32_t& tr
   }
 }
 
-MeshSdf::Nearest MeshSdf::nearestPoint(const Vec3d& p) const {
+MeshSdf::Nearest MeshSdf::nearestPoint(const Vec3d& p, double bound) const {
   Nearest r;
   double best2;
   Vec3d c;
-  nearest(p, std::numeric_limits<double>::infinity(), best2, r.triangle, r.feature, c);
+  const double b2 = bound * bound * (1 + 1e-9) + 1e-24;
+  nearest(p, std::isfinite(b2) ? b2 : std::numeric_limits<double>::infinity(), best2, r.triangle, r.feature, c);
+  if (r.triangle == std::numeric_limits<uint32_t>::max())  // nothing within the bound (rounding): search all
+    nearest(p, std::numeric_limits<double>::infinity(), best2, r.triangle, r.feature, c);
   const auto& v = mesh_.triangles[r.triangle];
   const Vec3d n = r.feature < 3 ? vertexNormal_[v[size_t(r.feature)]]
                   : r.feature < 6 ? edgeNormal_[r.triangle][size_t(r.feature - 3)]
@@ -143,6 +146,8 @@ MeshSdf::Nearest MeshSdf::nearestPoint(const Vec3d& p) const {
   r.distance = sign * dist;
   return r;
 }
+
+double MeshSdf::nodeDistance(const Vec3d& p, double bound) const { return nearestPoint(p, bound).distance; }
 
 double MeshSdf::exactSignedDistance(const Vec3d& p, Vec3d* gradient) const {
   const Nearest r = nearestPoint(p);
@@ -223,33 +228,78 @@ MeshSdf::MeshSdf(TriangleMesh mesh, const Options& opt) : mesh_(std::move(mesh))
   for (int d = 0; d < 3; ++d) gridMax_[d] = Real(lo[d] + (dims_[d] - 1) * opt.spacing);
   invSpacing_ = Real(1 / opt.spacing);
   values_.resize(size_t(dims_[0]) * size_t(dims_[1]) * size_t(dims_[2]));
-  const long rows = long(dims_[1]) * long(dims_[2]);
   const double h = opt.spacing;
+  const double inf = std::numeric_limits<double>::infinity();
+
+  // The coarse grid: every 4th node (and one beyond the fine grid's end).
+  constexpr int C = 4;
+  Eigen::Vector3i cd;
+  for (int d = 0; d < 3; ++d) cd[d] = (dims_[d] - 1 + C - 1) / C + 1;
+  std::vector<double> coarse(size_t(cd[0]) * size_t(cd[1]) * size_t(cd[2]));
+  const long coarseRows = long(cd[1]) * long(cd[2]);
 #pragma omp parallel for schedule(dynamic, 4)
-  for (long row = 0; row < rows; ++row) {
-    const int j = int(row % dims_[1]), k = int(row / dims_[1]);
-    double prev = -1;
-    for (int i = 0; i < dims_[0]; ++i) {
-      const Vec3d p(lo[0] + i * h, lo[1] + j * h, lo[2] + k * h);
+  for (long row = 0; row < coarseRows; ++row) {
+    const int j = int(row % cd[1]), k = int(row / cd[1]);
+    double prev = inf;
+    for (int i = 0; i < cd[0]; ++i) {
+      const Vec3d p = lo + C * h * Vec3d(i, j, k);
       // The previous node's distance plus one step bounds this one's
       // (distance is 1-Lipschitz), which prunes most of the BVH.
-      double best2;
-      uint32_t t;
-      int feature = 6;
-      Vec3d c;
-      const double bound = prev >= 0 ? prev + h * (1 + 1e-9) : std::numeric_limits<double>::infinity();
-      nearest(p, bound * bound, best2, t, feature, c);
-      if (t == std::numeric_limits<uint32_t>::max())  // rounding at the bound: search without it
-        nearest(p, std::numeric_limits<double>::infinity(), best2, t, feature, c);
-      const auto& v = mesh_.triangles[t];
-      const Vec3d n = feature < 3 ? vertexNormal_[v[size_t(feature)]]
-                      : feature < 6 ? edgeNormal_[t][size_t(feature - 3)]
-                                    : faceNormal_[t];
-      const double dist = std::sqrt(best2);
-      prev = dist;
-      values_[size_t(i) + size_t(dims_[0]) * size_t(row)] = Real((p - c).dot(n) < 0 ? -dist : dist);
+      const double d = nodeDistance(p, std::isfinite(prev) ? std::abs(prev) + C * h : inf);
+      coarse[size_t(i) + size_t(cd[0]) * size_t(row)] = d;
+      prev = d;
     }
   }
+  auto cv = [&](int i, int j, int k) { return coarse[size_t(i) + size_t(cd[0]) * (size_t(j) + size_t(cd[1]) * size_t(k))]; };
+  // Far coarse cells: every point of them farther than 4 fine cells from the
+  // surface (each point is within half a diagonal of a corner).
+  const double diag = std::sqrt(3.0) * C * h;
+  std::vector<uint8_t> far(size_t(cd[0] - 1) * size_t(cd[1] - 1) * size_t(cd[2] - 1));
+  std::vector<double> cellMin(far.size());
+  for (int k = 0; k + 1 < cd[2]; ++k)
+    for (int j = 0; j + 1 < cd[1]; ++j)
+      for (int i = 0; i + 1 < cd[0]; ++i) {
+        double m = inf;
+        bool same = true;
+        const double c0 = cv(i, j, k);
+        for (int c = 0; c < 8; ++c) {
+          const double v = cv(i + (c & 1), j + ((c >> 1) & 1), k + (c >> 2));
+          m = std::min(m, std::abs(v));
+          same = same && ((v < 0) == (c0 < 0));
+        }
+        const size_t id = size_t(i) + size_t(cd[0] - 1) * (size_t(j) + size_t(cd[1] - 1) * size_t(k));
+        far[id] = same && m > 0.5 * diag + C * h;
+        cellMin[id] = m;
+      }
+  const long rows = long(dims_[1]) * long(dims_[2]);
+  size_t exactNodes = 0;
+#pragma omp parallel for schedule(dynamic, 4) reduction(+ : exactNodes)
+  for (long row = 0; row < rows; ++row) {
+    const int j = int(row % dims_[1]), k = int(row / dims_[1]);
+    const int cj = std::min(j / C, cd[1] - 2), ck = std::min(k / C, cd[2] - 2);
+    double prev = inf;
+    for (int i = 0; i < dims_[0]; ++i) {
+      const int ci = std::min(i / C, cd[0] - 2);
+      const size_t id = size_t(ci) + size_t(cd[0] - 1) * (size_t(cj) + size_t(cd[1] - 1) * size_t(ck));
+      double d;
+      if (far[id]) {
+        const double tx = double(i - ci * C) / C, ty = double(j - cj * C) / C, tz = double(k - ck * C) / C;
+        d = 0;
+        for (int c = 0; c < 8; ++c)
+          d += ((c & 1) ? tx : 1 - tx) * (((c >> 1) & 1) ? ty : 1 - ty) * ((c >> 2) ? tz : 1 - tz) *
+               cv(ci + (c & 1), cj + ((c >> 1) & 1), ck + (c >> 2));
+        prev = inf;
+      } else {
+        const Vec3d p = lo + h * Vec3d(i, j, k);
+        const double bound = std::min(std::isfinite(prev) ? std::abs(prev) + h : inf, cellMin[id] + diag);
+        d = nodeDistance(p, bound);
+        prev = d;
+        ++exactNodes;
+      }
+      values_[size_t(i) + size_t(dims_[0]) * size_t(row)] = Real(d);
+    }
+  }
+  exactNodes_ = exactNodes;
   buildMs_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
 

@@ -7,7 +7,9 @@
 // closed, consistently oriented mesh without degenerate triangles.
 #include "core/aabb.h"
 #include <array>
+#include <cmath>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <stdexcept>
 #include <string>
@@ -41,9 +43,14 @@ class MeshSdf {
     size_t maxNodes = 1u << 24;  // 16.8 M nodes, 64 MB of floats
     // signedDistance() answers exactly where the grid says the surface is
     // nearer than this (m; 0: the grid everywhere). See signedDistance.
+    // Fine nodes nearer than 4 cells to the surface are always exact, so
+    // keep it below 3 cells.
     double exactBand = 0;
   };
-  // Builds the BVH and the grid (OpenMP over grid rows). Throws
+  // Builds the BVH and the grid (OpenMP over grid rows): a coarse grid of 4
+  // cells first, exact; fine nodes in coarse cells that lie wholly farther
+  // than 4 cells from the surface are interpolated from it (the far field,
+  // where no decision needs the exact value), the others are exact. Throws
   // MeshGridTooLarge when the grid would exceed opt.maxNodes and
   // std::invalid_argument when an edge has no opposite partner (not closed).
   MeshSdf(TriangleMesh mesh, const Options& opt);
@@ -59,11 +66,12 @@ class MeshSdf {
     uint32_t triangle = 0;
     int feature = 6;
   };
-  Nearest nearestPoint(const Vec3d& p) const;
+  // `bound`: an upper bound of the distance, if known (prunes the BVH).
+  Nearest nearestPoint(const Vec3d& p, double bound = std::numeric_limits<double>::infinity()) const;
   const Vec3d& faceNormal(uint32_t t) const { return faceNormal_[t]; }
 
   // The signed distance the simulation uses: the grid's value, or the exact
-  // one where the grid's is below Options::exactBand. Trilinear
+  // one where the grid's magnitude is below Options::exactBand. Trilinear
   // interpolation is exact beside a face but rounds convex edges and corners
   // by up to half a cell (the grid overestimates there) and errs as much
   // across the medial planes inside; near the surface, where contact and
@@ -71,7 +79,10 @@ class MeshSdf {
   // spares the far field (most particles) the BVH query.
   Real signedDistance(const Vec3& p) const {
     const Real g = gridSignedDistance(p);
-    return g < exactBand_ ? Real(exactSignedDistance(p.template cast<double>())) : g;
+    if (!(std::abs(g) < exactBand_)) return g;
+    // The grid errs by at most half a cell (measured; where it errs more the
+    // search finds nothing within the bound and searches again unbounded).
+    return Real(nearestPoint(p.template cast<double>(), double(std::abs(g)) + 0.6 * spacing_).distance);
   }
 
   // Trilinear lookup in the grid; outside it, the distance to the grid box
@@ -101,6 +112,7 @@ class MeshSdf {
   const Eigen::Vector3i& dims() const { return dims_; }
   double spacing() const { return spacing_; }
   size_t nodes() const { return values_.size(); }
+  size_t exactNodes() const { return exactNodes_; }  // nodes computed exactly (the rest: far field)
   double volume() const { return volume_; }
   double buildMs() const { return buildMs_; }  // BVH and grid, wall clock
 
@@ -130,9 +142,12 @@ class MeshSdf {
   double spacing_ = 0;
   Real invSpacing_ = 0;
   Real exactBand_ = 0;
+  // Nearest-point query to node values (pseudonormal sign).
+  double nodeDistance(const Vec3d& p, double bound) const;
   std::vector<Real> values_;  // x fastest
   double volume_ = 0;
   double buildMs_ = 0;
+  size_t exactNodes_ = 0;
 };
 
 }  // namespace fc

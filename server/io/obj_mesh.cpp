@@ -200,7 +200,15 @@ ObjSolid readObjSolid(const std::string& file) {
     for (int k = 0; k < 3; ++k) directed[edgeKey(m.triangles[t][size_t(k)], m.triangles[t][size_t((k + 1) % 3)])].push_back(t);
   size_t openEdges = 0, crowdedEdges = 0, flippedEdges = 0;
   std::string openExample, crowdedExample, flippedExample;
-  for (const auto& [k, ts] : directed) {
+  // Examples from the first edges in file order (the map's order is not).
+  std::vector<std::pair<uint64_t, const std::vector<uint32_t>*>> edges;
+  edges.reserve(directed.size());
+  for (const auto& [k, ts] : directed) edges.emplace_back(k, &ts);
+  std::sort(edges.begin(), edges.end(), [](const auto& x, const auto& y) {
+    return std::make_pair(x.second->front(), x.first) < std::make_pair(y.second->front(), y.first);
+  });
+  for (const auto& [k, tsp] : edges) {
+    const std::vector<uint32_t>& ts = *tsp;
     const uint32_t a = uint32_t(k >> 32), b = uint32_t(k & 0xffffffffu);
     const auto rev = directed.find(edgeKey(b, a));
     const size_t n = ts.size() + (rev == directed.end() ? 0 : rev->second.size());

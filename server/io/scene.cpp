@@ -352,7 +352,8 @@ MeshPlacement parseMeshPlacement(const json& o, const std::string& p) {
 
 // Reads, validates and places the mesh, then builds its signed-distance grid
 // at the particle radius over its bounds plus the kernel support and a cell.
-std::shared_ptr<const MeshSdf> buildMeshObstacle(const MeshPlacement& pl, Real particleRadius, const std::string& path) {
+std::shared_ptr<const MeshSdf> buildMeshObstacle(const MeshPlacement& pl, Real particleRadius, Real contactDistance,
+                                                 const std::string& path) {
   ObjSolid solid;
   try {
     solid = readObjSolid(pl.file);
@@ -374,10 +375,11 @@ std::shared_ptr<const MeshSdf> buildMeshObstacle(const MeshPlacement& pl, Real p
   MeshSdf::Options opt;
   opt.spacing = double(particleRadius);
   opt.band = 5 * double(particleRadius);
-  // Exact within 1.5 r: contact (contact_distance <= r) and the start checks
-  // (r) then decide on the exact surface, whatever the grid's error (at most
-  // half a cell, measured).
-  opt.exactBand = 1.5 * double(particleRadius);
+  // Exact where the grid says the surface is nearer than the contact
+  // distance plus 0.6 r: the contact model then decides on the exact surface
+  // (the grid errs by at most half a cell, measured), while particles resting
+  // on the obstacle (about r off it) stay on the grid.
+  opt.exactBand = (double(contactDistance) + 0.6) * double(particleRadius);
   try {
     return std::make_shared<const MeshSdf>(std::move(solid.mesh), opt);
   } catch (const MeshGridTooLarge& e) {
@@ -388,7 +390,7 @@ std::shared_ptr<const MeshSdf> buildMeshObstacle(const MeshPlacement& pl, Real p
 }
 
 template <int D>
-std::vector<Obstacle<D>> parseObstacles(const json* j, Real particleRadius) {
+std::vector<Obstacle<D>> parseObstacles(const json* j, Real particleRadius, Real contactDistance) {
   std::vector<Obstacle<D>> obstacles;
   if (!j) return obstacles;
   const std::string path = "obstacles";
@@ -417,7 +419,7 @@ std::vector<Obstacle<D>> parseObstacles(const json* j, Real particleRadius) {
         checkKeys(o, p, {"type", "file", "scale", "translation", "rotation"});
         ob.shape = ObstacleShape::Mesh;
         ob.placement = parseMeshPlacement(o, p);
-        ob.mesh = buildMeshObstacle(ob.placement, particleRadius, key(p, "file"));
+        ob.mesh = buildMeshObstacle(ob.placement, particleRadius, contactDistance, key(p, "file"));
         ob.box = ob.mesh->bounds();
       }
     } else {
@@ -1131,10 +1133,10 @@ SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
 
   s.phases = parsePhases(member(root, "phases"));
   s.fluidBlocks = parseFluidBlocks<D>(root, s.phases);
-  s.obstacles = parseObstacles<D>(member(root, "obstacles"), s.particleRadius);
+  s.settings = parseSettings(member(root, "settings"));  // before the obstacles: mesh grids use contact_distance
+  s.obstacles = parseObstacles<D>(member(root, "obstacles"), s.particleRadius, Real(s.settings.get("contact_distance")));
   s.bodies = parseBodies<D>(member(root, "bodies"), s.domain);
   s.solver = parseSolver<D>(member(root, "solver"));
-  s.settings = parseSettings(member(root, "settings"));
   s.effects = parseEffects<D>(member(root, "effects"));
 
   checkFluidBlocks(s, overridden);
