@@ -3,6 +3,7 @@
 #include "io/obj_mesh.h"
 #include "io/template_database.h"
 
+#include "sph/emitters.h"
 #include "sph/pipeline.h"
 #include "sph/sampling.h"
 #include "sph/settings.h"
@@ -297,8 +298,12 @@ int findPhase(const json& j, const std::string& path, const std::vector<Phase>& 
 template <int D>
 std::vector<FluidBlock<D>> parseFluidBlocks(const json& root, const std::vector<Phase>& phases) {
   const std::string path = "fluid_blocks";
+  // A scene whose liquid all comes from emitters may start empty.
+  const json* em = member(root, "emitters");
+  const bool emits = em && em->is_array() && !em->empty();
+  if (emits && !member(root, path)) return {};
   const json& j = expectArray(required(root, "", path, "array of liquid boxes"), path);
-  if (j.empty()) fail(path, "the scene has no liquid: list at least one fluid block");
+  if (j.empty() && !emits) fail(path, "the scene has no liquid: list at least one fluid block or an emitter");
   std::vector<FluidBlock<D>> blocks;
   for (size_t i = 0; i < j.size(); ++i) {
     const std::string p = at(path, i);
@@ -578,6 +583,79 @@ std::vector<Body<D>> parseBodies(const json* j, const AABB<D>& domain) {
     bodies.push_back(b);
   }
   return bodies;
+}
+
+// Inflows: "emitters": [{name, center, direction, radius, speed, phase,
+// start, end}].
+constexpr double kMaxEmitterSpeed = 100;  // m/s
+template <int D>
+std::vector<Emitter<D>> parseEmitters(const json* j, const std::vector<Phase>& phases) {
+  std::vector<Emitter<D>> emitters;
+  if (!j) return emitters;
+  const std::string path = "emitters";
+  expectArray(*j, path);
+  for (size_t i = 0; i < j->size(); ++i) {
+    const std::string p = at(path, i);
+    const json& o = expectObject((*j)[i], p);
+    checkKeys(o, p, {"name", "center", "direction", "radius", "speed", "phase", "start", "end"});
+    Emitter<D> e;
+    e.name = getString(required(o, p, "name", "a name unique among the emitters"), key(p, "name"));
+    if (!isValidTemplateName(e.name)) fail(key(p, "name"), "\"" + e.name.substr(0, 40) + "\" is not a name ([A-Za-z0-9_-]{1,64})");
+    for (const Emitter<D>& other : emitters)
+      if (other.name == e.name) fail(key(p, "name"), "duplicate emitter name \"" + e.name + "\"");
+    e.center = getVec<D>(required(o, p, "center", "the nozzle's centre, m"), key(p, "center"));
+    const Vec<D> dir = getVec<D>(required(o, p, "direction", "the jet's direction (normalised when read)"), key(p, "direction"));
+    if (!(dir.norm() > Real(1e-6))) fail(key(p, "direction"), "must not be zero");
+    e.direction = dir.normalized();
+    e.radius = getReal(required(o, p, "radius", D == 2 ? "the nozzle's half width, m" : "the nozzle's radius, m"), key(p, "radius"));
+    if (!(e.radius > 0)) fail(key(p, "radius"), fmt(e.radius) + " m must be > 0");
+    e.speed = getReal(required(o, p, "speed", "m/s"), key(p, "speed"));
+    if (!(e.speed > 0) || e.speed > kMaxEmitterSpeed)
+      fail(key(p, "speed"), fmt(e.speed) + " m/s is outside the allowed range (0, " + fmt(kMaxEmitterSpeed) + "]");
+    if (const json* m = member(o, "phase")) e.phase = findPhase(*m, key(p, "phase"), phases);
+    if (const json* m = member(o, "start")) e.start = getNumber(*m, key(p, "start"));
+    if (!(e.start >= 0) || e.start > kMaxDuration) fail(key(p, "start"), fmt(e.start) + " s must be in [0, " + fmt(kMaxDuration) + "]");
+    if (const json* m = member(o, "end")) {
+      e.end = getNumber(*m, key(p, "end"));
+      if (!(e.end > e.start)) fail(key(p, "end"), fmt(e.end) + " s must be after start (" + fmt(e.start) + " s)");
+    }
+    emitters.push_back(e);
+  }
+  return emitters;
+}
+
+// Every point of a nozzle's layer lies in the tank and outside the solids at
+// least a particle radius (a particle emitted there would start inside a
+// wall), and the liquid emitted over the scene's duration fits max_particles.
+template <int D>
+void checkEmitters(const SimulationSetup<D>& s) {
+  const Real r = s.particleRadius;
+  const Real spacing = 2 * r;
+  const Real slack = Real(1e-3) * r + Real(kContainTolerance);
+  double total = 0;
+  for (const FluidBlock<D>& b : s.fluidBlocks) total += double(latticeCount(b.box, spacing));
+  for (size_t i = 0; i < s.emitters.size(); ++i) {
+    const Emitter<D>& e = s.emitters[i];
+    const std::string p = at("emitters", i);
+    const std::vector<Vec<D>> layer = nozzleLayer(e, spacing);
+    for (const Vec<D>& x : layer) {
+      for (int d = 0; d < D; ++d)
+        if (x[d] < s.domain.min[d] + r - slack || x[d] > s.domain.max[d] - r + slack)
+          fail(key(p, "center"), "the nozzle's point " + fmtVec<D>(x) + " is closer than a particle radius (" + fmt(r) +
+                                     " m) to the tank's " + axisName(d) + " walls " +
+                                     interval(s.domain.min[d], s.domain.max[d]));
+      for (size_t k = 0; k < s.obstacles.size(); ++k)
+        if (s.obstacles[k].signedDistance(x) < r - slack)
+          fail(key(p, "center"), "the nozzle's point " + fmtVec<D>(x) + " lies inside or within a particle radius of " +
+                                     at("obstacles", k));
+    }
+    const double open = std::max(0.0, std::min(e.end, s.duration) - e.start);
+    total += double(layer.size()) * (double(e.speed) * open / double(spacing) + 1);
+  }
+  if (total > double(s.maxParticles))
+    fail("emitters", "the fluid blocks and the emitters over the scene's " + fmt(s.duration) + " s make about " +
+                         std::to_string(size_t(total)) + " particles at particle_radius " + fmt(r) +
+                         " m, more than max_particles = " + std::to_string(s.maxParticles));
 }
 
 template <int D>
@@ -1085,8 +1163,8 @@ SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
     fail("dimension", "the scene is " + std::to_string(sceneDimension(root)) + "D but was loaded as " +
                           std::to_string(D) + "D");
   checkKeys(root, "", {"name", "dimension", "particle_radius", "domain", "gravity", "duration", "max_particles",
-                       "phases", "fluid_blocks", "obstacles", "bodies", "solver", "settings", "effects", "control",
-                       "instances"});
+                       "phases", "fluid_blocks", "obstacles", "bodies", "emitters", "solver", "settings", "effects",
+                       "control", "instances"});
   // "control" and "instances" are read by parseSceneControl.
 
   SimulationSetup<D> s;
@@ -1136,11 +1214,13 @@ SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
   s.settings = parseSettings(member(root, "settings"));  // before the obstacles: mesh grids use contact_distance
   s.obstacles = parseObstacles<D>(member(root, "obstacles"), s.particleRadius, Real(s.settings.get("contact_distance")));
   s.bodies = parseBodies<D>(member(root, "bodies"), s.domain);
+  s.emitters = parseEmitters<D>(member(root, "emitters"), s.phases);
   s.solver = parseSolver<D>(member(root, "solver"));
   s.effects = parseEffects<D>(member(root, "effects"));
 
   checkFluidBlocks(s, overridden);
   checkBodies(s);
+  checkEmitters(s);
   return s;
 }
 
@@ -1224,6 +1304,22 @@ json sceneToJson(const SimulationSetup<D>& s) {
       bodies.push_back(o);
     }
     j["bodies"] = bodies;
+  }
+
+  if (!s.emitters.empty()) {
+    json emitters = json::array();
+    for (const Emitter<D>& e : s.emitters) {
+      json o = {{"name", e.name},
+                {"center", vecToJson<D>(e.center)},
+                {"direction", vecToJson<D>(e.direction)},
+                {"radius", toJsonNumber(e.radius)},
+                {"speed", toJsonNumber(e.speed)},
+                {"phase", s.phases.at(size_t(e.phase)).name},
+                {"start", e.start}};
+      if (std::isfinite(e.end)) o["end"] = e.end;
+      emitters.push_back(o);
+    }
+    j["emitters"] = emitters;
   }
 
   const auto* solverEntry = PressureSolverRegistry<D>::instance().find(s.solver.name);

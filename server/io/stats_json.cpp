@@ -30,6 +30,22 @@ nlohmann::json frameStatsToJson(const FrameStats& s, bool controlled) {
                       {"non_pressure_ms", s.nonPressureMs},
                       {"pressure_ms", s.pressureMs},
                       {"avg_neighbors", s.avgNeighbors}};
+  if (s.emitting) {
+    j["emitted_particles"] = s.emittedParticles;
+    j["emission_blocked"] = s.emissionBlocked;
+  }
+  // Moving bodies, only in scenes that have them.
+  if (!s.bodies.empty()) {
+    nlohmann::json bodies = nlohmann::json::array();
+    for (const auto& b : s.bodies)
+      bodies.push_back({{"name", b.name},
+                        {"position", b.position},
+                        {"velocity", b.velocity},
+                        {"rotation_deg", b.rotationDeg},
+                        {"force", b.force},
+                        {"wall_contacts", b.wallContacts}});
+    j["bodies"] = bodies;
+  }
   if (!controlled) return j;
   // The paper's Table 1 columns, per frame.
   j["liquid_particles"] = s.particles - s.temporaryParticles;
@@ -51,18 +67,6 @@ nlohmann::json frameStatsToJson(const FrameStats& s, bool controlled) {
                     {"control_particles", i.controlParticles},
                     {"repulsion_particles", i.repulsionParticles}});
   j["instances"] = inst;
-  // Moving bodies, only in scenes that have them.
-  if (!s.bodies.empty()) {
-    nlohmann::json bodies = nlohmann::json::array();
-    for (const auto& b : s.bodies)
-      bodies.push_back({{"name", b.name},
-                        {"position", b.position},
-                        {"velocity", b.velocity},
-                        {"rotation_deg", b.rotationDeg},
-                        {"force", b.force},
-                        {"wall_contacts", b.wallContacts}});
-    j["bodies"] = bodies;
-  }
   return j;
 }
 

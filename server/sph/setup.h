@@ -101,6 +101,23 @@ struct Body {
   Real boundingRadius() const { return shape == ObstacleShape::Sphere ? radius : halfSize.norm(); }
 };
 
+// An inflow: a nozzle that emits liquid of one phase at a fixed speed while
+// its window is open (a falling jet, a water jet). Layers of particles are
+// added at frame starts, a particle spacing apart along the jet, so that the
+// jet is as dense as a fluid block; a layer's points that would land on
+// liquid already there (a jet piled back up to its nozzle) are left out.
+template <int D>
+struct Emitter {
+  std::string name;
+  Vec<D> center = Vec<D>::Zero();     // m, the nozzle's centre
+  Vec<D> direction = Vec<D>::Zero();  // unit, the jet's direction
+  Real radius = 0;                    // m, the nozzle's radius (2D: half width)
+  Real speed = 0;                     // m/s
+  int phase = 0;
+  double start = 0;                   // s
+  double end = std::numeric_limits<double>::infinity();  // s
+};
+
 struct NamedParams {
   std::string name;
   ParamValues values;
@@ -116,6 +133,7 @@ struct SimulationSetup {
   std::vector<FluidBlock<D>> fluidBlocks;
   std::vector<Obstacle<D>> obstacles;
   std::vector<Body<D>> bodies;          // moving solids (none: no stage, no cost)
+  std::vector<Emitter<D>> emitters;     // inflows (none: no stage, no cost)
   NamedParams solver;                   // pressure solver name and its parameters
   ParamValues settings;                 // scene-level solver settings (simulationSettingsSpecs)
   std::vector<NamedParams> effects;     // in the order the scene lists them

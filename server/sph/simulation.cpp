@@ -1,4 +1,6 @@
 #include "sph/simulation.h"
+
+#include "sph/emitters.h"
 #include "sph/sampling.h"
 #include "sph/settings.h"
 #include <omp.h>
@@ -96,6 +98,11 @@ Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
     throw std::invalid_argument("scene has " + std::to_string(fluid.size()) + " particles, more than max_particles " +
                                 std::to_string(setup_.maxParticles));
   nextId_ = uint32_t(fluid.size());
+  if (!setup_.emitters.empty()) {
+    effects_.push_back(makeEmitters<D>(setup_.emitters));
+    addStages(effects_.back().get());
+    stageNames_.push_back("emitters");
+  }
   pressure_->resize(fluid.size());
   for (auto& e : effects_) e->resize(fluid.size());
   pressure_->init(*this);

@@ -74,6 +74,9 @@ struct FrameStats {
   size_t controlledParticles = 0;
   size_t seededParticles = 0;    // temporary particles created this frame
   size_t removedParticles = 0;   // temporary particles removed this frame
+  bool emitting = false;         // the scene has emitters (the two counts below are reported)
+  size_t emittedParticles = 0;   // liquid particles the emitters added at this frame's start
+  size_t emissionBlocked = 0;    // of an emitter's layer, points left out (liquid already there, or max_particles)
   double controlMs = 0;          // of wallMs, spent in control (forces, temporary particles, fidelity)
   std::vector<InstanceFrameStats> instances;
   std::vector<BodyFrameStats> bodies;  // empty without bodies

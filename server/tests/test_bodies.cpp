@@ -293,6 +293,7 @@ TEST(Pipeline, ShippedScenesAssembleOnlyWhatTheyName) {
       for (const json& eff : scene.value("effects", json::array()))
         expected.push_back("effect:" + (eff.is_string() ? eff.get<std::string>() : eff["name"].get<std::string>()));
       const bool bodies = scene.contains("bodies") && !scene["bodies"].empty();
+      if (scene.contains("emitters") && !scene["emitters"].empty()) expected.push_back("emitters");
       const double coarse = scene["dimension"] == 3 ? 0.03 : 0.01;
       auto check = [&](auto dim) {
         constexpr int D = decltype(dim)::value;
