@@ -20,6 +20,7 @@ struct ServeOptions {
   std::string templates = "templates";
   std::string scenes = "scenes";
   std::string exports = "exports";
+  std::string presets = "bench/accuracy/presets.json";
   std::string web = "web/dist";
   std::string token;
   std::vector<std::string> allowOrigins;
@@ -39,6 +40,7 @@ int serve(const ServeOptions& o) {
   so.templatesDir = o.templates;
   so.scenesDir = o.scenes;
   so.exportsDir = o.exports;
+  so.presetsFile = o.presets;
   so.maxSessions = o.maxSessions;
   so.historyCapBytes = size_t(o.historyCapMb * 1024 * 1024);
   service::ServerOptions net;
@@ -76,6 +78,7 @@ void addServeCommand(CLI::App& app) {
   cmd->add_option("--port", o->port, "TCP port (default 8080; 0: any free port, printed)")->check(CLI::Range(0, 65535));
   cmd->add_option("--templates", o->templates, "template directory (default: templates)");
   cmd->add_option("--scenes", o->scenes, "scene directory (default: scenes)");
+  cmd->add_option("--presets", o->presets, "accuracy presets of `bench accuracy` (default: bench/accuracy/presets.json)");
   cmd->add_option("--exports", o->exports, "directory for HDF5/XDMF exports (default: exports)");
   cmd->add_option("--web", o->web, "the built editor's files (default: web/dist)");
   cmd->add_option("--token", o->token, "require \"Authorization: Bearer T\" (or WebSocket subprotocol flowclip-token.T)");

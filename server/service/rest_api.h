@@ -58,6 +58,9 @@ struct ServiceOptions {
   std::string templatesDir = "templates";
   std::string scenesDir = "scenes";
   std::string exportsDir = "exports";
+  // The accuracy presets (draft, preview, final) that `flowclip bench
+  // accuracy` chose from its Pareto front, with their measured figures.
+  std::string presetsFile = "bench/accuracy/presets.json";
   int maxSessions = 8;
   size_t historyCapBytes = size_t(256) << 20;  // per session, unless the create request says otherwise
   // How long an edit request waits for the session to apply it before
@@ -99,6 +102,7 @@ class ServiceHub {
   using Params = std::vector<std::string>;
   HttpResponse health(const HttpRequest&, const Params&);
   HttpResponse parameters(const HttpRequest&, const Params&);
+  HttpResponse presets(const HttpRequest&, const Params&);
   HttpResponse listTemplates(const HttpRequest&, const Params&);
   HttpResponse getTemplate(const HttpRequest&, const Params&);
   HttpResponse deleteTemplate(const HttpRequest&, const Params&);

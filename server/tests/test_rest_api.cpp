@@ -38,6 +38,7 @@ struct Api {
     o.templatesDir = tmp.file("templates");
     o.scenesDir = tmp.file("scenes");
     o.exportsDir = tmp.file("exports");
+    o.presetsFile = tmp.file("presets.json");
     o.maxSessions = maxSessions;
     return o;
   }
@@ -274,6 +275,39 @@ TEST(RestApi, ParametersAreTheDeclarations) {
   EXPECT_DOUBLE_EQ(find(p2["solvers"]["dfsph"]["params"], "density_tolerance_pct")["default"].get<double>(), 0.01);
   EXPECT_TRUE(p2["effects"].contains("viscosity_standard"));
   expectError(api.call("GET", "/api/parameters?dimension=4"), 400, "bad_request", "dimension");
+}
+
+// The accuracy presets: the study's file as written, checked against the
+// declarations a settings PATCH accepts; without the file, none and why.
+TEST(RestApi, PresetsAreTheStudysFileCheckedAgainstTheDeclarations) {
+  Api api;
+  const json none = api.callJson("GET", "/api/presets", nullptr, 200);
+  EXPECT_TRUE(none["presets"].empty());
+  EXPECT_EQ(none["missing"], api.tmp.file("presets.json"));
+  json file = json::parse(R"({"source": "flowclip bench accuracy", "presets": [
+    {"name": "draft", "description": "blocking out",
+     "solver": {"method": "dfsph", "density_tolerance_pct": 1.0, "divergence_tolerance_pct": 1.0},
+     "settings": {"cfl_factor": 1.0},
+     "cost": {"us_per_particle_step": 1.5, "ms_per_frame": 4.0, "wall_s_per_sim_s": 0.24},
+     "error": {"avg_density_error_pct": 0.8, "max_density_error_pct": 5.0, "volume_drift_pct": 0.9, "surge_front_rms": 0.05}}]})");
+  std::ofstream(api.tmp.file("presets.json")) << file.dump();
+  EXPECT_EQ(api.callJson("GET", "/api/presets", nullptr, 200), file);
+  // A preset the editor could not apply is refused, naming the key.
+  json bad = file;
+  bad["presets"][0]["settings"]["cfl"] = 0.5;
+  std::ofstream(api.tmp.file("presets.json")) << bad.dump();
+  HttpResponse r = api.call("GET", "/api/presets");
+  EXPECT_EQ(r.status, 500);
+  EXPECT_NE(r.body.find("presets[0].settings.cfl: not a scene setting"), std::string::npos) << r.body;
+  bad = file;
+  bad["presets"][0]["solver"]["method"] = "pcisph";
+  std::ofstream(api.tmp.file("presets.json")) << bad.dump();
+  r = api.call("GET", "/api/presets");
+  EXPECT_NE(r.body.find("presets[0].solver.method: unknown solver method 'pcisph'"), std::string::npos) << r.body;
+  std::ofstream(api.tmp.file("presets.json")) << "{\"presets\": [";
+  r = api.call("GET", "/api/presets");
+  EXPECT_EQ(r.status, 500);
+  EXPECT_NE(r.body.find("not JSON"), std::string::npos) << r.body;
 }
 
 // The library's thumbnail: one frame's positions, thinned to at most `max`.

@@ -28,7 +28,8 @@ export default async function globalSetup(): Promise<(() => Promise<void>) | voi
   const server: ChildProcess = spawn(
     bin,
     ['serve', '--port', '0', '--web', dist, '--templates', join(tmp, 'templates'),
-      '--scenes', join(tmp, 'scenes'), '--exports', join(tmp, 'exports')],
+      '--scenes', join(tmp, 'scenes'), '--exports', join(tmp, 'exports'),
+      '--presets', join(repoDir, 'bench', 'accuracy', 'presets.json')],
     { stdio: ['ignore', 'pipe', 'pipe'] },
   );
   server.stderr!.pipe(log);

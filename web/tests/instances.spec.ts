@@ -149,6 +149,43 @@ test('inspector: speed, reverse, a parameter and a keyframe go to the server; a 
   expect(errors).toEqual([]);
 });
 
+// The accuracy study's presets (bench/accuracy/presets.json via GET
+// /api/presets): offered with their measured cost and error, applied as one
+// undoable settings edit that the server's scene then holds.
+test('accuracy presets: offered with their figures, applied to the scene, undone', async ({ page, request }) => {
+  const errors = await openEditor(page);
+  const sid = await openDrop(page);
+  const { presets } = await (await request.get(`${serverUrl()}/api/presets`)).json();
+  expect(presets.map((p: any) => p.name)).toEqual(['draft', 'preview', 'final']);
+  const select = page.getByTestId('scene-preset');
+  await expect(select).toHaveAttribute('data-value', 'custom');  // drop2d's own tolerances are not a preset
+  const scene = async () => (await (await request.get(`${serverUrl()}/api/sessions/${sid}/scene`)).json());
+  const before = await scene();
+  for (const p of presets) {
+    // The option shows the preset's measured cost.
+    const cost = Object.values(p.cost)[0] as number;
+    await expect(select.locator(`option[value="${p.name}"]`)).toContainText(cost.toFixed(2));
+    await select.selectOption(p.name);
+    await expect.poll(async () => {
+      const s = await scene();
+      return Object.entries(p.solver).every(([k, v]) => s.solver[k] === v) && Object.entries(p.settings).every(([k, v]) => s.settings[k] === v);
+    }, { timeout: 20_000 }).toBe(true);
+    await expect(select).toHaveAttribute('data-value', p.name);
+    const err = Object.values(p.error)[0] as number;
+    await expect(page.getByTestId('scene-preset-figures')).toContainText(err.toFixed(3));
+  }
+  // Undo, one preset at a time, back to the scene's own settings (keys go to the page, not the select).
+  await page.getByTestId('viewport-canvas').click({ position: { x: 5, y: 5 } });
+  for (let i = 0; i < presets.length; ++i) await page.keyboard.press('Control+z');
+  await expect.poll(async () => {
+    const s = await scene();
+    return s.solver.density_tolerance_pct === before.solver.density_tolerance_pct && s.settings.cfl_factor === before.settings.cfl_factor &&
+      s.solver.method === before.solver.method;
+  }, { timeout: 20_000 }).toBe(true);
+  await expect(select).toHaveAttribute('data-value', 'custom');
+  expect(errors).toEqual([]);
+});
+
 test('the scene is saved on the server and downloaded with its instances', async ({ page, request }) => {
   const errors = await openEditor(page);
   const sid = await openDrop(page);

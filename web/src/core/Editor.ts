@@ -8,7 +8,7 @@ import { FrameDecoder, type FrameInfo } from '../net/FrameDecoder';
 import { Stream, type ConnectionStatus, type StreamState } from '../net/Stream';
 import { Layer } from '@wire';
 import type {
-  EditJson, InstanceEditResponse, InstanceJson, ParametersJson, SceneJson, SceneSummary, SessionState, SessionStatusName,
+  EditJson, InstanceEditResponse, InstanceJson, ParametersJson, PresetsJson, SceneJson, SceneSummary, SessionState, SessionStatusName,
   SettingsPatch, TemplateInfo, TransportName,
 } from '../net/types';
 import { AddInstanceCommand } from '../commands/AddInstanceCommand';
@@ -65,6 +65,8 @@ export class Editor {
     templatesChanged: new Signal<TemplateInfo[]>(),
     /** The parameter declarations for the session's dimension arrived (GET /api/parameters). */
     parametersChanged: new Signal<ParametersJson | null>(),
+    /** The accuracy presets arrived (GET /api/presets). */
+    presetsChanged: new Signal<PresetsJson>(),
     /** The session's scene JSON changed (settings edits re-read it). */
     sceneChanged: new Signal<SceneJson | null>(),
     /** The selected instance's name (null: none). Outliner, inspector, gizmo and timeline follow it. */
@@ -92,6 +94,8 @@ export class Editor {
   /** Parameter declarations for the open session's dimension (null until read). */
   parameters: ParametersJson | null = null;
   private readonly parameterCache = new Map<number, ParametersJson>();
+  /** The accuracy study's presets with their measured figures (none until read, or without a study). */
+  presets: PresetsJson = { presets: [], source: null };
   /** World point at the centre of the view (the viewport keeps it current): where a new instance goes. */
   viewCentre: number[] = [0.5, 0.5, 0];
   /** The selected instance (a name in `instances`) or null. */
@@ -141,6 +145,16 @@ export class Editor {
     }
     this.signals.templatesChanged.dispatch(this.templates);
     return this.templates;
+  }
+
+  async loadPresets(): Promise<PresetsJson> {
+    try {
+      this.presets = await this.api.presets();
+    } catch (e) {
+      this.reportError(e, 'read the accuracy presets');
+    }
+    this.signals.presetsChanged.dispatch(this.presets);
+    return this.presets;
   }
 
   async loadParameters(dimension: 2 | 3): Promise<ParametersJson | null> {

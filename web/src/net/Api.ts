@@ -2,7 +2,7 @@
 // ApiError carrying the server's Error object (status, code, message, path),
 // or status 0 when the server could not be reached.
 import type {
-  EditJson, EditResultJson, InstanceEditResponse, InstanceJson, ParametersJson, SceneJson, SceneSummary, SessionState, SettingsPatch,
+  EditJson, EditResultJson, InstanceEditResponse, InstanceJson, ParametersJson, PresetsJson, SceneJson, SceneSummary, SessionState, SettingsPatch,
   TemplateInfo, TemplatePreviewJson, TransportName,
 } from './types';
 
@@ -78,6 +78,10 @@ export class Api {
   /** Every parameter's declaration for scenes of that dimension (the inspector's fields). */
   parameters(dimension: 2 | 3) {
     return this.request<ParametersJson>('GET', `/api/parameters?dimension=${dimension}`);
+  }
+  /** The accuracy presets the study chose (draft, preview, final) with their measured figures. */
+  presets() {
+    return this.request<PresetsJson>('GET', '/api/presets');
   }
   templatePreview(name: string, maxPoints = 1500) {
     return this.request<TemplatePreviewJson>('GET', `/api/templates/${enc(name)}/preview?max=${maxPoints}`);

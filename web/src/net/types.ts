@@ -152,3 +152,20 @@ export interface SettingsPatch {
   solver?: Record<string, unknown>;
   control?: Record<string, unknown>;
 }
+
+/** One accuracy preset of `flowclip bench accuracy` (GET /api/presets): the scene solver and settings values it sets, with the cost and error measured at that point of the study. */
+export interface AccuracyPresetJson {
+  name: string;
+  description?: string;
+  solver: Record<string, number | string>;
+  settings: Record<string, number>;
+  cost: Record<string, number>;
+  error: Record<string, number>;
+}
+
+export interface PresetsJson {
+  presets: AccuracyPresetJson[];
+  source: string | null;
+  /** Set when the server has no presets file (its path). */
+  missing?: string;
+}

@@ -10,13 +10,38 @@ import { SetInstanceTransformCommand } from '../commands/SetInstanceTransformCom
 import { SetInstanceValueCommand } from '../commands/SetInstanceValueCommand';
 import { SetSceneSettingsCommand } from '../commands/SetSceneSettingsCommand';
 import { addKeyAt, editTrackAt, evaluateTrack, keyIndexAt, removeKeyAt, type FullKey } from '../core/TransformTrack';
-import type { InstanceJson, ParametersJson, ParamSpecJson, SettingsPatch, TransformKey } from '../net/types';
+import type { AccuracyPresetJson, InstanceJson, ParametersJson, ParamSpecJson, SettingsPatch, TransformKey } from '../net/types';
 import { el } from './dom';
 import { checkboxField, formatNumber, numberField, paramField, selectField, type Field } from './fields';
 
 const AXES = ['x', 'y', 'z'];
 
 type SettingsGroup = 'solver' | 'settings' | 'control';
+
+/** How the study's figures read (GET /api/presets: cost and error keys). */
+const FIGURES: Record<string, [string, number]> = {
+  us_per_particle_step: ['µs per particle-step', 2],
+  ms_per_frame: ['ms per frame', 1],
+  wall_s_per_sim_s: ['wall s per simulated s', 2],
+  avg_density_error_pct: ['% average density error', 3],
+  max_density_error_pct: ['% largest density error', 2],
+  volume_drift_pct: ['% volume drift', 2],
+  surge_front_rms: ['surge front RMS error (x/a, Martin & Moyce)', 3],
+};
+
+function figures(values: Record<string, number>): string[] {
+  return Object.entries(values).map(([k, v]) => {
+    const [label, digits] = FIGURES[k] ?? [k.replace(/_/g, ' '), 3];
+    return `${v.toFixed(digits)} ${label}`;
+  });
+}
+
+/** "draft: 1.52 µs per particle-step, 0.800 % average density error" (the option text: cost and the headline error). */
+function presetLabel(p: AccuracyPresetJson): string {
+  const cost = figures(p.cost)[0] ?? '';
+  const err = figures(p.error)[0] ?? '';
+  return `${p.name}: ${cost}${err ? `, ${err}` : ''}`;
+}
 
 export class Inspector {
   readonly dom: HTMLElement;
@@ -32,6 +57,8 @@ export class Inspector {
   private paramsFor: ParametersJson | null = null;
   private sceneFields = new Map<string, Field>();
   private sceneFieldsFor = '';
+  private presetField: Field | null = null;
+  private readonly presetFigures: HTMLElement;
 
   constructor(private readonly editor: Editor) {
     this.header = el('div', { className: 'inspector-header', testid: 'inspector-header' });
@@ -43,6 +70,7 @@ export class Inspector {
     this.paramBox = el('div', { className: 'inspector-group' });
     this.instanceBox = el('div', { className: 'inspector-instance', testid: 'inspector-instance' });
     this.sceneBox = el('div', { className: 'inspector-scene', testid: 'inspector-scene' });
+    this.presetFigures = el('div', { className: 'preset-figures', testid: 'scene-preset-figures' });
     this.dom = el('section', { className: 'panel inspector', testid: 'inspector' }, [
       el('h2', { text: 'Inspector' }),
       this.instanceBox,
@@ -54,6 +82,10 @@ export class Inspector {
     editor.signals.selectionChanged.add(() => this.update());
     editor.signals.instancesChanged.add(() => this.update());
     editor.signals.playheadChanged.add(() => this.update()); // the transform at the playhead
+    editor.signals.presetsChanged.add(() => {
+      this.buildSceneFields();
+      this.update();
+    });
     editor.signals.parametersChanged.add(() => {
       this.buildParamFields();
       this.buildSceneFields();
@@ -231,12 +263,26 @@ export class Inspector {
   private buildSceneFields() {
     const p = this.editor.parameters;
     const method = this.solverMethod();
-    const id = p ? `${p.dimension}:${method}` : '';
+    const presets = this.editor.presets.presets;
+    const id = p ? `${p.dimension}:${method}:${presets.map((x) => x.name).join(',')}` : '';
     if (id === this.sceneFieldsFor) return;
     this.sceneFieldsFor = id;
     this.sceneFields = new Map();
+    this.presetField = null;
     this.sceneBox.replaceChildren();
     if (!p || !this.editor.session) return;
+    if (presets.length) {
+      // The study's presets, each with what it costs and how accurate it is.
+      const title = ['Accuracy presets from the Pareto front of `flowclip bench accuracy`', this.editor.presets.source ?? '',
+        ...presets.map((x) => `${x.name}: ${x.description ?? ''}\n  ${[...figures(x.cost), ...figures(x.error)].join('; ')}`)].join('\n');
+      const f = selectField('scene-preset', 'accuracy preset', title, ['custom', ...presets.map((x) => x.name)], (v) => this.applyPreset(String(v)));
+      for (const o of (f.input as HTMLSelectElement).options) {
+        const x = presets.find((q) => q.name === o.value);
+        o.textContent = x ? presetLabel(x) : 'custom (cost not measured)';
+      }
+      this.presetField = f;
+      this.sceneBox.append(f.row, this.presetFigures);
+    }
     const methods = Object.keys(p.solvers);
     const m = selectField('scene-solver-method', 'pressure solver', methods.map((n) => `${n}: ${p.solvers[n]!.help}`).join('\n'), methods,
       (v) => this.changeMethod(String(v)));
@@ -261,6 +307,53 @@ export class Inspector {
       const [group, name] = key.split('.') as [SettingsGroup, string];
       f.show(this.sceneGroup(group)[name]);
     }
+    if (this.presetField) {
+      const current = this.currentPreset();
+      this.presetField.show(current?.name ?? 'custom');
+      this.presetFigures.textContent = current
+        ? [...figures(current.cost), ...figures(current.error)].join(' · ')
+        : 'custom settings: not a point of the accuracy study';
+    }
+  }
+
+  /** The preset whose every solver and settings value the scene has (a declared default counts when the scene omits the key). */
+  private currentPreset(): AccuracyPresetJson | null {
+    const p = this.editor.parameters;
+    const value = (group: 'solver' | 'settings', name: string): unknown => {
+      const v = this.sceneGroup(group)[name];
+      if (v !== undefined) return v;
+      if (name === 'method') return 'dfsph';
+      const specs = group === 'settings' ? p?.settings : p?.solvers[this.solverMethod()]?.params;
+      return specs?.find((s) => s.name === name)?.default;
+    };
+    const same = (a: unknown, b: unknown) =>
+      typeof a === 'number' && typeof b === 'number' ? Math.abs(a - b) <= 1e-9 * Math.max(1, Math.abs(b)) : a === b;
+    return this.editor.presets.presets.find((x) =>
+      Object.entries(x.solver).every(([k, v]) => same(value('solver', k), v)) &&
+      Object.entries(x.settings).every(([k, v]) => same(value('settings', k), v))) ?? null;
+  }
+
+  /** One command sets every value of the preset (undo restores them; another solver's own parameters are removed, as changeMethod does). */
+  private applyPreset(name: string): Promise<void> | void {
+    const preset = this.editor.presets.presets.find((x) => x.name === name);
+    const p = this.editor.parameters;
+    if (!preset || !p) return;
+    const oldSolver = this.sceneGroup('solver'), oldSettings = this.sceneGroup('settings');
+    const oldMethod = this.solverMethod();
+    const method = String(preset.solver['method'] ?? oldMethod);
+    const patch: SettingsPatch = { solver: { ...preset.solver, method }, settings: { ...preset.settings } };
+    const undo: SettingsPatch = { solver: { method: oldMethod }, settings: {} };
+    if (method !== oldMethod) {
+      const keep = new Set((p.solvers[method]?.params ?? []).map((s) => s.name));
+      for (const s of p.solvers[oldMethod]?.params ?? []) {
+        if (!keep.has(s.name)) patch.solver![s.name] = null;
+        undo.solver![s.name] = oldSolver[s.name] ?? null;
+      }
+    }
+    for (const k of Object.keys(preset.solver)) if (k !== 'method') undo.solver![k] = oldSolver[k] ?? null;
+    for (const k of Object.keys(preset.settings)) undo.settings![k] = oldSettings[k] ?? null;
+    const e = this.editor;
+    return e.execute(new SetSceneSettingsCommand(e, patch, undo)).then(() => this.updateScene());
   }
 
   private setSetting(group: SettingsGroup, name: string, value: unknown): Promise<void> | void {
