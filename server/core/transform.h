@@ -2,7 +2,9 @@
 // Affine maps x -> A x + t, with A any invertible linear part (rotation,
 // per-axis scale, reflection). Used for instance placement and obstacles.
 #include "core/types.h"
+#include <Eigen/Geometry>
 #include <Eigen/LU>
+#include <array>
 
 namespace fc {
 
@@ -46,5 +48,20 @@ struct Affine {
     return m;
   }
 };
+
+// Orientation from Euler angles in degrees, R = Rx·Ry·Rz (bodies and mesh
+// placements in scene files).
+inline Eigen::Quaterniond eulerXYZDegrees(const std::array<double, 3>& deg) {
+  constexpr double k = 3.14159265358979323846 / 180;
+  return Eigen::AngleAxisd(deg[0] * k, Eigen::Vector3d::UnitX()) * Eigen::AngleAxisd(deg[1] * k, Eigen::Vector3d::UnitY()) *
+         Eigen::AngleAxisd(deg[2] * k, Eigen::Vector3d::UnitZ());
+}
+
+// A scene file's rotation: 2D one counter-clockwise angle, 3D Euler XYZ, in degrees.
+template <int D>
+Eigen::Matrix<double, D, D> rotationFromDegrees(const std::array<double, D == 2 ? 1 : 3>& deg) {
+  if constexpr (D == 2) return Eigen::Rotation2Dd(deg[0] * 3.14159265358979323846 / 180).toRotationMatrix();
+  else return eulerXYZDegrees(deg).toRotationMatrix();
+}
 
 }  // namespace fc

@@ -1,5 +1,6 @@
 #include "io/scene.h"
 
+#include "core/transform.h"
 #include "io/obj_mesh.h"
 #include "io/template_database.h"
 
@@ -365,11 +366,7 @@ std::shared_ptr<const MeshSdf> buildMeshObstacle(const MeshPlacement& pl, Real p
   } catch (const MeshFileError& e) {
     fail(path, e.what());
   }
-  constexpr double deg = 3.14159265358979323846 / 180;
-  const Eigen::Matrix3d R = (Eigen::AngleAxisd(pl.rotationDeg[0] * deg, Eigen::Vector3d::UnitX()) *
-                             Eigen::AngleAxisd(pl.rotationDeg[1] * deg, Eigen::Vector3d::UnitY()) *
-                             Eigen::AngleAxisd(pl.rotationDeg[2] * deg, Eigen::Vector3d::UnitZ()))
-                                .toRotationMatrix();
+  const Eigen::Matrix3d R = eulerXYZDegrees(pl.rotationDeg).toRotationMatrix();
   const Vec3d scale(pl.scale[0], pl.scale[1], pl.scale[2]);
   const Vec3d t(pl.translation[0], pl.translation[1], pl.translation[2]);
   for (Vec3d& v : solid.mesh.vertices) {
@@ -461,14 +458,7 @@ json rotationToJson(const std::array<double, D == 2 ? 1 : 3>& r) {
 // Fails at `where` if the body, placed at `pose`, reaches outside the domain.
 template <int D>
 void checkBodyInDomain(const Body<D>& b, const BodyKey<D>& pose, const AABB<D>& domain, const std::string& where) {
-  constexpr double deg = 3.14159265358979323846 / 180;
-  Eigen::Matrix<double, D, D> R;
-  if constexpr (D == 2) R = Eigen::Rotation2Dd(pose.rotationDeg[0] * deg).toRotationMatrix();
-  else
-    R = (Eigen::AngleAxisd(pose.rotationDeg[0] * deg, Eigen::Vector3d::UnitX()) *
-         Eigen::AngleAxisd(pose.rotationDeg[1] * deg, Eigen::Vector3d::UnitY()) *
-         Eigen::AngleAxisd(pose.rotationDeg[2] * deg, Eigen::Vector3d::UnitZ()))
-            .toRotationMatrix();
+  const Eigen::Matrix<double, D, D> R = rotationFromDegrees<D>(pose.rotationDeg);
   for (int d = 0; d < D; ++d) {
     double e = double(b.radius);
     if (b.shape == ObstacleShape::Box) {
@@ -1001,14 +991,7 @@ void checkBodies(const SimulationSetup<D>& s) {
   for (size_t k = 0; k < s.bodies.size(); ++k) {
     const Body<D>& b = s.bodies[k];
     if (b.carveFluid) continue;
-    Eigen::Matrix<double, D, D> R;
-    constexpr double deg = 3.14159265358979323846 / 180;
-    if constexpr (D == 2) R = Eigen::Rotation2Dd(b.rotationDeg[0] * deg).toRotationMatrix();
-    else
-      R = (Eigen::AngleAxisd(b.rotationDeg[0] * deg, Eigen::Vector3d::UnitX()) *
-           Eigen::AngleAxisd(b.rotationDeg[1] * deg, Eigen::Vector3d::UnitY()) *
-           Eigen::AngleAxisd(b.rotationDeg[2] * deg, Eigen::Vector3d::UnitZ()))
-              .toRotationMatrix();
+    const Eigen::Matrix<double, D, D> R = rotationFromDegrees<D>(b.rotationDeg);
     const Real reach = b.boundingRadius() + r;
     for (size_t i = 0; i < s.fluidBlocks.size(); ++i) {
       const AABB<D>& blk = s.fluidBlocks[i].box;

@@ -1,4 +1,6 @@
 #include "sph/rigid_bodies.h"
+
+#include "core/transform.h"
 #include "sph/sampling.h"
 #include "sph/simulation.h"
 #include "core/neighborhood_search.h"
@@ -26,11 +28,6 @@ inline Eigen::Matrix<double, 1, 1> crossRF(const Eigen::Vector2d& r, const Eigen
 }
 inline Eigen::Vector3d crossRF(const Eigen::Vector3d& r, const Eigen::Vector3d& f) { return r.cross(f); }
 
-Eigen::Quaterniond eulerXYZ(const std::array<double, 3>& deg) {
-  return Eigen::AngleAxisd(deg[0] * kDeg, Eigen::Vector3d::UnitX()) *
-         Eigen::AngleAxisd(deg[1] * kDeg, Eigen::Vector3d::UnitY()) *
-         Eigen::AngleAxisd(deg[2] * kDeg, Eigen::Vector3d::UnitZ());
-}
 
 }  // namespace
 
@@ -92,7 +89,7 @@ RigidBodies<D>::RigidBodies(const std::vector<Body<D>>& bodies, Real radius, int
     if constexpr (D == 2) {
       s.angle = b.rotationDeg[0] * kDeg;
     } else {
-      s.orientation = eulerXYZ(b.rotationDeg);
+      s.orientation = eulerXYZDegrees(b.rotationDeg);
     }
     dynamic_ = dynamic_ || b.motion == BodyMotion::Dynamic;
     if (b.motion == BodyMotion::Dynamic) s.velocity = b.velocity.template cast<double>();
@@ -149,7 +146,7 @@ void RigidBodies<D>::poseAt(State& s, double time) const {
       s.angle = a0 + u * (a1 - a0);
       s.angularVelocity[0] = hold || span <= 0 ? 0.0 : (a1 - a0) / span;
     } else {
-      const Eigen::Quaterniond q0 = eulerXYZ(k0.rotationDeg), q1 = eulerXYZ(k1.rotationDeg);
+      const Eigen::Quaterniond q0 = eulerXYZDegrees(k0.rotationDeg), q1 = eulerXYZDegrees(k1.rotationDeg);
       s.orientation = q0.slerp(u, q1);
       const Eigen::AngleAxisd delta(q1 * q0.conjugate());
       s.angularVelocity = hold || span <= 0 ? Ang::Zero() : Ang(delta.axis() * (delta.angle() / span));
@@ -165,7 +162,7 @@ void RigidBodies<D>::poseAt(State& s, double time) const {
                               b.angularVelocityDeg[2] * kDeg);
       s.angularVelocity = w;
       const double wn = w.norm();
-      const Eigen::Quaterniond q0 = eulerXYZ(b.rotationDeg);
+      const Eigen::Quaterniond q0 = eulerXYZDegrees(b.rotationDeg);
       s.orientation = wn > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(wn * time, w / wn)) * q0 : q0;
     }
   }
