@@ -163,16 +163,14 @@ test('accuracy presets: offered with their figures, applied to the scene, undone
   const before = await scene();
   for (const p of presets) {
     // The option shows the preset's measured cost.
-    const cost = Object.values(p.cost)[0] as number;
-    await expect(select.locator(`option[value="${p.name}"]`)).toContainText(cost.toFixed(2));
+    await expect(select.locator(`option[value="${p.name}"]`)).toContainText(`${p.cost.us_per_particle_step.toFixed(2)} µs per particle-step`);
     await select.selectOption(p.name);
     await expect.poll(async () => {
       const s = await scene();
       return Object.entries(p.solver).every(([k, v]) => s.solver[k] === v) && Object.entries(p.settings).every(([k, v]) => s.settings[k] === v);
     }, { timeout: 20_000 }).toBe(true);
     await expect(select).toHaveAttribute('data-value', p.name);
-    const err = Object.values(p.error)[0] as number;
-    await expect(page.getByTestId('scene-preset-figures')).toContainText(err.toFixed(3));
+    await expect(page.getByTestId('scene-preset-figures')).toContainText(`${p.error.avg_density_error_pct.toFixed(3)} % average density error`);
   }
   // Undo, one preset at a time, back to the scene's own settings (keys go to the page, not the select).
   await page.getByTestId('viewport-canvas').click({ position: { x: 5, y: 5 } });

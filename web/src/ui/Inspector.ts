@@ -38,8 +38,10 @@ function figures(values: Record<string, number>): string[] {
 
 /** "draft: 1.52 µs per particle-step, 0.800 % average density error" (the option text: cost and the headline error). */
 function presetLabel(p: AccuracyPresetJson): string {
-  const cost = figures(p.cost)[0] ?? '';
-  const err = figures(p.error)[0] ?? '';
+  const pick = (values: Record<string, number>, key: string) =>
+    figures(key in values ? { [key]: values[key]! } : values)[0] ?? '';
+  const cost = pick(p.cost, 'us_per_particle_step');
+  const err = pick(p.error, 'avg_density_error_pct');
   return `${p.name}: ${cost}${err ? `, ${err}` : ''}`;
 }
 
