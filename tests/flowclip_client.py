@@ -274,6 +274,10 @@ class Client:
     def health(self):
         return self.call("GET", "/api/health")
 
+    def presets(self):
+        """The accuracy presets (draft, preview, final) with their measured cost and error."""
+        return self.call("GET", "/api/presets")
+
     def parameters(self, dimension=2):
         """Every parameter's declaration (name, unit, min, max, default, type, help)."""
         return self.call("GET", "/api/parameters", params={"dimension": dimension})

@@ -48,6 +48,8 @@ def test_tour_of_every_endpoint(server, client, openapi):
     params3 = client.parameters(3)
     assert params3["dimension"] == 3 and "dfsph" in params3["solvers"]
     assert any(p["name"] == "falloff_width" for p in params3["instance"])
+    presets = client.presets()
+    assert isinstance(presets["presets"], list)
     preview = client.template_preview("drop2d", frame=0, max_points=100)
     assert preview["frame"] == 0 and 0 < len(preview["positions"]) <= 200
     scenes = {s["name"]: s for s in client.scenes()}
