@@ -101,6 +101,7 @@ Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
   pressure_->init(*this);
   for (auto& e : effects_) e->init(*this);
   lastDt_ = Real(setup_.settings.get("dt_max"));
+  relaxInitialState();
 }
 
 template <int D>
@@ -450,10 +451,10 @@ void Simulation<D>::enforceSolidContact(FrameStats& fs) {
   for (int k = 0; k < 2 * D; ++k) fs.contactImpulse[k] += impulse[k];
 }
 
-// The initial state, once before the first substep: particles that start
-// inside a solid or overlapping each other (built in code or appended before
-// the first frame; scene files reject both) carry a compression that no
-// motion produced. The density solve would remove it within one step, as
+// The initial state, once when the simulation is built: particles that
+// start inside a solid or overlapping each other (fluid blocks built in
+// code; scene files reject both) carry a compression that no motion
+// produced. The density solve would remove it within one step, as
 // velocity (overlap / Δt: 71 m/s for a lattice laid over another at 0.94 r
 // and rows projected out of the walls, r = 5 mm), which the liquid then
 // keeps. Instead the error is removed at the position level, velocities
@@ -462,12 +463,13 @@ void Simulation<D>::enforceSolidContact(FrameStats& fs) {
 // is run on zero velocities with Δt = dt_max and the particles moved by
 // Δt·Δv (at most half a radius per pass), until no particle is compressed
 // by more than kRelaxAbovePct. A state built from scene-file blocks, at
-// rest density by construction, is left exactly as it is.
+// rest density by construction, is left exactly as it is. Particles appended
+// later (temporary particles, a session carrying its state into a rebuilt
+// simulation) are not moved: they come from a running liquid.
 template <int D>
 void Simulation<D>::relaxInitialState() {
   constexpr double kRelaxAbovePct = 1;  // well above a lattice's own error (< 0.01 %)
   constexpr int kMaxPasses = 50;
-  relaxedInitialState_ = true;
   const long n = long(fluid.size());
   FrameStats ignored;
   enforceSolidContact(ignored);
@@ -512,7 +514,6 @@ FrameStats Simulation<D>::advanceFrame() {
   const double frameEnd = double(frame_ + 1) * frameDuration();
   const int reorderInterval = int(setup_.settings.get("reorder_interval"));
   fs.minDt = 1e30;
-  if (totalSubsteps_ == 0 && !relaxedInitialState_) relaxInitialState();
   for (Effect<D>* e : frameStages_) e->beginFrame(*this, fs);
   const long n = long(fluid.size());
 

@@ -126,8 +126,8 @@ class Simulation {
   // The factor the current substep's time step is shrunk by after solves
   // that stopped at their iteration limit (1: the full step; cflTimeStep).
   Real stepScale() const { return stepScale_; }
-  // Passes that moved overlapping or solid-penetrating particles apart
-  // before the first step (relaxInitialState; 0 for a scene-file state).
+  // Passes that moved overlapping or solid-penetrating particles apart when
+  // the simulation was built (relaxInitialState; 0 for a scene-file state).
   int initialRelaxationPasses() const { return relaxationPasses_; }
   Real restDensity(size_t i) const { return restDensity_[fluid.phase[i]]; }
   // The density formulation, chosen once at setup (settings
@@ -194,7 +194,6 @@ class Simulation {
   bool numberDensity_ = false;
   Real contrastStep_ = 1;  // number density: time step scale, see cflTimeStep
   Real stepScale_ = 1;     // shrinks after unconverged solves, see cflTimeStep
-  bool relaxedInitialState_ = false;
   int relaxationPasses_ = 0;
   uint32_t nextId_ = 0;
   std::vector<std::string> stageNames_;

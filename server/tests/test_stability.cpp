@@ -11,6 +11,7 @@
 #include "control/control.h"
 #include "io/recipe.h"
 #include "io/scene.h"
+#include "sph/sampling.h"
 #include "sph/simulation.h"
 #include "tests/physics_checks.h"
 
@@ -267,10 +268,11 @@ TEST(Stability, ZeroGravityJetHitsAWall) {
 
 // Particles that start where no particle should be: a lattice that begins
 // half a radius inside the left wall and the floor, a second lattice laid
-// over part of the first at a third of a spacing, and particles slightly
-// inside a box obstacle. They must be put back into the liquid without
-// being launched. (Before Simulation::relaxInitialState the first step
-// turned the overlap into velocity: 71 m/s in frame 1.)
+// over part of the first at a third of a spacing (both built in code: scene
+// files reject them), and particles appended slightly inside a box
+// obstacle. They must be put back into the liquid without being launched.
+// (Before Simulation::relaxInitialState the first step turned the overlap
+// into velocity: 71 m/s in frame 1.)
 TEST(Stability, ParticlesStartingOverlappedOrInsideWalls) {
   SingleThread one;
   const Real r = Real(0.005);
@@ -292,30 +294,35 @@ TEST(Stability, ParticlesStartingOverlappedOrInsideWalls) {
   overlapping.box = AABB<2>(Vec<2>(2.5f * r + o, 2.5f * r + o), Vec<2>(14.5f * r + o, 14.5f * r + o));
   setup.fluidBlocks = {insideWalls, overlapping, setup.fluidBlocks[0]};
   Simulation<2> sim(setup);
-  // Inside the obstacle (up to half a radius deep along its top), as a
-  // temporary particle or an edit could put them.
+  // Inside the obstacle (0.4 r deep along its top), appended after the
+  // relaxation: the contact model alone puts them out.
   std::vector<NewParticle<2>> add;
   for (Real x = Real(0.305); x < Real(0.4); x += 2 * r)
     add.push_back({Vec<2>(x, Real(0.05) - Real(0.4) * r), Vec<2>::Zero(), sim.particleMass(0), 0, ParticleKind::Liquid});
   sim.appendParticles(add);
+  // The lattice points the blocks start with inside the walls (the
+  // relaxation has already put them out), and the appended ones.
   size_t outside = 0;
-  for (const auto& x : sim.fluid.x)
-    outside += !sim.setup().domain.contains(x) || sim.setup().obstacles[0].signedDistance(x) < 0 ? 1 : 0;
-  ASSERT_GE(outside, 9u + 7u - 1u + 10u) << "the case needs particles starting inside the walls";
+  for (const auto& blk : setup.fluidBlocks)
+    forEachLatticePoint<2>(blk.box, 2 * r, [&](const Vec<2>& x) { outside += setup.domain.contains(x) ? 0 : 1; });
+  EXPECT_EQ(outside, 9u + 7u - 1u);
+  for (const auto& x : sim.fluid.x) outside += sim.setup().obstacles[0].signedDistance(x) < 0 ? 1 : 0;
+  ASSERT_EQ(outside, 9u + 7u - 1u + 10u) << "the case needs particles starting inside the walls";
   const size_t n0 = sim.fluid.size();
 
   FrameBounds b;
-  // The compression is removed at the position level before the first step
-  // (Simulation::relaxInitialState), so nothing drives the liquid but the
-  // fall from 0.1 m. Relaxing lifts the liquid (the overlapped particles
-  // take room): the energy reference is the state after frame 1.
+  // The blocks' compression is removed at the position level when the
+  // simulation is built (Simulation::relaxInitialState), so nothing drives
+  // the liquid but the fall from 0.1 m. The energy reference is the state
+  // after frame 1, in which the contact model puts the appended particles
+  // out of the obstacle (and the compression that leaves is released).
   b.maxSpeed = speedBound(0, 0.1);
   b.closed = true;
   b.energyFromFrame = 1;
   RunRecord rec;
   runBounded(sim, 40, b, rec, "overlapped / inside walls");
   std::printf("[ measured ] overlapped / inside walls: %zu of %zu particles started inside a solid or the walls; %d "
-              "relaxation passes before the first step\n",
+              "relaxation passes when the simulation was built\n",
               outside, n0, sim.initialRelaxationPasses());
   EXPECT_GT(sim.initialRelaxationPasses(), 0);
   EXPECT_EQ(sim.fluid.size(), n0);
