@@ -143,7 +143,7 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
   nlohmann::json framesJson = nlohmann::json::array();
   const auto t0 = std::chrono::steady_clock::now();
   double particleSteps = 0;
-  size_t substeps = 0, unconverged = 0, escaped = 0, contacts = 0;
+  size_t substeps = 0, unconverged = 0, unconvergedSubsteps = 0, escaped = 0, contacts = 0;
   double controlMs = 0;
   int status = Ok;
   std::string failure;
@@ -156,6 +156,7 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
     particleSteps += double(s.particles) * s.substeps;
     substeps += size_t(s.substeps);
     unconverged += s.converged ? 0 : 1;
+    unconvergedSubsteps += size_t(s.unconvergedSubsteps);
     escaped += s.escapedParticles;
     contacts += s.wallContacts;
     controlMs += s.controlMs;
@@ -210,6 +211,7 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
       {"liquid_particles", sim.fluid.size()},
       {"boundary_particles", sim.boundary.size()},
       {"unconverged_frames", unconverged},
+      {"unconverged_substeps", unconvergedSubsteps},
       {"escaped_particles", escaped},
       {"wall_contacts", contacts},
       {"peak_rss_mb", peakRssMb()},

@@ -225,6 +225,17 @@ void Control<D>::addInstanceForces(size_t i, Simulation<D>& sim, Real applyFor) 
   const Real wr = p.get("repulsion") != 0 ? Real(p.get("repulsion_weight")) * kAccelerationScale : Real(0);
   const Real maxRate = applyFor > 0 ? Real(1) / applyFor : std::numeric_limits<Real>::max();
   const Real hT = s.kernel.radius();
+  // Attraction and repulsion are held for the whole application (a frame by
+  // default), whatever the particle does meanwhile: beyond ½ |a| T² = h_T
+  // they would carry it past every control particle they were computed
+  // from. Capped there (template space; at most 2 h_T / T of velocity per
+  // application). The paper's 2D default weights stay below the cap: with
+  // sums of at most 1 their pull is (0.2 + 0.1) · kAccelerationScale = 90
+  // m/s², the cap 2 h_T / T² = 173 m/s² for the shipped 2D templates (h_T =
+  // 0.024 m) at 60 frames/s. Without it, weights inside their declared range
+  // (attraction 7.9, repulsion 18.8) launched the 2D drop scene's pool at
+  // 21 m/s in the first frame (Stability.FiftyRandomInstancesOnTheDropScene).
+  const Real maxPull = applyFor > 0 ? 2 * hT / (applyFor * applyFor) : std::numeric_limits<Real>::max();
   // Eq. (2)'s direction (x_j − x)/d is undefined when a liquid particle sits
   // on a control particle (lattices coincide often): below h/16 the pull
   // fades linearly to zero instead of pointing at rounding noise.
@@ -262,7 +273,10 @@ void Control<D>::addInstanceForces(size_t i, Simulation<D>& sim, Real applyFor) 
     // Explicit relaxation overshoots once rate · Δt > 1: cap it there.
     const Real vRate = wv * rate;
     const Real vScale = vRate > maxRate ? maxRate / vRate : Real(1);
-    const Vec<D> a = wa * attraction + (wv * vScale) * velocity + wr * repulsion;
+    Vec<D> pull = wa * attraction + wr * repulsion;
+    const Real pullNorm = pull.norm();
+    if (pullNorm > maxPull) pull *= maxPull / pullNorm;
+    const Vec<D> a = pull + (wv * vScale) * velocity;
     controlAcc_[idx] += s.fade[k] * (l * a);
   }
   for (long k = 0; k < n; ++k) {

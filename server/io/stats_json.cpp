@@ -12,6 +12,8 @@ nlohmann::json frameStatsToJson(const FrameStats& s, bool controlled) {
                       {"avg_density_error_pct", s.avgDensityErrorPct},
                       {"max_density_error_pct", s.maxDensityErrorPct},
                       {"converged", s.converged},
+                      {"unconverged_substeps", s.unconvergedSubsteps},
+                      {"step_scale", s.stepScale},
                       {"viscosity_iterations", s.viscosityIterations},
                       {"viscosity_converged", s.viscosityConverged},
                       {"finite", s.finite},

@@ -317,16 +317,26 @@ class DFSPH final : public PressureSolver<D> {
 
   // ρ*_i = ρ_i + Δt Dρ_i/Dt (eq. (13) in [BK17]); residual (ρ*_i - ρ0)/Δt,
   // compression only. Returns the average relative error; maxErr the largest.
+  // While the step is shrunk by s < 1 (Simulation::stepScale, after solves
+  // that stopped at their iteration limit), only the share s of the
+  // compression a particle already has is removed in this step: that
+  // compression is what the capped solves left, and removed within a step s
+  // times shorter it would become a push 1/s times faster (measured: a
+  // resting column with 1-iteration solves gained 6 % energy and reached
+  // 2.3 m/s in its first frame at s = 1/64). Spread this way it is removed
+  // at the unshrunk step's rate. With s = 1, eq. (13) as it stands.
   template <bool ND>
   Real densityResidualWith(Simulation<D>& sim, Real dt, Real& maxErr) {
     const auto& f = sim.fluid;
     const long n = long(f.size());
+    const Real deferred = Real(1) - sim.stepScale();
     double sum = 0;
     Real mx = 0;
 #pragma omp parallel for schedule(static) reduction(+ : sum) reduction(max : mx)
     for (long i = 0; i < n; ++i) {
       const Real rho0 = sim.restDensity_[f.phase[i]];
-      const Real predicted = f.density[i] + dt * rateOfDensity<ND>(sim, i, rho0);
+      const Real predicted = f.density[i] - deferred * std::max(f.density[i] - rho0, Real(0)) +
+                             dt * rateOfDensity<ND>(sim, i, rho0);
       const Real err = std::max(predicted - rho0, Real(0));
       residual_[i] = err / dt;
       mx = std::max(mx, err / rho0);

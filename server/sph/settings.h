@@ -19,6 +19,11 @@ inline const ParamSpecs& simulationSettingsSpecs() {
        "0: automatic (number density when the phases' rest densities differ, else the mass sum); 1: mass sum "
        "rho_i = sum_j m_j W_ij; 2: number density rho_i = m_i sum_j W_ij (Solenthaler & Pajarola 2008)",
        ParamType::Integer},
+      {"unconverged_step_scale", "", 0.05, 1, 0.5,
+       "after a substep whose solve stopped at its iteration limit, the next substeps' time step is multiplied by "
+       "this, once more for every further such substep (down to 1/64 of the step); 1: never shrink"},
+      {"step_recovery", "", 1, 4, 1.1,
+       "per substep whose solves all converged, a shrunk time step grows back by this factor, up to the full step"},
   };
   return specs;
 }

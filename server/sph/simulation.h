@@ -45,6 +45,8 @@ struct FrameStats {
   double avgDensityErrorPct = 0; // worst substep's average error at solver exit
   double maxDensityErrorPct = 0; // worst particle error at solver exit
   bool converged = true;         // every solve reached its tolerance
+  int unconvergedSubsteps = 0;   // substeps with a solve (divergence, density, implicit viscosity) stopped at its iteration limit
+  double stepScale = 1;          // smallest time-step scale a substep of the frame ran at (1: the full step; see Simulation::cflTimeStep)
   int viscosityIterations = 0;   // implicit viscosity (ImplicitVelocities stages) solver iterations, summed over substeps
   bool viscosityConverged = true; // every implicit viscosity solve reached its tolerance (also in `converged`)
   size_t particles = 0;          // liquid particles (all kinds)
@@ -124,6 +126,12 @@ class Simulation {
   // `old` at scene time `timeOffset` + its own clock.
   void continueBodiesFrom(const Simulation& old, double timeOffset);
   size_t totalSubsteps() const { return totalSubsteps_; }
+  // The factor the current substep's time step is shrunk by after solves
+  // that stopped at their iteration limit (1: the full step; cflTimeStep).
+  Real stepScale() const { return stepScale_; }
+  // Passes that moved overlapping or solid-penetrating particles apart when
+  // the simulation was built (relaxInitialState; 0 for a scene-file state).
+  int initialRelaxationPasses() const { return relaxationPasses_; }
   Real restDensity(size_t i) const { return restDensity_[fluid.phase[i]]; }
   // The density formulation, chosen once at setup (settings
   // "density_formulation"): false, the mass sum ρ_i = Σ_j m_j W_ij; true,
@@ -171,6 +179,8 @@ class Simulation {
   template <bool NumberDensity>
   void computeDensitiesWith();
   Real cflTimeStep() const;
+  void updateStepScale(bool converged);
+  void relaxInitialState();
   void reorderParticles();
   void enforceSolidContact(FrameStats& fs);
   void addStages(Effect<D>* eff);
@@ -186,6 +196,8 @@ class Simulation {
   bool neighborsFresh_ = false;
   bool numberDensity_ = false;
   Real contrastStep_ = 1;  // number density: time step scale, see cflTimeStep
+  Real stepScale_ = 1;     // shrinks after unconverged solves, see cflTimeStep
+  int relaxationPasses_ = 0;
   uint32_t nextId_ = 0;
   std::vector<std::string> stageNames_;
   double time_ = 0;
