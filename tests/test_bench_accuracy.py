@@ -26,7 +26,7 @@ KNOBS = ["particle_radius", "density_tolerance_pct", "divergence_tolerance_pct",
 CONTROL_KNOBS = ["forces_every_substep", "repulsion", "temporary_particles", "falloff_width"]
 COLUMNS = (["id", "group", "scene", "method", "real"] + KNOBS +
            ["status", "particles", "frames", "simulated_s", "substeps_per_frame", "solver_iterations_per_frame",
-            "unconverged_frames", "wall_s_per_sim_s", "ms_per_frame", "us_per_particle_step",
+            "unconverged_frames", "wall_s_per_sim_s", "ms_per_frame", "us_per_particle_step", "cpu_s_per_sim_s",
             "avg_density_error_pct", "max_density_error_pct", "solver_avg_density_error_pct",
             "solver_max_density_error_pct", "volume_drift_pct", "surge_front_rms", "surge_front_bias",
             "fidelity_iou", "front_avg_density_error", "front_max_density_error", "front_volume_drift",
@@ -87,7 +87,8 @@ def test_every_row_has_every_column(study):
                 assert v == "n/a", (col, row)
             else:
                 assert math.isfinite(float(v)), (col, row)
-        for col in ("particles", "frames", "wall_s_per_sim_s", "ms_per_frame", "us_per_particle_step"):
+        for col in ("particles", "frames", "wall_s_per_sim_s", "ms_per_frame", "us_per_particle_step",
+                    "cpu_s_per_sim_s"):
             assert float(row[col]) > 0, (col, row)
 
 

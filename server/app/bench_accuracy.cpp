@@ -24,6 +24,7 @@
 #include "sph/settings.h"
 #include "sph/simulation.h"
 #include <nlohmann/json.hpp>
+#include <sys/resource.h>
 #include <unistd.h>
 #include <algorithm>
 #include <chrono>
@@ -191,7 +192,7 @@ struct Sweep {
 Sweep sweepFor(bool quick) {
   if (quick) return {0.6, 0.8, 0.02, 0, {1, 0.1, 0.01}, {1, 0.1, 0.01}, {0.5, 1, 1.5}, {50000}, false, 0.006, {0.1},
                      false};
-  return {0.8, 1.2, 0.01, 0.0035, {1, 0.1, 0.01}, {1, 0.1, 0.01}, {0.5, 1, 1.5}, {50000, 200000}, true, 0, {0.02, 0.1},
+  return {0.8, 1.2, 0.01, 0.0035, {1, 0.1, 0.01}, {1, 0.1, 0.01}, {0.5, 1, 1.5}, {50000}, true, 0, {0.02, 0.1},
           true};
 }
 
@@ -272,6 +273,13 @@ fs::path sourceDir() {
   throw std::runtime_error("cannot find scenes/dambreak2d.json and bench/data (run from the repository)");
 }
 
+// CPU seconds (user + system) of the children waited for so far.
+double childCpuSeconds() {
+  rusage u{};
+  getrusage(RUSAGE_CHILDREN, &u);
+  return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) + 1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
+
 double loadAverage() {
   std::ifstream f("/proc/loadavg");
   double l = -1;
@@ -290,6 +298,9 @@ struct Result {
   size_t particles = 0, frames = 0, unconverged = 0;
   double simulatedS = 0, substepsPerFrame = 0;
   double wallPerSimS = 0, msPerFrame = 0, usPerParticleStep = 0;
+  // The child's CPU time (all threads, setup and export included) per
+  // simulated second: what the point costs whatever else runs on the machine.
+  double cpuPerSimS = 0;
   double avgErr = 0, maxErr = 0, solverAvgErr = 0, solverMaxErr = 0, volumeDrift = 0;
   double iterationsPerFrame = 0;  // divergence + density solver iterations: work that does not depend on load
   Cell surgeRms, surgeBias, fidelity;
@@ -327,9 +338,10 @@ void runPoint(const Context& ctx, Result& r) {
                                 "--stats",     statsPath.string(),  "--export",  exportPath.string(),
                                 "--templates", ctx.templates,       "--quiet"};
   if (ctx.threads > 0) args.insert(args.end(), {"--threads", std::to_string(ctx.threads)});
-  const double load0 = loadAverage();
+  const double load0 = loadAverage(), cpu0 = childCpuSeconds();
   const int code = runChild(args);
   r.load = 0.5 * (load0 + loadAverage());
+  const double cpuS = childCpuSeconds() - cpu0;
   if (code == Interrupted) {
     r.status = "interrupted";
     return;
@@ -369,6 +381,7 @@ void runPoint(const Context& ctx, Result& r) {
   r.simulatedS = summary["simulated_s"].get<double>();
   r.substepsPerFrame = substeps / double(r.frames);
   r.wallPerSimS = wallMs / 1000 / r.simulatedS;
+  r.cpuPerSimS = cpuS / r.simulatedS;
   r.msPerFrame = wallMs / double(r.frames);
   r.usPerParticleStep = particleSteps > 0 ? wallMs * 1000 / particleSteps : 0;
   r.solverAvgErr /= double(r.frames);
@@ -387,13 +400,23 @@ void runPoint(const Context& ctx, Result& r) {
   // compression and volume are measured from frame 1 on.
   const ExportedFrames e = readExportedFrames(exportPath.string());
   const double wallX = r.scene["domain"]["min"][0].get<double>();
+  double a = 0, g = 0;
+  if (ref.surge) {
+    // Martin & Moyce's setup: one column of width a and height 2a (their
+    // n² = 2) standing on the floor against the left wall.
+    const json& column = r.scene["fluid_blocks"][0];
+    const double floorY = r.scene["domain"]["min"][1].get<double>();
+    a = column["max"][0].get<double>() - wallX;
+    const double height = column["max"][1].get<double>() - floorY;
+    if (r.scene["fluid_blocks"].size() != 1 || column["min"][0].get<double>() != wallX ||
+        column["min"][1].get<double>() != floorY || std::abs(height - 2 * a) > 1e-9 * a)
+      throw std::runtime_error(p.scene + ": not Martin & Moyce's setup (one column a wide, 2a high, at the left wall)");
+    g = std::hypot(r.scene["gravity"][0].get<double>(), r.scene["gravity"][1].get<double>());
+  }
   double first = 0, last = 0;
   for (size_t f = 0; f < e.frames(); ++f) {
     const LiquidFrame m = measureLiquidFrame(e, f, wallX);
     if (ref.surge) {
-      const json& column = r.scene["fluid_blocks"][0];
-      const double a = column["max"][0].get<double>() - wallX;
-      const double g = std::hypot(r.scene["gravity"][0].get<double>(), r.scene["gravity"][1].get<double>());
       r.surge.T.push_back(m.time * std::sqrt(2 * g / a));
       r.surge.Z.push_back(m.front / a);
     }
@@ -506,7 +529,7 @@ std::vector<std::string> csvHeader() {
   std::vector<std::string> h = {"id", "group", "scene", "method", "real"};
   for (const Knob& k : knobs()) h.push_back(k.name);
   for (const char* c : {"status", "particles", "frames", "simulated_s", "substeps_per_frame", "solver_iterations_per_frame", "unconverged_frames",
-                        "wall_s_per_sim_s", "ms_per_frame", "us_per_particle_step", "avg_density_error_pct",
+                        "wall_s_per_sim_s", "ms_per_frame", "us_per_particle_step", "cpu_s_per_sim_s", "avg_density_error_pct",
                         "max_density_error_pct", "solver_avg_density_error_pct", "solver_max_density_error_pct",
                         "volume_drift_pct", "surge_front_rms", "surge_front_bias", "fidelity_iou"})
     h.push_back(c);
@@ -525,7 +548,7 @@ std::vector<std::string> csvRow(size_t id, const Result& r) {
   row.push_back(r.ok() ? std::to_string(r.frames) : "n/a");
   for (double v : {r.simulatedS, r.substepsPerFrame, r.iterationsPerFrame}) row.push_back(num(v));
   row.push_back(r.ok() ? std::to_string(r.unconverged) : "n/a");
-  for (double v : {r.wallPerSimS, r.msPerFrame, r.usPerParticleStep, r.avgErr, r.maxErr, r.solverAvgErr,
+  for (double v : {r.wallPerSimS, r.msPerFrame, r.usPerParticleStep, r.cpuPerSimS, r.avgErr, r.maxErr, r.solverAvgErr,
                    r.solverMaxErr, r.volumeDrift})
     row.push_back(num(v));
   row.push_back(r.ok() ? cell(r.surgeRms) : "n/a");
@@ -623,19 +646,19 @@ void writeMarkdown(const fs::path& path, const Options& opt, const std::vector<R
     if (r.point.group != group) {
       group = r.point.group;
       md << "\n## " << group << "\n\n";
-      md << "| id | point | particles | wall s / sim s | ms / frame | µs / particle-step | substeps / frame | "
+      md << "| id | point | particles | wall s / sim s | ms / frame | µs / particle-step | CPU s / sim s | substeps / frame | "
             "solver iterations / frame | unconverged frames | avg density err % | max density err % | volume drift % "
             "| surge RMS (bias) | fidelity IoU | preset |\n";
-      md << "|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|\n";
+      md << "|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|\n";
     }
     md << "| " << i << " | " << describe(r) << " | ";
     if (!r.ok()) {
-      md << r.status << ": " << r.error << " | | | | | | | | | | | | | |\n";
+      md << r.status << ": " << r.error << " | | | | | | | | | | | | | | |\n";
       continue;
     }
     md << r.particles << " | " << fmt(r.wallPerSimS, "%.2f") << " | " << fmt(r.msPerFrame, "%.1f") << " | "
-       << fmt(r.usPerParticleStep, "%.3f") << " | " << fmt(r.substepsPerFrame, "%.1f") << " | "
-       << fmt(r.iterationsPerFrame, "%.0f") << " | " << r.unconverged << " | " << fmt(r.avgErr, "%.4f") << star(r, "avg_density_error") << " | " << fmt(r.maxErr, "%.3f")
+       << fmt(r.usPerParticleStep, "%.3f") << " | " << fmt(r.cpuPerSimS, "%.2f") << " | "
+       << fmt(r.substepsPerFrame, "%.1f") << " | " << fmt(r.iterationsPerFrame, "%.0f") << " | " << r.unconverged << " | " << fmt(r.avgErr, "%.4f") << star(r, "avg_density_error") << " | " << fmt(r.maxErr, "%.3f")
        << star(r, "max_density_error") << " | " << fmt(r.volumeDrift, "%+.4f") << star(r, "volume_drift") << " | "
        << cell(r.surgeRms, "%.3f") << (r.surgeBias ? " (" + fmt(*r.surgeBias, "%+.3f") + ")" : std::string())
        << star(r, "surge_front_rms") << " | " << cell(r.fidelity, "%.3f")
@@ -675,6 +698,20 @@ int benchAccuracy(const Options& opt) {
     if (!fs::is_regular_file(opt.doubleBinary) || access(opt.doubleBinary.c_str(), X_OK) != 0)
       throw SceneError("--double-binary", "'" + opt.doubleBinary + "' is not an executable file");
     ctx.doubleBinary = fs::absolute(opt.doubleBinary).string();
+    // Its Real, from a run of no frame, before the sweep spends time on it.
+    const fs::path probe = fs::temp_directory_path() / ("flowclip-accuracy-probe-" + std::to_string(getpid()) + ".json");
+    const int code = runChild({ctx.doubleBinary, "run", (ctx.source / "scenes" / "dambreak2d.json").string(), "--frames",
+                               "0", "--stats", probe.string(), "--quiet"});
+    json stats;
+    if (std::ifstream in(probe); in) stats = json::parse(in, nullptr, false);
+    fs::remove(probe);
+    const std::string real =
+        stats.is_object() && stats.contains("summary") ? stats["summary"].value("real", std::string("?")) : "?";
+    if (code != 0 || real != "double")
+      throw SceneError("--double-binary", "'" + opt.doubleBinary + "' " +
+                                              (code != 0 ? "failed to run a scene (exit " + std::to_string(code) + ")"
+                                                         : "runs Real = " + real + ", not double") +
+                                              " (build one with -DFLOWCLIP_DOUBLE=ON: make bench-accuracy does)");
   }
   if (!fs::is_regular_file(fs::path(opt.templates) / "drop2d.h5"))
     throw SceneError("--templates", "'" + opt.templates +
