@@ -28,7 +28,7 @@ COLUMNS = (["id", "group", "scene", "method", "real"] + KNOBS +
            ["status", "particles", "frames", "simulated_s", "substeps_per_frame", "solver_iterations_per_frame",
             "unconverged_frames", "wall_s_per_sim_s", "ms_per_frame", "us_per_particle_step", "cpu_s_per_sim_s",
             "avg_density_error_pct", "max_density_error_pct", "solver_avg_density_error_pct",
-            "solver_max_density_error_pct", "volume_drift_pct", "surge_front_rms", "surge_front_bias",
+            "solver_max_density_error_pct", "volume_drift_pct", "max_speed", "surge_front_rms", "surge_front_bias",
             "fidelity_iou", "front_avg_density_error", "front_max_density_error", "front_volume_drift",
             "front_surge_front_rms", "front_fidelity", "preset", "load_avg"])
 TEXT = {"id", "group", "scene", "method", "real", "status", "preset"}
