@@ -8,7 +8,7 @@ CMAKE_FLAGS ?=
 PORT ?= 8080
 ABS_BUILD_DIR = $(abspath $(BUILD_DIR))
 
-.PHONY: all setup build web templates run run-headless test test-web test-web-only bench bench-web clean
+.PHONY: all setup build web templates run run-headless test test-web test-web-only bench bench-accuracy bench-web clean
 
 # 2D templates are recorded when missing (seconds); larger ones on demand:
 # build/flowclip record templates/recipes/letters3d.json
@@ -59,6 +59,16 @@ test-web-only:
 
 bench: build
 	$(BUILD_DIR)/flowclip bench solver
+
+# The accuracy/cost study's full sweep (README "Accuracy and cost", about
+# 30 min on 2 quiet cores) into bench/accuracy: a Real = double build beside
+# the float one for the precision points, and the templates of every 2D
+# template scene for their fidelity. `make test` runs its --quick smoke run.
+TEMPLATES_ACCURACY = $(TEMPLATES_2D) wave2d waterjet2d doubledam2d blade2d
+bench-accuracy: build $(foreach t,$(TEMPLATES_ACCURACY),templates/$(t).h5)
+	@cmake -S server -B $(BUILD_DIR)-double -G Ninja -DCMAKE_BUILD_TYPE=$(BUILD_TYPE) -DFLOWCLIP_DOUBLE=ON $(CMAKE_FLAGS) >/dev/null
+	@cmake --build $(BUILD_DIR)-double --target flowclip -j $(JOBS)
+	$(BUILD_DIR)/flowclip bench accuracy --out bench/accuracy --double-binary $(BUILD_DIR)-double/flowclip
 
 # The editor's browser benchmark (headless Chromium, software GL): decode +
 # upload + draw per frame at 100k and 300k particles, bytes per frame.

@@ -1,7 +1,7 @@
 // `flowclip bench solver`: each (scene, solver) pair runs in its own child
 // process (`flowclip run --stats`), so that peak RSS is that run's alone.
 // `flowclip bench templates`: the template database. `bench control` lives in
-// bench_control.cpp.
+// bench_control.cpp, `bench accuracy` in bench_accuracy.cpp.
 #include "app/commands.h"
 #include "io/template_database.h"
 #include "io/template_file.h"
@@ -217,6 +217,7 @@ void addBenchCommand(CLI::App& app) {
   addBenchControlCommand(*bench);
   addBenchServiceCommand(*bench);
   addBenchScenesCommand(*bench);
+  addBenchAccuracyCommand(*bench);
 }
 
 }  // namespace fc::app

@@ -13,6 +13,7 @@ void addServeCommand(CLI::App& app);      // serve (serve_command.cpp)  // recor
 void addBenchControlCommand(CLI::App& bench);  // bench control (bench_control.cpp)
 void addBenchServiceCommand(CLI::App& bench);  // bench service (bench_service.cpp)
 void addBenchScenesCommand(CLI::App& bench);   // bench scenes (bench_scenes.cpp)
+void addBenchAccuracyCommand(CLI::App& bench); // bench accuracy (bench_accuracy.cpp)
 
 // Exit codes shared by every command.
 enum ExitCode { Ok = 0, Failure = 1, BadInput = 2, SimulationFailed = 3, Interrupted = 130 };

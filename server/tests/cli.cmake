@@ -120,6 +120,12 @@ set_tests_properties(cli_bench_control PROPERTIES FIXTURES_REQUIRED test_templat
 fc_cli_expect(cli_bench_scenes 0 "2D Rectangular drop"
   bench scenes ${FC_CLI_TESTS_DIR}/../../scenes/drop2d.json --frames 14 --threads 1 --templates ${FC_TEST_TEMPLATES})
 set_tests_properties(cli_bench_scenes PROPERTIES FIXTURES_REQUIRED test_templates)
+# bench accuracy refuses a --double-binary that is not a double build and a
+# template database without drop2d, before it runs any point.
+fc_cli_expect(cli_bench_accuracy_not_double 2 "--double-binary: '$<TARGET_FILE:flowclip>' runs Real = float, not double"
+  bench accuracy --quick --no-plots --out ${CMAKE_BINARY_DIR}/cli-accuracy --double-binary $<TARGET_FILE:flowclip>)
+fc_cli_expect(cli_bench_accuracy_no_templates 2 "--templates: '${FC_BAD_RECIPES}' has no drop2d.h5"
+  bench accuracy --quick --no-plots --out ${CMAKE_BINARY_DIR}/cli-accuracy --templates ${FC_BAD_RECIPES})
 # run --control-setting is checked as the scene file's "control" object.
 fc_cli_expect(cli_run_bad_control_setting 2 "control.forces_every_substep: '2' given by --control-setting"
   run ${FC_CLI_TESTS_DIR}/../../scenes/drop2d.json --frames 1 --control-setting forces_every_substep=2)

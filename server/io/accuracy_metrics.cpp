@@ -1,0 +1,143 @@
+#include "io/accuracy_metrics.h"
+
+#include "sph/phase.h"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <limits>
+#include <sstream>
+#include <stdexcept>
+
+namespace fc {
+
+SurgeCurve readSurgeCurve(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw std::runtime_error("surge curve '" + path + "': cannot be read");
+  SurgeCurve c;
+  std::string line;
+  bool header = false;
+  for (int n = 1; std::getline(in, line); ++n) {
+    const auto where = [&] { return "surge curve '" + path + "' line " + std::to_string(n) + ": "; };
+    if (line.empty() || line[0] == '#') continue;
+    if (!header) {
+      if (line.rfind("T,Z", 0) != 0) throw std::runtime_error(where() + "expected the header 'T,Z'");
+      header = true;
+      continue;
+    }
+    std::istringstream s(line);
+    double T = 0, Z = 0;
+    char comma = 0;
+    if (!(s >> T >> comma >> Z) || comma != ',' || !std::isfinite(T) || !std::isfinite(Z))
+      throw std::runtime_error(where() + "expected two numbers 'T,Z', got '" + line + "'");
+    if (!c.T.empty() && !(T > c.T.back())) throw std::runtime_error(where() + "T must increase");
+    c.T.push_back(T);
+    c.Z.push_back(Z);
+  }
+  if (c.T.empty()) throw std::runtime_error("surge curve '" + path + "': no points");
+  return c;
+}
+
+LiquidFrame measureLiquidFrame(const ExportedFrames& e, size_t frame, double wallX) {
+  if (frame >= e.frames()) throw std::out_of_range("frame " + std::to_string(frame) + " is not in the export");
+  LiquidFrame m;
+  m.time = e.time[frame];
+  const int D = e.dimension;
+  std::vector<float> xs;
+  double rest = 0, volume = 0, compression = 0;
+  for (uint64_t k = e.offset[frame]; k < e.offset[frame + 1]; ++k) {
+    if (e.kind[k] == uint8_t(ParticleKind::Boundary)) continue;
+    xs.push_back(e.position[k * size_t(D)]);
+    const double rho0 = e.phaseRestDensity[e.phase[k]];
+    const double rho = std::max(double(e.density[k]), rho0);
+    rest += 1;
+    volume += rho0 / rho;
+    const double c = rho / rho0 - 1;
+    compression += c;
+    m.maxCompressionPct = std::max(m.maxCompressionPct, 100 * c);
+  }
+  m.particles = xs.size();
+  if (xs.empty()) return m;
+  m.volumeRatio = volume / rest;
+  m.avgCompressionPct = 100 * compression / rest;
+  const size_t k = size_t(std::ceil(0.999 * double(xs.size()))) - 1;
+  std::nth_element(xs.begin(), xs.begin() + long(k), xs.end());
+  m.front = double(xs[k]) + e.particleRadius - wallX;
+  return m;
+}
+
+std::vector<double> interpolateAt(const std::vector<double>& x, const std::vector<double>& y,
+                                  const std::vector<double>& at) {
+  if (x.size() != y.size() || x.size() < 2) throw std::invalid_argument("interpolation needs two or more points");
+  std::vector<double> out;
+  out.reserve(at.size());
+  for (double a : at) {
+    if (a < x.front() || a > x.back()) {
+      std::ostringstream msg;
+      msg << "the data covers [" << x.front() << ", " << x.back() << "], not " << a;
+      throw std::invalid_argument(msg.str());
+    }
+    const size_t hi = size_t(std::upper_bound(x.begin(), x.end(), a) - x.begin());
+    const size_t i = std::min(hi, x.size() - 1), j = i - 1;
+    const double u = x[i] > x[j] ? (a - x[j]) / (x[i] - x[j]) : 0;
+    out.push_back(y[j] + u * (y[i] - y[j]));
+  }
+  return out;
+}
+
+double surgeRms(const SurgeCurve& simulated, const SurgeCurve& reference) {
+  const std::vector<double> z = interpolateAt(simulated.T, simulated.Z, reference.T);
+  double sum = 0;
+  for (size_t i = 0; i < z.size(); ++i) sum += (z[i] - reference.Z[i]) * (z[i] - reference.Z[i]);
+  return std::sqrt(sum / double(z.size()));
+}
+
+std::vector<bool> paretoFront(const std::vector<double>& cost, const std::vector<double>& error,
+                              const std::vector<bool>& eligible) {
+  const size_t n = cost.size();
+  if (error.size() != n || (!eligible.empty() && eligible.size() != n))
+    throw std::invalid_argument("paretoFront: cost, error and eligible differ in length");
+  const auto competes = [&](size_t i) { return eligible.empty() || eligible[i]; };
+  std::vector<bool> on(n, false);
+  for (size_t i = 0; i < n; ++i) {
+    if (!competes(i)) continue;
+    bool dominated = false;
+    for (size_t j = 0; j < n && !dominated; ++j)
+      dominated = j != i && competes(j) && cost[j] <= cost[i] && error[j] <= error[i] &&
+                  (cost[j] < cost[i] || error[j] < error[i]);
+    on[i] = !dominated;
+  }
+  return on;
+}
+
+PresetPick pickPresets(const std::vector<double>& cost, const std::vector<double>& error,
+                       const std::vector<bool>& onFront) {
+  std::vector<size_t> front;
+  for (size_t i = 0; i < onFront.size(); ++i)
+    if (onFront[i]) front.push_back(i);
+  PresetPick p;
+  if (front.empty()) return p;
+  // Along a front cost increases exactly when error decreases; equal points
+  // (duplicates) are ordered by index so the pick is reproducible.
+  std::sort(front.begin(), front.end(), [&](size_t a, size_t b) {
+    return cost[a] != cost[b] ? cost[a] < cost[b] : error[a] != error[b] ? error[a] > error[b] : a < b;
+  });
+  p.draft = long(front.front());
+  p.final = long(front.back());
+  p.preview = p.final;
+  // log10 of an error of 0 (a perfect point) would be -inf: floor it.
+  const auto lx = [&](size_t i) { return std::log10(std::max(cost[i], 1e-12)); };
+  const auto ly = [&](size_t i) { return std::log10(std::max(error[i], 1e-12)); };
+  const double x0 = lx(front.front()), y0 = ly(front.front());
+  const double dx = lx(front.back()) - x0, dy = ly(front.back()) - y0;
+  const double len = std::hypot(dx, dy);
+  double best = -std::numeric_limits<double>::infinity();
+  for (size_t k = 1; k + 1 < front.size(); ++k) {
+    // Distance below the chord (towards cheaper and more accurate).
+    const double d = len > 0 ? ((lx(front[k]) - x0) * dy - (ly(front[k]) - y0) * dx) / len : 0;
+    if (d > best) best = d, p.preview = long(front[k]);
+  }
+  return p;
+}
+
+}  // namespace fc

@@ -1,0 +1,72 @@
+#pragma once
+// What `flowclip bench accuracy` measures on a run (README "Accuracy and
+// cost"): the liquid's surge front, compression and volume per exported
+// frame, the surge front against Martin & Moyce (1952), and the Pareto front
+// and presets of a set of (cost, error) points.
+#include "io/exported_frames.h"
+#include <string>
+#include <vector>
+
+namespace fc {
+
+// A surge-front curve in Martin & Moyce's units: T = t sqrt(2g/a), Z = x/a.
+struct SurgeCurve {
+  std::vector<double> T, Z;
+};
+
+// A "T,Z" CSV (bench/data/martin_moyce_1952.csv): '#' comment lines, a
+// header line, then one point per line in increasing T. Throws
+// std::runtime_error naming the file and line of what is wrong.
+SurgeCurve readSurgeCurve(const std::string& path);
+
+struct LiquidFrame {
+  double time = 0;
+  size_t particles = 0;       // liquid particles (kinds Liquid and Temporary)
+  // Leading edge of the liquid along +x from `wallX`, m: the 99.9th
+  // percentile of the particles' x plus one radius (a particle stands for
+  // the cell around its centre). The same front as the DamBreak tests
+  // (server/tests/test_dambreak.cpp): an SPH surge tip sheds single
+  // particles ahead of it, Martin & Moyce timed the water's edge, not spray.
+  double front = 0;
+  // Σ m/max(ρ, ρ0) over Σ m/ρ0, particles of equal rest volume: the
+  // liquid's volume relative to its rest volume. Surface particles miss
+  // neighbours and read ρ < ρ0 without being expanded (kernel deficiency),
+  // so only compression counts.
+  double volumeRatio = 1;
+  // Compression max(ρ/ρ0 - 1, 0), in percent: average and largest.
+  double avgCompressionPct = 0;
+  double maxCompressionPct = 0;
+};
+
+// Frame `frame` of an export. The densities are those of the frame's last
+// substep (computed before its advection), as the exporter stores them.
+LiquidFrame measureLiquidFrame(const ExportedFrames& frames, size_t frame, double wallX);
+
+// y(x) interpolated linearly at each of `at`; x increasing. Points outside
+// [x.front(), x.back()] are an error (std::invalid_argument saying how far
+// the data reaches): a run too short for the reference is not compared.
+std::vector<double> interpolateAt(const std::vector<double>& x, const std::vector<double>& y,
+                                  const std::vector<double>& at);
+
+// sqrt(mean((simulated(T_i) - Z_i)^2)) over the reference points.
+double surgeRms(const SurgeCurve& simulated, const SurgeCurve& reference);
+
+// on[i]: no other point is at most as costly and at most as wrong, and
+// strictly better in one (both minimised). Only points with eligible[i]
+// compete (an empty `eligible` means all).
+std::vector<bool> paretoFront(const std::vector<double>& cost, const std::vector<double>& error,
+                              const std::vector<bool>& eligible = {});
+
+// Presets from a Pareto front (indices into cost/error, -1 if none):
+// draft = the cheapest front point, final = the most accurate, preview =
+// the knee between them: the front point furthest below the straight line
+// from draft to final in log10(cost)-log10(error) (equal factors of cost
+// and error weigh the same). With fewer than three front points, preview
+// is final.
+struct PresetPick {
+  long draft = -1, preview = -1, final = -1;
+};
+PresetPick pickPresets(const std::vector<double>& cost, const std::vector<double>& error,
+                       const std::vector<bool>& onFront);
+
+}  // namespace fc
