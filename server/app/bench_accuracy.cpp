@@ -225,7 +225,8 @@ std::vector<Point> sweepPoints(const Sweep& s, bool quick, bool withDouble) {
       if (cfl != 1) dfsph("solver", 0.1, 0.1, cfl, solverRadius, "float");
   }
   for (double k : s.stiffnesses)
-    for (double cfl : s.fullGrid ? s.cflFactors : std::vector<double>{1}) wcsph("solver", k, cfl, solverRadius, "float");
+    for (double cfl : s.fullGrid ? s.cflFactors : std::vector<double>{1})
+      wcsph("solver", k, cfl, solverRadius, "float");
 
   // Resolution and precision: the tolerance diagonal and WCSPH, at CFL 1.
   const std::vector<double> diagonal = quick ? std::vector<double>{0.1} : s.densityTolerances;
@@ -394,7 +395,10 @@ void runPoint(const Context& ctx, Result& r) {
     r.solverAvgErr += f["avg_density_error_pct"].get<double>();
     r.solverMaxErr = std::max(r.solverMaxErr, f["max_density_error_pct"].get<double>());
     for (const json& i : f.value("instances", json::array()))
-      if (i.value("active", false) && i.value("fidelity", -1.0) >= 0) fidelity += i["fidelity"].get<double>(), ++fidelityFrames;
+      if (i.value("active", false) && i.value("fidelity", -1.0) >= 0) {
+        fidelity += i["fidelity"].get<double>();
+        ++fidelityFrames;
+      }
   }
   r.frames = frames.size();
   if (r.frames == 0) {
@@ -539,7 +543,8 @@ PresetPick choosePresets(std::vector<Result>& results) {
   std::vector<bool> eligible;
   for (const Result& r : results) {
     const bool in = r.ok() && r.point.group == "solver" && r.unconverged == 0 &&
-                    std::abs(r.volumeDrift) <= kPresetMaxVolumeDriftPct && r.surgeRms && *r.surgeRms <= kPresetMaxSurgeRms;
+                    std::abs(r.volumeDrift) <= kPresetMaxVolumeDriftPct && r.surgeRms &&
+                    *r.surgeRms <= kPresetMaxSurgeRms;
     eligible.push_back(in);
     cost.push_back(r.wallPerSimS);
     error.push_back(r.avgErr);
@@ -564,8 +569,8 @@ std::string cell(const Cell& c, const char* f = "%.6g") { return c ? fmt(*c, f) 
 std::vector<std::string> csvHeader() {
   std::vector<std::string> h = {"id", "group", "scene", "method", "real"};
   for (const Knob& k : knobs()) h.push_back(k.name);
-  for (const char* c : {"status", "particles", "frames", "simulated_s", "substeps_per_frame", "solver_iterations_per_frame", "unconverged_frames",
-                        "wall_s_per_sim_s", "ms_per_frame", "us_per_particle_step", "cpu_s_per_sim_s", "avg_density_error_pct",
+  for (const char* c : {"status", "particles", "frames", "simulated_s", "substeps_per_frame",
+                        "solver_iterations_per_frame", "unconverged_frames", "wall_s_per_sim_s", "ms_per_frame", "us_per_particle_step", "cpu_s_per_sim_s", "avg_density_error_pct",
                         "max_density_error_pct", "solver_avg_density_error_pct", "solver_max_density_error_pct",
                         "volume_drift_pct", "max_speed", "surge_front_rms", "surge_front_bias", "fidelity_iou"})
     h.push_back(c);
@@ -614,7 +619,8 @@ std::string describe(const Result& r) {
     o << " tol " << fmt(*knobValue(r.scene, knob("density_tolerance_pct"))) << "/"
       << fmt(*knobValue(r.scene, knob("divergence_tolerance_pct"))) << "%";
   if (method == "wcsph") o << " B " << fmt(*knobValue(r.scene, knob("stiffness")));
-  o << " cfl " << fmt(*knobValue(r.scene, knob("cfl_factor"))) << " r " << fmt(*knobValue(r.scene, knob("particle_radius")))
+  o << " cfl " << fmt(*knobValue(r.scene, knob("cfl_factor"))) << " r "
+    << fmt(*knobValue(r.scene, knob("particle_radius")))
     << " " << r.point.real;
   for (const auto& [name, v] : r.point.set)
     if (knob(name).place == Place::Control || knob(name).place == Place::Instances) o << " " << name << "=" << fmt(v);
@@ -744,7 +750,8 @@ int benchAccuracy(const Options& opt) {
       throw SceneError("--double-binary", "'" + opt.doubleBinary + "' is not an executable file");
     ctx.doubleBinary = fs::absolute(opt.doubleBinary).string();
     // Its Real, from a run of no frame, before the sweep spends time on it.
-    const fs::path probe = fs::temp_directory_path() / ("flowclip-accuracy-probe-" + std::to_string(getpid()) + ".json");
+    const fs::path probe =
+        fs::temp_directory_path() / ("flowclip-accuracy-probe-" + std::to_string(getpid()) + ".json");
     const int code = runChild({ctx.doubleBinary, "run", (ctx.source / "scenes" / "dambreak2d.json").string(), "--frames",
                                "0", "--stats", probe.string(), "--quiet"});
     json stats;
@@ -775,7 +782,8 @@ int benchAccuracy(const Options& opt) {
       const json scene = loadSceneJson((ctx.source / "scenes" / (p.scene + ".json")).string());
       bool present = true;
       for (const json& inst : scene["instances"])
-        present = present && fs::is_regular_file(fs::path(opt.templates) / (inst["template"].get<std::string>() + ".h5"));
+        present = present &&
+                  fs::is_regular_file(fs::path(opt.templates) / (inst["template"].get<std::string>() + ".h5"));
       if (!present) {
         std::fprintf(stderr, "bench accuracy: %s skipped: its template is not in '%s'\n", p.scene.c_str(),
                      opt.templates.c_str());
@@ -888,7 +896,8 @@ int benchAccuracy(const Options& opt) {
 void addBenchAccuracyCommand(CLI::App& bench) {
   auto opt = std::make_shared<Options>();
   CLI::App* acc = bench.add_subcommand(
-      "accuracy", "accuracy against cost for every solver and control knob, on reference scenes (README: Accuracy and cost)");
+      "accuracy",
+      "accuracy against cost for every solver and control knob, on reference scenes (README: Accuracy and cost)");
   acc->add_flag("--quick", opt->quick, "a small coarse sweep in minutes (make test's smoke run)");
   acc->add_option("--out", opt->out, "output directory (default: build/accuracy)");
   acc->add_option("--double-binary", opt->doubleBinary,
