@@ -60,15 +60,16 @@ test-web-only:
 bench: build
 	$(BUILD_DIR)/flowclip bench solver
 
-# The accuracy/cost study's full sweep (README "Accuracy and cost", about
-# 30 min on 2 quiet cores) into bench/accuracy: a Real = double build beside
-# the float one for the precision points, and the templates of every 2D
-# template scene for their fidelity. `make test` runs its --quick smoke run.
+# The accuracy/cost study's full sweep (README "Accuracy and cost"; 1 thread
+# per run, the fastest of 3: about 15 min at load 5) into bench/accuracy,
+# with a Real = double build beside the float one for the precision points
+# and the templates of every 2D template scene for their fidelity.
+# `make test` runs its --quick smoke run.
 TEMPLATES_ACCURACY = $(TEMPLATES_2D) wave2d waterjet2d doubledam2d blade2d
 bench-accuracy: build $(foreach t,$(TEMPLATES_ACCURACY),templates/$(t).h5)
 	@cmake -S server -B $(BUILD_DIR)-double -G Ninja -DCMAKE_BUILD_TYPE=$(BUILD_TYPE) -DFLOWCLIP_DOUBLE=ON $(CMAKE_FLAGS) >/dev/null
 	@cmake --build $(BUILD_DIR)-double --target flowclip -j $(JOBS)
-	$(BUILD_DIR)/flowclip bench accuracy --out bench/accuracy --double-binary $(BUILD_DIR)-double/flowclip
+	$(BUILD_DIR)/flowclip bench accuracy --out bench/accuracy --double-binary $(BUILD_DIR)-double/flowclip --threads 1 --repeat 3
 
 # The editor's browser benchmark (headless Chromium, software GL): decode +
 # upload + draw per frame at 100k and 300k particles, bytes per frame.

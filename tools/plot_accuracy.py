@@ -6,8 +6,9 @@
 Reads DIR/accuracy.csv and DIR/surge_fronts.csv (written by the bench, which
 calls this script) and writes
   DIR/pareto.svg       cost (wall s per simulated s) against each error, one
-                       panel per error; the Pareto front (the bench's
-                       front_* columns) drawn as a staircase, presets labelled;
+                       panel per error; the Pareto fronts (the bench's
+                       front_* columns: one per scene and resolution) drawn
+                       as staircases, presets labelled;
   DIR/surge_front.svg  the dam break's surge front Z = x/a against
                        T = t sqrt(2g/a): Martin & Moyce (1952) and the
                        presets' runs, with the resolution levels.
@@ -70,18 +71,33 @@ def label(row: dict) -> str:
     return s
 
 
+# Linear panels show errors up to this many times the smallest; points
+# beyond (runs that blew up) sit at the right edge with their value written.
+LINEAR_CLIP = 4
+
+
 def pareto_panel(ax, rows: list[dict], front_col: str, value_col: str, xlabel: str, transform, xscale: str) -> None:
     points = [r for r in rows if r["status"] == "ok" and r[front_col] != "n/a"]
-    for r in points:
+    values = [max(transform(r[value_col]), 1e-6) for r in points]
+    clip = LINEAR_CLIP * min(values) if values and xscale == "linear" else float("inf")
+    for r, v in zip(points, values):
         style = GROUP_STYLE.get(r["group"], dict(marker="o"))
         color = METHOD_COLOR.get(r["method"], "gray")
         on = r[front_col] == "1"
-        ax.scatter(max(transform(r[value_col]), 1e-6), float(r["wall_s_per_sim_s"]), s=36 if on else 18,
-                   c=color if on else "none", edgecolors=color, linewidths=1, zorder=3, **style)
-    front = sorted((max(transform(r[value_col]), 1e-6), float(r["wall_s_per_sim_s"]), r)
-                   for r in points if r[front_col] == "1")
-    if front:
-        # Staircase: from each front point, what the next costlier one buys.
+        y = float(r["wall_s_per_sim_s"])
+        if v > clip:
+            ax.scatter(clip, y, marker=">", c="none", edgecolors=color, s=18, zorder=3)
+            ax.annotate(f"{v:.2g}", (clip, y), fontsize=6, xytext=(-14, 3), textcoords="offset points")
+            continue
+        ax.scatter(v, y, s=36 if on else 18, c=color if on else "none", edgecolors=color, linewidths=1, zorder=3,
+                   **style)
+    # One front per resolution (the bench's front_* columns are per scene and
+    # particle radius), drawn as a staircase: from each front point, what the
+    # next costlier one buys.
+    radii = sorted({r["particle_radius"] for r in points if r[front_col] == "1"}, key=float)
+    for radius, ls in zip(radii, ["-", "--", ":", "-."] * 4):
+        front = sorted((max(transform(r[value_col]), 1e-6), float(r["wall_s_per_sim_s"]), r)
+                       for r in points if r[front_col] == "1" and r["particle_radius"] == radius)
         xs, ys = [], []
         for x, y, _ in sorted(front, key=lambda p: p[1]):
             if xs:
@@ -89,16 +105,27 @@ def pareto_panel(ax, rows: list[dict], front_col: str, value_col: str, xlabel: s
                 ys.append(y)
             xs.append(x)
             ys.append(y)
-        ax.plot(xs, ys, color="black", lw=0.8, zorder=2, label="Pareto front")
+        ax.plot(xs, ys, color="black", lw=0.8, ls=ls, zorder=2, label=f"front, r = {radius} m")
         for x, y, r in front:
             text = label(r)
             if r["preset"] != "none":
                 text = f"{r['preset']}: {text}"
-            ax.annotate(text, (x, y), fontsize=6, xytext=(4, 2), textcoords="offset points")
+            ax.annotate(text, (x, y), fontsize=6, xytext=(4, 2), textcoords="offset points",
+                        fontweight="bold" if r["preset"] != "none" else "normal")
+    if radii:
+        ax.legend(fontsize=6, loc="upper right")
     ax.set_xscale(xscale)
     ax.set_yscale("log")
-    for axis in (ax.xaxis, ax.yaxis):
-        axis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    if clip < float("inf"):
+        ax.set_xlim(0, clip * 1.05)
+    for axis, scale in ((ax.xaxis, xscale), (ax.yaxis, "log")):
+        if scale != "log":
+            continue
+        axis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+        # Within one decade the minor ticks are the only labelled ones.
+        lo, hi = (ax.get_xlim() if axis is ax.xaxis else ax.get_ylim())
+        few = hi < 10 * lo
+        axis.set_minor_formatter(matplotlib.ticker.FormatStrFormatter("%g") if few else matplotlib.ticker.NullFormatter())
     ax.set_xlabel(xlabel)
     ax.set_ylabel("wall s per simulated s")
     ax.grid(True, which="both", lw=0.3, alpha=0.5)
@@ -112,7 +139,7 @@ def legend_panel(ax, rows: list[dict]) -> None:
             handles.append(plt.Line2D([], [], ls="", color="gray", label=group, **style))
     for method, color in METHOD_COLOR.items():
         handles.append(plt.Line2D([], [], ls="", marker="o", color=color, label=method))
-    handles.append(plt.Line2D([], [], color="black", lw=0.8, label="Pareto front (filled: on it)"))
+    handles.append(plt.Line2D([], [], color="black", lw=0.8, label="Pareto front per resolution (filled: on it)"))
     ax.legend(handles=handles, loc="center", fontsize=8, frameon=False)
     loads = [float(r["load_avg"]) for r in rows]
     if loads:
@@ -153,7 +180,8 @@ def plot_surge(rows: list[dict], fronts: list[dict], mm: tuple[list[float], list
     for r in shown:
         T, Z = curves[r["id"]]
         name = f"{r['preset']}: " if r["preset"] != "none" else ""
-        name += f"{label(r)}, r {r['particle_radius']} (RMS {float(r['surge_front_rms']):.3f})"
+        name += label(r) + ("" if r["group"] == "resolution" else f" r {r['particle_radius']}")
+        name += f" (RMS {float(r['surge_front_rms']):.3f})"
         ax.plot(T, Z, lw=1, label=name)
     if mm:
         ax.plot(*mm, "ko", ms=4, label="Martin & Moyce 1952, n² = 2, a = 2.25 in")
