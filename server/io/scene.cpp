@@ -472,6 +472,18 @@ void checkBodyInDomain(const Body<D>& b, const BodyKey<D>& pose, const AABB<D>& 
   }
 }
 
+// The "name" of an object in a list of named ones (bodies, emitters): a
+// valid name, unique among those read before it.
+template <class Named>
+std::string uniqueName(const json& o, const std::string& p, const std::vector<Named>& before, const char* one,
+                       const char* many) {
+  const std::string name = getString(required(o, p, "name", std::string("a name unique among the ") + many), key(p, "name"));
+  if (!isValidTemplateName(name)) fail(key(p, "name"), "\"" + name.substr(0, 40) + "\" is not a name ([A-Za-z0-9_-]{1,64})");
+  for (const Named& other : before)
+    if (other.name == name) fail(key(p, "name"), std::string("duplicate ") + one + " name \"" + name + "\"");
+  return name;
+}
+
 // Moving solids: "bodies": [{name, type: box|sphere|disk, size | radius,
 // position, rotation, motion: kinematic|dynamic, ...}].
 template <int D>
@@ -486,10 +498,7 @@ std::vector<Body<D>> parseBodies(const json* j, const AABB<D>& domain) {
     checkKeys(o, p, {"name", "type", "size", "radius", "position", "rotation", "motion", "velocity",
                      "angular_velocity", "keys", "period", "density", "carve_fluid"});
     Body<D> b;
-    b.name = getString(required(o, p, "name", "a name unique among the bodies"), key(p, "name"));
-    if (!isValidTemplateName(b.name)) fail(key(p, "name"), "\"" + b.name.substr(0, 40) + "\" is not a name ([A-Za-z0-9_-]{1,64})");
-    for (const Body<D>& other : bodies)
-      if (other.name == b.name) fail(key(p, "name"), "duplicate body name \"" + b.name + "\"");
+    b.name = uniqueName(o, p, bodies, "body", "bodies");
     const std::string type = getString(required(o, p, "type", D == 2 ? "\"box\" or \"disk\"" : "\"box\" or \"sphere\""), key(p, "type"));
     if (type == "box") {
       b.shape = ObstacleShape::Box;
@@ -589,10 +598,7 @@ std::vector<Emitter<D>> parseEmitters(const json* j, const std::vector<Phase>& p
     const json& o = expectObject((*j)[i], p);
     checkKeys(o, p, {"name", "center", "direction", "radius", "speed", "phase", "start", "end"});
     Emitter<D> e;
-    e.name = getString(required(o, p, "name", "a name unique among the emitters"), key(p, "name"));
-    if (!isValidTemplateName(e.name)) fail(key(p, "name"), "\"" + e.name.substr(0, 40) + "\" is not a name ([A-Za-z0-9_-]{1,64})");
-    for (const Emitter<D>& other : emitters)
-      if (other.name == e.name) fail(key(p, "name"), "duplicate emitter name \"" + e.name + "\"");
+    e.name = uniqueName(o, p, emitters, "emitter", "emitters");
     e.center = getVec<D>(required(o, p, "center", "the nozzle's centre, m"), key(p, "center"));
     const Vec<D> dir = getVec<D>(required(o, p, "direction", "the jet's direction (normalised when read)"), key(p, "direction"));
     if (!(dir.norm() > Real(1e-6))) fail(key(p, "direction"), "must not be zero");

@@ -73,9 +73,11 @@ class Emitters final : public Effect<D> {
     const double dt = sim.frameDuration();
     fs.emitting = true;
     add_.clear();
+    open_.clear();  // nozzles open for this frame: their bores are held (correctVelocities)
     for (size_t k = 0; k < emitters_.size(); ++k) {
       const Emitter<D>& e = emitters_[k];
       if (t < e.start - 1e-9 || t >= e.end - 1e-9) continue;
+      open_.push_back(k);
       Real& s = travelled_[k];
       nearNozzle(sim, e);
       const Real mass = sim.particleMass(e.phase);
@@ -99,10 +101,6 @@ class Emitters final : public Effect<D> {
     }
     fs.emittedParticles += add_.size();
     sim.appendParticles(add_);
-    // Bores of nozzles open for this frame.
-    open_.clear();
-    for (size_t k = 0; k < emitters_.size(); ++k)
-      if (t >= emitters_[k].start - 1e-9 && t < emitters_[k].end - 1e-9) open_.push_back(k);
   }
 
   // After the pressure solve, so that what leaves the bore is exactly the
