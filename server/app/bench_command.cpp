@@ -83,8 +83,8 @@ int benchSolver(const BenchOptions& opt) {
   const std::string tmp = (fs::temp_directory_path() / ("flowclip-bench-" + std::to_string(getpid()) + ".json")).string();
   nlohmann::json results = nlohmann::json::array();
 
-  std::printf("%-18s %-6s %9s %8s %10s %10s %9s %10s %9s %9s %8s  %s\n", "scene", "solver", "particles", "steps",
-              "us/p-step", "substep/fr", "ms/frame", "wall/sim-s", "avg err%", "max err%", "RSS MB",
+  std::printf("%-18s %-6s %9s %8s %10s %10s %9s %10s %9s %9s %8s %8s  %s\n", "scene", "solver", "particles",
+              "steps", "us/p-step", "substep/fr", "ms/frame", "wall/sim-s", "avg err%", "max err%", "tol %", "RSS MB",
               "SPlisHSPlasH DFSPH (us/p-step, wall/sim-s)");
   std::fflush(stdout);
   int worst = Ok;
@@ -125,11 +125,18 @@ int benchSolver(const BenchOptions& opt) {
           << s["wall_s_per_simulated_s"].get<double>() / it->second.wallPerSimS * 100 << "%)";
         ref = o.str();
       }
-      std::printf("%-18s %-6s %9zu %8zu %10.3f %10.1f %9.1f %10.2f %9.4f %9.3f %8.0f  %s\n", stem.c_str(),
+      // The density tolerance the run held (a solver without one: "-").
+      std::string tol = "-";
+      if (s.contains("solver_parameters") && s["solver_parameters"].contains("density_tolerance_pct")) {
+        std::ostringstream o;
+        o << s["solver_parameters"]["density_tolerance_pct"].get<double>();
+        tol = o.str();
+      }
+      std::printf("%-18s %-6s %9zu %8zu %10.3f %10.1f %9.1f %10.2f %9.4f %9.3f %8s %8.0f  %s\n", stem.c_str(),
                   solver.c_str(), s["liquid_particles"].get<size_t>(), s["substeps"].get<size_t>(),
                   s["us_per_particle_step"].get<double>(), s["substeps_per_frame"].get<double>(),
                   s["ms_per_frame"].get<double>(), s["wall_s_per_simulated_s"].get<double>(), avgErr, maxErr,
-                  s["peak_rss_mb"].get<double>(), ref.c_str());
+                  tol.c_str(), s["peak_rss_mb"].get<double>(), ref.c_str());
       std::fflush(stdout);
       nlohmann::json row = s;
       row["scene_file"] = scene;

@@ -129,3 +129,10 @@ fc_cli_expect(cli_bench_accuracy_no_templates 2 "--templates: '${FC_BAD_RECIPES}
 # run --control-setting is checked as the scene file's "control" object.
 fc_cli_expect(cli_run_bad_control_setting 2 "control.forces_every_substep: '2' given by --control-setting"
   run ${FC_CLI_TESTS_DIR}/../../scenes/drop2d.json --frames 1 --control-setting forces_every_substep=2)
+
+# --solver naming the scene's own solver keeps the scene's tolerances (the
+# reference benchmarks run at theirs); another solver runs at its defaults.
+fc_cli_expect(cli_solver_override_keeps_scene_tolerance 0 "solver dfsph (density_tolerance_pct=0.1 divergence_tolerance_pct=0.1"
+  run ${FC_CLI_TESTS_DIR}/../../scenes/bench/dambreak2d_r010.json --frames 1 --particle-radius 0.02 --solver dfsph)
+fc_cli_expect(cli_solver_override_other_solver_defaults 0 "solver wcsph (stiffness=50000 exponent=7"
+  run ${FC_CLI_TESTS_DIR}/../../scenes/bench/dambreak2d_r010.json --frames 1 --particle-radius 0.02 --solver wcsph)
