@@ -1,8 +1,18 @@
+// Before any include: GCC 12 flags the placeholder operand of
+// _mm512_undefined_ps inside the AVX-512 intrinsics (reductions, rsqrt14)
+// as uninitialised: a false alarm.
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
 #include "control/control.h"
+#include "core/kernel_sums.h"
 #include <omp.h>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <type_traits>
+#if defined(__AVX512F__)
+#include <immintrin.h>
+#endif
 
 namespace fc {
 
@@ -28,6 +38,102 @@ AABB<D> imageBox(const Affine<D>& map, const AABB<D>& box) {
     out.min = out.min.cwiseMin(q);
     out.max = out.max.cwiseMax(q);
   }
+  return out;
+}
+
+// The sums of equations (2), (4) and (5) at a liquid particle at y
+// (template space), in one scan over the instance's control and repulsion
+// particles in their shared grid's order: A = α m/ρ0, C = (1 − α) m/ρ0,
+// V = v_j (control particles; 0 for repulsion ones), R = m/ρ0 · n_k
+// (repulsion particles; 0 for control ones). velocity is Σ C W (V − u),
+// formed at the end from Σ C W V and Σ C W (= rate).
+template <int D>
+struct ControlSums {
+  Vec<D> attraction = Vec<D>::Zero(), velocity = Vec<D>::Zero(), repulsion = Vec<D>::Zero();
+  Real rate = 0;
+};
+
+template <int D>
+struct ForceArrays {
+  const Real *A, *C;
+  std::array<const Real*, D> V, R;
+};
+
+template <int D>
+ControlSums<D> forceSums(const NeighborhoodSearch<D>& grid, const Poly6<D>& kernel, const Vec<D>& y, const Vec<D>& u,
+                         Real dMin, const ForceArrays<D>& in) {
+  const Real h2 = kernel.radius() * kernel.radius(), kc = kernel.coefficient();
+  const Real* xs[D];
+  for (int d = 0; d < D; ++d) xs[d] = grid.staticSorted(d);
+  ControlSums<D> out;
+  Vec<D> velocityWeighted = Vec<D>::Zero();
+  if constexpr (kVectorSums) {
+#if defined(__AVX512F__)
+    __m512 yv[D], att[D], vel[D], rep[D];
+    for (int d = 0; d < D; ++d) {
+      yv[d] = _mm512_set1_ps(y[d]);
+      att[d] = vel[d] = rep[d] = _mm512_setzero_ps();
+    }
+    __m512 rate = _mm512_setzero_ps();
+    const __m512 h2v = _mm512_set1_ps(h2), invDMinV = _mm512_set1_ps(1 / dMin);
+    grid.forEachStaticRange(y, kernel.radius(), [&](uint32_t b, uint32_t e) {
+      for (uint32_t k = b; k < e; k += 16) {
+        const __mmask16 live = e - k >= 16 ? __mmask16(0xFFFF) : __mmask16((1u << (e - k)) - 1);
+        __m512 r[D];
+        __m512 d2 = _mm512_setzero_ps();
+        for (int d = 0; d < D; ++d) {
+          r[d] = _mm512_sub_ps(_mm512_maskz_loadu_ps(live, xs[d] + k), yv[d]);
+          d2 = _mm512_fmadd_ps(r[d], r[d], d2);
+        }
+        const __mmask16 hit = _mm512_mask_cmp_ps_mask(live, d2, h2v, _CMP_LT_OQ);
+        if (!hit) continue;
+        const __m512 t = _mm512_maskz_sub_ps(hit, h2v, d2);
+        const __m512 w = _mm512_mul_ps(_mm512_mul_ps(t, t), t);  // 0 off the hits
+        // 1 / max(d, d_min) = min(1/d, 1/d_min), from the reciprocal square
+        // root estimate (relative error < 2^-14, ample for the pull's
+        // direction and weight).
+        // At d = 0 the estimate is +inf and min gives 1/d_min.
+        const __m512 inv = _mm512_min_ps(_mm512_rsqrt14_ps(d2), invDMinV);
+        const __m512 pull = _mm512_mul_ps(_mm512_mul_ps(_mm512_maskz_loadu_ps(hit, in.A + k), w), inv);
+        const __m512 covered = _mm512_mul_ps(_mm512_maskz_loadu_ps(hit, in.C + k), w);
+        for (int d = 0; d < D; ++d) {
+          att[d] = _mm512_fmadd_ps(pull, r[d], att[d]);
+          vel[d] = _mm512_fmadd_ps(covered, _mm512_maskz_loadu_ps(hit, in.V[d] + k), vel[d]);
+          rep[d] = _mm512_fmadd_ps(w, _mm512_maskz_loadu_ps(hit, in.R[d] + k), rep[d]);
+        }
+        rate = _mm512_add_ps(rate, covered);
+      }
+    });
+    for (int d = 0; d < D; ++d) {
+      out.attraction[d] = _mm512_reduce_add_ps(att[d]);
+      velocityWeighted[d] = _mm512_reduce_add_ps(vel[d]);
+      out.repulsion[d] = _mm512_reduce_add_ps(rep[d]);
+    }
+    out.rate = _mm512_reduce_add_ps(rate);
+#endif
+  } else {
+    grid.forEachStaticRange(y, kernel.radius(), [&](uint32_t b, uint32_t e) {
+      for (uint32_t k = b; k < e; ++k) {
+        Vec<D> r;
+        for (int d = 0; d < D; ++d) r[d] = xs[d][k] - y[d];
+        const Real d2 = r.squaredNorm();
+        if (!(d2 < h2)) continue;
+        const Real t = h2 - d2;
+        const Real w = t * t * t;
+        out.attraction += (in.A[k] * w / std::max(std::sqrt(d2), dMin)) * r;
+        const Real covered = in.C[k] * w;
+        for (int d = 0; d < D; ++d) {
+          velocityWeighted[d] += covered * in.V[d][k];
+          out.repulsion[d] += w * in.R[d][k];
+        }
+        out.rate += covered;
+      }
+    });
+  }
+  out.attraction *= kc;
+  out.repulsion *= kc;
+  out.rate *= kc;
+  out.velocity = kc * velocityWeighted - out.rate * u;
   return out;
 }
 
@@ -81,6 +187,7 @@ void Control<D>::prepare(size_t i, double time) {
   s.kernel.setRadius(hT);
   // A world length w spans w / ‖L e_d‖ template units along template axis d.
   const Real width = Real(inst.spec.params.get("falloff_width"));
+  s.decay = Real(inst.spec.params.get("falloff_decay"));
   s.region = tpl.region();
   const AABB<D>& region = s.region;
   for (int d = 0; d < D; ++d) {
@@ -153,22 +260,54 @@ bool Control<D>::insideAnyInstance(const Vec<D>& xWorld) const {
 template <int D>
 void Control<D>::gather(size_t i, const Simulation<D>& sim) {
   State& s = state_[i];
-  const int phase = instances_[i].spec.phase;
-  const Real gamma = Real(instances_[i].spec.params.get("falloff_decay"));
   std::vector<uint32_t>& candidates = candidates_;
-  sim.search.dynamicInBox(s.worldBox, candidates);
+  // The grid is the last substep's: a particle has moved less than one cell
+  // since, so the box grown by a cell finds every particle now inside it
+  // (the exact test below uses today's positions).
+  sim.search.dynamicInBox(s.worldBox.grown(sim.search.radius()), candidates);
   s.liquid.clear();
   s.y.clear();
   s.fade.clear();
-  for (uint32_t p : candidates) {
+  const long nc = long(candidates.size());
+  if (nc < 1024) {
+    for (uint32_t p : candidates) gatherParticle(i, sim, p);
+    return;
+  }
+  // Many candidates: transform and fade them in parallel, then keep them in
+  // cell order (the result does not depend on the thread count).
+  candidateY_.resize(size_t(nc));
+  candidateFade_.resize(size_t(nc));
+  const int phase = instances_[i].spec.phase;
+#pragma omp parallel for schedule(static)
+  for (long k = 0; k < nc; ++k) {
+    const uint32_t p = candidates[k];
+    candidateFade_[k] = -1;  // not gathered
     if (sim.fluid.phase[p] != phase) continue;
     const Vec<D> y = s.toTemplate.point(sim.fluid.x[p]);
     if (!s.gatherBox.contains(y)) continue;
     const Real t = bandCoordinate(i, y);
-    s.liquid.push_back(p);
-    s.y.push_back(y);
-    s.fade.push_back(t > 0 ? std::pow(t, gamma) : Real(0));
+    candidateY_[k] = y;
+    candidateFade_[k] = t >= 1 ? Real(1) : t > 0 ? std::pow(t, s.decay) : Real(0);
   }
+  for (long k = 0; k < nc; ++k) {
+    if (candidateFade_[k] < 0) continue;
+    s.liquid.push_back(candidates[k]);
+    s.y.push_back(candidateY_[k]);
+    s.fade.push_back(candidateFade_[k]);
+  }
+}
+
+template <int D>
+void Control<D>::gatherParticle(size_t i, const Simulation<D>& sim, uint32_t p) {
+  State& s = state_[i];
+  if (sim.fluid.phase[p] != instances_[i].spec.phase) return;
+  const Vec<D> y = s.toTemplate.point(sim.fluid.x[p]);
+  if (!s.gatherBox.contains(y)) return;
+  const Real t = bandCoordinate(i, y);
+  s.liquid.push_back(p);
+  s.y.push_back(y);
+  // Inside the box t = 1: no pow for most of the liquid.
+  s.fade.push_back(t >= 1 ? Real(1) : t > 0 ? std::pow(t, s.decay) : Real(0));
 }
 
 // α_j = 1 − min(Σ_i (m_i/ρ_i) W(x_j − x_i, h), 1): equation (3) in [SPDM20],
@@ -185,15 +324,16 @@ void Control<D>::computeCoverage(size_t i, const Simulation<D>& sim) {
   localGrid_.setGrid(s.gatherBox, hT);
   localGrid_.setStaticPoints(s.y);
   const Real invScale = Real(1) / s.volumeScale;
-  const auto& liquid = s.liquid;
-  const auto& kernel = s.kernel;
+  const uint32_t* order = localGrid_.staticOrder();
+  const long n = long(s.liquid.size());
+  sortedVolume_.resize(size_t(n));
+  for (long k = 0; k < n; ++k) {
+    const uint32_t p = s.liquid[order[k]];
+    sortedVolume_[size_t(k)] = sim.fluid.mass[p] / sim.fluid.density[p];
+  }
 #pragma omp parallel for schedule(static)
   for (long j = 0; j < nc; ++j) {
-    Real sum = 0;
-    localGrid_.forEachStaticNear(xc[j], hT, [&](uint32_t k, const Vec<D>& yk) {
-      const uint32_t p = liquid[k];
-      sum += sim.fluid.mass[p] / sim.fluid.density[p] * kernel.W(Vec<D>(xc[j] - yk));
-    });
+    const Real sum = poly6Sum<D>(localGrid_, s.kernel, xc[j], sortedVolume_.data());
     s.alpha[j] = Real(1) - std::min(sum * invScale, Real(1));
   }
 }
@@ -223,6 +363,50 @@ void Control<D>::addInstanceForces(size_t i, Simulation<D>& sim, Real applyFor) 
   const Real wa = Real(p.get("attraction_weight")) * kAccelerationScale;
   const Real wv = Real(p.get("velocity_weight")) * kRateScale;
   const Real wr = p.get("repulsion") != 0 ? Real(p.get("repulsion_weight")) * kAccelerationScale : Real(0);
+  // One grid over the frame's control and (when on) repulsion particles, so
+  // that each liquid particle scans its neighbourhood once for equations
+  // (2), (4) and (5). Built per evaluation: α changes every time anyway.
+  const auto& xr = grids.repulsionPositions();
+  const size_t nr = wr > 0 ? xr.size() : 0;
+  forcePoints_.assign(xc.begin(), xc.end());
+  forcePoints_.insert(forcePoints_.end(), xr.begin(), xr.begin() + long(nr));
+  const size_t np = forcePoints_.size();
+  if (np > 0) {
+    forceGrid_.setGrid(s.gatherBox, s.kernel.radius());
+    forceGrid_.setStaticPoints(forcePoints_);
+  }
+  const auto& repN = grids.repulsionNormals();
+  const auto& repSrc = grids.repulsionSources();
+  const uint32_t* order = forceGrid_.staticOrder();
+  forceA_.resize(np);
+  forceC_.resize(np);
+  for (auto& v : forceV_) v.resize(np);
+  for (auto& v : forceR_) v.resize(np);
+  for (size_t k = 0; k < np; ++k) {
+    const uint32_t q = order[k];
+    if (q < uint32_t(nc)) {
+      const Real volume = mc[q] * invRho0;
+      forceA_[k] = s.alpha[q] * volume;
+      forceC_[k] = (Real(1) - s.alpha[q]) * volume;
+      for (int d = 0; d < D; ++d) {
+        forceV_[d][k] = s.controlVelocity[q][d];
+        forceR_[d][k] = 0;
+      }
+    } else {
+      const uint32_t r = q - uint32_t(nc);
+      const Real volume = mc[repSrc[r]] * invRho0;
+      forceA_[k] = forceC_[k] = 0;
+      for (int d = 0; d < D; ++d) {
+        forceV_[d][k] = 0;
+        forceR_[d][k] = volume * repN[r][d];
+      }
+    }
+  }
+  ForceArrays<D> arrays{forceA_.data(), forceC_.data(), {}, {}};
+  for (int d = 0; d < D; ++d) {
+    arrays.V[d] = forceV_[d].data();
+    arrays.R[d] = forceR_[d].data();
+  }
   const Real maxRate = applyFor > 0 ? Real(1) / applyFor : std::numeric_limits<Real>::max();
   const Real hT = s.kernel.radius();
   // Attraction and repulsion are held for the whole application (a frame by
@@ -242,8 +426,6 @@ void Control<D>::addInstanceForces(size_t i, Simulation<D>& sim, Real applyFor) 
   const Real dMin = hT / 16;
   const Mat<D> l = s.toWorld.linear;
   const auto& kernel = s.kernel;
-  const auto& repN = grids.repulsionNormals();
-  const auto& repSrc = grids.repulsionSources();
   const long n = long(s.liquid.size());
 #pragma omp parallel for schedule(dynamic, 16)
   for (long k = 0; k < n; ++k) {
@@ -251,25 +433,15 @@ void Control<D>::addInstanceForces(size_t i, Simulation<D>& sim, Real applyFor) 
     const uint32_t idx = s.liquid[k];
     const Vec<D> y = s.y[k];
     const Vec<D> u = linv * sim.fluid.v[idx];
-    Vec<D> attraction = Vec<D>::Zero(), velocity = Vec<D>::Zero(), repulsion = Vec<D>::Zero();
-    Real rate = 0;
-    grids.forEachControlNear(y, hT, [&](uint32_t j, const Vec<D>& xj) {
-      const Vec<D> r = xj - y;
-      const Real d = r.norm();
-      const Real w = mc[j] * invRho0 * kernel.W2(d * d);
-      // Equation (2) in [SPDM20]: towards uncovered control particles.
-      attraction += (s.alpha[j] * w / std::max(d, dMin)) * r;
-      // Equation (4) in [SPDM20]: towards their velocity, where covered.
-      const Real covered = (Real(1) - s.alpha[j]) * w;
-      velocity += covered * (s.controlVelocity[j] - u);
-      rate += covered;
-    });
-    if (wr > 0) {
-      // Equation (5) in [SPDM20]; the stored normals point outwards.
-      grids.forEachRepulsionNear(y, hT, [&](uint32_t kk, const Vec<D>& xk) {
-        repulsion -= (mc[repSrc[kk]] * invRho0 * kernel.W2((xk - y).squaredNorm())) * repN[kk];
-      });
-    }
+    // Equation (2) in [SPDM20]: towards uncovered control particles;
+    // equation (4): towards their velocity, where covered; equation (5):
+    // away from the repulsion layer (the stored normals point outwards).
+    ControlSums<D> sums;
+    if (np > 0) sums = forceSums<D>(forceGrid_, kernel, y, u, dMin, arrays);
+    const Vec<D>& attraction = sums.attraction;
+    const Vec<D>& velocity = sums.velocity;
+    const Real rate = sums.rate;
+    const Vec<D> repulsion = -sums.repulsion;
     // Explicit relaxation overshoots once rate · Δt > 1: cap it there.
     const Real vRate = wv * rate;
     const Real vScale = vRate > maxRate ? maxRate / vRate : Real(1);

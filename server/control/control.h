@@ -26,6 +26,7 @@
 #include "core/neighborhood_search.h"
 #include "sph/pipeline.h"
 #include "sph/simulation.h"
+#include <array>
 #include <vector>
 
 namespace fc {
@@ -98,6 +99,7 @@ class Control : public Effect<D> {
     Real volumeScale = 1;    // |det| of toWorld's linear part
     AABB<D> region;          // the template's capture region (the instance box, template space)
     Vec<D> falloff;          // band width per template axis (template units)
+    Real decay = 1;          // γ of the fade t^γ
     AABB<D> gatherBox;       // template space: region grown by max(band, h_T)
     AABB<D> worldBox;        // world AABB of gatherBox
     Mat<D> velocityGradient = Mat<D>::Zero();  // world velocity of carried points: G (x_world) + g
@@ -113,6 +115,9 @@ class Control : public Effect<D> {
 
   void prepare(size_t i, double time);
   void gather(size_t i, const Simulation<D>& sim);
+  // Adds particle p to instance i's gathered liquid if it is of its phase and
+  // inside its gather box.
+  void gatherParticle(size_t i, const Simulation<D>& sim, uint32_t p);
   void computeCoverage(size_t i, const Simulation<D>& sim);
   void addInstanceForces(size_t i, Simulation<D>& sim, Real applyFor);
   double measureFidelity(size_t i);
@@ -129,9 +134,21 @@ class Control : public Effect<D> {
   std::vector<State> state_;          // one per instance
   std::vector<uint8_t> occupancy_;    // fidelity scratch
   std::vector<uint32_t> candidates_;  // gather scratch (kept: no allocation in a step)
+  std::vector<Vec<D>> candidateY_;
+  std::vector<Real> candidateFade_;   // < 0: not gathered
   std::vector<uint32_t> temporaryScratch_;  // removal pass scratch
   std::vector<uint8_t> verdictScratch_;
   NeighborhoodSearch<D> localGrid_;   // gathered liquid in template space (for α)
+  std::vector<Real> sortedVolume_;    // their volumes m/ρ, in localGrid_'s cell order
+  std::vector<Real> sortedMass_;      // seeding: control masses in their grid's order
+  // The instance's control and repulsion particles in one grid (template
+  // space), and per particle in its cell order what the force sums read:
+  // α m/ρ0, (1 − α) m/ρ0, v_j per axis (control), m/ρ0 · n_k per axis
+  // (repulsion); the other kind's entries are 0.
+  NeighborhoodSearch<D> forceGrid_;
+  std::vector<Vec<D>> forcePoints_;
+  std::vector<Real> forceA_, forceC_;
+  std::array<std::vector<Real>, D> forceV_, forceR_;
   std::vector<Vec<D>> controlAcc_;    // per liquid particle
   std::vector<uint32_t> controlled_;  // particles with a non-zero controlAcc_
   std::vector<uint8_t> touched_;      // per particle: in controlled_

@@ -85,6 +85,10 @@ class TemplateFrameGrids {
     if (controlBuilt_) controlGrid_.forEachStaticNear(p, r, f);
   }
 
+  // The grid itself, for vectorised loops over its cell-sorted storage
+  // (null when the frame has no control particle).
+  const NeighborhoodSearch<D>* controlGrid() const { return controlBuilt_ ? &controlGrid_ : nullptr; }
+
   // ---- repulsion layer ----
   size_t repulsionCount() const { return repX_.size(); }
   const std::vector<Vec<D>>& repulsionPositions() const { return repX_; }

@@ -115,6 +115,8 @@ class Poly6 {
   }
   Real radius() const { return h_; }
   Real W0() const { return k_ * h2_ * h2_ * h2_; }
+  // W = coefficient · (h² − r²)³ inside the support (for vectorised loops).
+  Real coefficient() const { return k_; }
   Real W2(Real r2) const {
     if (r2 >= h2_) return 0;
     const Real d = h2_ - r2;

@@ -11,7 +11,9 @@
 // adjacent) and only costs speed.
 #include "core/aabb.h"
 #include "core/types.h"
+#include <algorithm>
 #include <array>
+#include <cassert>
 #include <vector>
 
 namespace fc {
@@ -61,6 +63,24 @@ class NeighborhoodSearch {
     forEachNear(p, r, statStart_, staticPos_, staticIdx_, f);
   }
 
+  // The static points in cell order, for callers that run their own
+  // (vectorised) loop over forEachStaticRange's ranges: axis d's
+  // coordinates, and each one's index into the array setStaticPoints got.
+  const Real* staticSorted(int d) const { return staticPos_[d].data(); }
+  const uint32_t* staticOrder() const { return staticIdx_.data(); }
+  size_t staticCount() const { return staticIdx_.size(); }
+  // f(begin, end) for each row of cells around p: every static point within
+  // r <= radius() of p is in one of these ranges of the sorted arrays.
+  // (Trimming each row to the sphere's chord by binary search over x-sorted
+  // cells was measured 2-5x slower: the searches cost more than the
+  // candidates they drop.)
+  template <class F>
+  void forEachStaticRange(const Vec<D>& p, Real r, F&& f) const {
+    assert(r <= radius_ * Real(1.000001));
+    (void)r;
+    forEachRow(p, statStart_, f);
+  }
+
   // Indices of the dynamic points (as of the last update) inside `box`, in
   // cell order: a scan of the box's cells, not of every point.
   void dynamicInBox(const AABB<D>& box, std::vector<uint32_t>& out) const;
@@ -82,9 +102,33 @@ class NeighborhoodSearch {
   void buildLists(const std::vector<Vec<D>>& x, const std::vector<uint32_t>& start, const SortedCoords& sorted,
                   const std::vector<uint32_t>& sortedIdx, bool excludeSelf, NeighborList& out);
 
+  // g(begin, end) per row of the 3^D cells around p (3^(D-1) rows).
+  template <class G>
+  void forEachRow(const Vec<D>& p, const std::vector<uint32_t>& start, G& g) const {
+    if (start.empty()) return;
+    const VecI<D> c = cellCoord(p);
+    const int x0 = std::max(c[0] - 1, 0), x1 = std::min(c[0] + 1, dims_[0] - 1);
+    auto row = [&](VecI<D> cc) {
+      cc[0] = x0;
+      const size_t a = linearCell(cc);
+      const size_t b = a + size_t(x1 - x0) + 1;
+      if (start[a] < start[b]) g(start[a], start[b]);
+    };
+    if constexpr (D == 2) {
+      for (int y = std::max(c[1] - 1, 0); y <= std::min(c[1] + 1, dims_[1] - 1); ++y) row(VecI<D>(0, y));
+    } else {
+      for (int z = std::max(c[2] - 1, 0); z <= std::min(c[2] + 1, dims_[2] - 1); ++z)
+        for (int y = std::max(c[1] - 1, 0); y <= std::min(c[1] + 1, dims_[1] - 1); ++y)
+          row(VecI<D>(0, y, z));
+    }
+  }
+
   template <class F>
   void forEachNear(const Vec<D>& p, Real r, const std::vector<uint32_t>& start, const SortedCoords& sorted,
                    const std::vector<uint32_t>& idx, F& f) const {
+    // Scalar on purpose: inlined into the solver's boundary sums it is
+    // faster than a sixteen-wide test, measured (the rows are short and the
+    // vector version does not inline).
     if (start.empty()) return;
     const Real r2 = r * r;
     const VecI<D> c = cellCoord(p);

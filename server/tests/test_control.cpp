@@ -10,6 +10,7 @@
 #include <cmath>
 #include <memory>
 #include <numbers>
+#include <random>
 
 using namespace fc;
 
@@ -454,3 +455,100 @@ TEST(ControlForces, InactiveOutsideTheTimeWindow) {
   EXPECT_TRUE(rig.control->isActive(0));
   EXPECT_EQ(rig.control->templateFrame(0), 2u);  // 0.05 s into the template at 30 fps: frame 1.5 → 2
 }
+
+// The coverage and force sums (equations (2)–(5)) run over the template
+// grids' cell-sorted arrays, sixteen candidates at a time where the CPU
+// allows. They must equal the equations evaluated directly, pair by pair,
+// over every control and repulsion particle: jittered liquid with random
+// velocities over part of a moving block, so every term and every partial
+// row of candidates is exercised.
+template <int D>
+void checkSumsAgainstDirectEvaluation() {
+  AABB<D> region, fill, liquidBox, domain;
+  for (int d = 0; d < D; ++d) {
+    region.min[d] = Real(0.3);
+    region.max[d] = Real(0.7);
+    fill.min[d] = Real(0.36);
+    fill.max[d] = Real(0.6);
+    liquidBox.min[d] = Real(0.4);
+    liquidBox.max[d] = Real(0.66);
+    domain.min[d] = 0;
+    domain.max[d] = 1;
+  }
+  Vec<D> vT = Vec<D>::Zero();
+  vT[0] = Real(0.7);
+  auto tpl = blockTemplate<D>(region, fill, vT);
+  auto inst = bind<D>(tpl);
+  Rig<D> rig(liquidSetup<D>(domain, {liquidBox}, kRT), {inst});
+  auto& f = rig.sim->fluid;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<Real> jitter(-Real(0.4) * kRT, Real(0.4) * kRT), speed(-1, 1);
+  for (size_t i = 0; i < f.size(); ++i)
+    for (int d = 0; d < D; ++d) {
+      f.x[i][d] += jitter(rng);
+      f.v[i][d] = speed(rng);
+    }
+  // A short application: neither cap (pull, relaxation rate) binds.
+  rig.sim->refreshNeighbors();
+  rig.control->selectActive(0);
+  const Real applyFor = Real(1e-5);
+  rig.control->computeForces(*rig.sim, applyFor);
+  const auto& acc = rig.control->controlAcceleration();
+  const auto& alpha = rig.control->coverage(0);
+
+  const auto& grids = inst.accel->frame(rig.control->templateFrame(0));
+  const auto& xc = grids.controlPositions();
+  const auto& mc = grids.controlMasses();
+  const Real hT = inst.accel->supportRadius;
+  const Poly6<D> W(hT);
+  const Affine<D> toTemplate = rig.control->toWorld(0).inverse();
+  std::vector<Vec<D>> y(f.size());
+  for (size_t i = 0; i < f.size(); ++i) y[i] = toTemplate.point(f.x[i]);
+
+  // Equation (3), directly.
+  ASSERT_EQ(alpha.size(), xc.size());
+  size_t partial = 0;
+  for (size_t j = 0; j < xc.size(); ++j) {
+    double sum = 0;
+    for (size_t i = 0; i < f.size(); ++i) sum += double(f.mass[i] / f.density[i]) * double(W.W(Vec<D>(xc[j] - y[i])));
+    const double expected = 1 - std::min(sum, 1.0);
+    EXPECT_NEAR(alpha[j], expected, 2e-4) << "control particle " << j;
+    partial += expected > 0.05 && expected < 0.95;
+  }
+  EXPECT_GT(partial, 10u) << "the liquid should cover part of the block only";
+
+  // Equations (2), (4), (5), directly (the instance is not transformed, so
+  // template and world axes coincide, and the liquid is inside the box).
+  const ParamValues& p = inst.spec.params;
+  const double wa = p.get("attraction_weight") * kAccelerationScale;
+  const double wv = p.get("velocity_weight") * kRateScale;
+  const double wr = p.get("repulsion_weight") * kAccelerationScale;
+  const double rho0 = tpl->header.restDensity, dMin = hT / 16;
+  const auto& xr = grids.repulsionPositions();
+  const auto& nr = grids.repulsionNormals();
+  const auto& src = grids.repulsionSources();
+  ASSERT_GT(xr.size(), 0u);
+  double largest = 0;
+  size_t checked = 0;
+  for (size_t i = 0; i < f.size(); ++i) {
+    Eigen::Matrix<double, D, 1> a = Eigen::Matrix<double, D, 1>::Zero();
+    for (size_t j = 0; j < xc.size(); ++j) {
+      const Vec<D> r = xc[j] - y[i];
+      const double w = mc[j] / rho0 * W.W(r);
+      if (w == 0) continue;
+      const double dist = std::max(double(r.norm()), dMin);
+      a += wa * alpha[j] * w / dist * r.template cast<double>();
+      a += wv * (1 - alpha[j]) * w * (vT - f.v[i]).template cast<double>();
+    }
+    for (size_t k = 0; k < xr.size(); ++k)
+      a -= wr * mc[src[k]] / rho0 * W.W(Vec<D>(xr[k] - y[i])) * nr[k].template cast<double>();
+    largest = std::max(largest, a.norm());
+    EXPECT_LT((acc[i].template cast<double>() - a).norm(), 1e-3 * std::max(10.0, a.norm())) << "particle " << i;
+    checked += a.norm() > 0;
+  }
+  EXPECT_GT(checked, f.size() / 2);
+  EXPECT_GT(largest, 10.0);
+}
+
+TEST(ControlForces, SumsEqualTheEquationsEvaluatedDirectly2D) { checkSumsAgainstDirectEvaluation<2>(); }
+TEST(ControlForces, SumsEqualTheEquationsEvaluatedDirectly3D) { checkSumsAgainstDirectEvaluation<3>(); }

@@ -40,6 +40,37 @@ void checkEqual(const std::vector<Vec<D>>& x, const std::vector<Vec<D>>& statics
   ns.staticNeighborLists(x, st);
   EXPECT_EQ(fromList(st, x.size()), bruteForce<D>(x, statics, r, false));
 
+  // Point queries (the vectorised row scan) at the full and at half the
+  // radius, and the raw row ranges that vectorised callers scan themselves.
+  for (const Real q : {r, r / 2}) {
+    const auto dyn = bruteForce<D>(x, x, q, false), stat = bruteForce<D>(x, statics, q, false);
+    for (size_t i = 0; i < x.size(); ++i) {
+      std::vector<uint32_t> got;
+      ns.forEachDynamicNear(x[i], q, [&](uint32_t j, const Vec<D>& xj) {
+        EXPECT_EQ(xj, x[j]);
+        got.push_back(j);
+      });
+      std::sort(got.begin(), got.end());
+      EXPECT_EQ(got, dyn[i]) << "dynamic query at point " << i;
+      got.clear();
+      ns.forEachStaticNear(x[i], q, [&](uint32_t j, const Vec<D>&) { got.push_back(j); });
+      std::sort(got.begin(), got.end());
+      EXPECT_EQ(got, stat[i]) << "static query at point " << i;
+      std::vector<uint32_t> inRows;
+      ns.forEachStaticRange(x[i], q, [&](uint32_t b, uint32_t e) {
+        for (uint32_t k = b; k < e; ++k) {
+          Vec<D> s;
+          for (int d = 0; d < D; ++d) s[d] = ns.staticSorted(d)[k];
+          EXPECT_EQ(s, statics[ns.staticOrder()[k]]);
+          inRows.push_back(ns.staticOrder()[k]);
+        }
+      });
+      std::sort(inRows.begin(), inRows.end());
+      EXPECT_TRUE(std::includes(inRows.begin(), inRows.end(), stat[i].begin(), stat[i].end()))
+          << "a static neighbour of point " << i << " lies outside the scanned rows";
+    }
+  }
+
   // Reorder along the Morton curve and search again: same pairs, renamed.
   std::vector<uint32_t> perm;
   ns.zOrder(x, perm);
