@@ -20,7 +20,7 @@ namespace {
 using Clock = std::chrono::steady_clock;
 // Below this many items a light loop (a few flops per item) runs on one
 // thread: forking the team costs more than the work.
-constexpr long kParallelMin = 4096;
+constexpr long kParallelMin = 2048;
 double msSince(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
@@ -198,6 +198,7 @@ void Control<D>::prepare(size_t i, double time) {
     s.gatherBox.max[d] = region.max[d] + grow;
   }
   s.worldBox = imageBox<D>(s.toWorld, s.gatherBox);
+  s.regionWorldBox = imageBox<D>(s.toWorld, s.region);
   s.velocityFactor = Real(inst.spec.time.velocityFactor());
   // A keyframed instance carries its liquid: world velocity G x + g of the
   // carried point at x (central difference of the track, in double).
@@ -327,6 +328,7 @@ void Control<D>::computeCoverage(size_t i, const Simulation<D>& sim) {
   const uint32_t* order = localGrid_.staticOrder();
   const long n = long(s.liquid.size());
   sortedVolume_.resize(size_t(n));
+#pragma omp parallel for schedule(static) if (n >= kParallelMin)
   for (long k = 0; k < n; ++k) {
     const uint32_t p = s.liquid[order[k]];
     sortedVolume_[size_t(k)] = sim.fluid.mass[p] / sim.fluid.density[p];
@@ -382,6 +384,7 @@ void Control<D>::addInstanceForces(size_t i, Simulation<D>& sim, Real applyFor) 
   forceC_.resize(np);
   for (auto& v : forceV_) v.resize(np);
   for (auto& v : forceR_) v.resize(np);
+#pragma omp parallel for schedule(static) if (long(np) >= kParallelMin)
   for (size_t k = 0; k < np; ++k) {
     const uint32_t q = order[k];
     if (q < uint32_t(nc)) {
@@ -540,7 +543,8 @@ void Control<D>::addAccelerations(Simulation<D>& sim) {
     forcesDue_ = false;
   }
   const long m = long(controlled_.size());
-#pragma omp parallel for schedule(static) if (m >= kParallelMin)
+  // Every substep: worth a team from a thousand particles on.
+#pragma omp parallel for schedule(static) if (m >= 1024)
   for (long k = 0; k < m; ++k) sim.fluid.a[controlled_[k]] += controlAcc_[controlled_[k]];
   controlMs_ += msSince(t0);
 }

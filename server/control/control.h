@@ -102,6 +102,7 @@ class Control : public Effect<D> {
     Real decay = 1;          // γ of the fade t^γ
     AABB<D> gatherBox;       // template space: region grown by max(band, h_T)
     AABB<D> worldBox;        // world AABB of gatherBox
+    AABB<D> regionWorldBox;  // world AABB of region
     Mat<D> velocityGradient = Mat<D>::Zero();  // world velocity of carried points: G (x_world) + g
     Vec<D> velocityOffset = Vec<D>::Zero();
     Real velocityFactor = 1; // speed, negated when reversed
@@ -136,6 +137,7 @@ class Control : public Effect<D> {
   std::vector<uint32_t> candidates_;  // gather scratch (kept: no allocation in a step)
   std::vector<Vec<D>> candidateY_;
   std::vector<Real> candidateFade_;   // < 0: not gathered
+  std::vector<uint32_t> seedSources_; // seeding scratch: liquid near an instance box
   std::vector<uint32_t> temporaryScratch_;  // removal pass scratch
   std::vector<uint8_t> verdictScratch_;
   NeighborhoodSearch<D> localGrid_;   // gathered liquid in template space (for α)

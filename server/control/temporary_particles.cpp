@@ -133,7 +133,12 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
       State& st = state_[s];
       const ParamValues& p = instances_[s].spec.params;
       if (!st.on || p.get("temporary_particles") == 0) continue;
-      gather(s, sim);
+      // Only the box seeds (not its falloff band): its liquid, from the
+      // grid of the last substep (grown by a cell: particles moved less
+      // since), tested on today's positions.
+      std::vector<uint32_t>& sources = seedSources_;
+      sim.search.dynamicInBox(st.regionWorldBox.grown(sim.search.radius()), sources);
+      const int phase = instances_[s].spec.phase;
       const Real eta = Real(p.get("seed_threshold"));
       const Real dtp = Real(p.get("seed_distance")) * hL;
       const Real eps = Real(0.05) * dtp;
@@ -148,12 +153,12 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
         const uint32_t* order = controlGrid->staticOrder();
         for (size_t k = 0; k < sortedMass_.size(); ++k) sortedMass_[k] = mc[order[k]];
       }
-      const long m = long(st.liquid.size());
+      const long m = long(sources.size());
       std::vector<std::vector<std::pair<uint32_t, NewParticle<D>>>> local(static_cast<size_t>(omp_get_max_threads()));
 #pragma omp parallel for schedule(dynamic, 16)
       for (long k = 0; k < m; ++k) {
-        const uint32_t i = st.liquid[k];
-        if (emitted[i] || !insideBox(s, st.y[k])) continue;  // the falloff band seeds nothing
+        const uint32_t i = sources[k];
+        if (emitted[i] || f.phase[i] != phase || !insideBox(s, st.toTemplate.point(f.x[i]))) continue;
         // ∇ρ_i from the substep's pair gradients and the boundary's.
         Vec<D> g = sim.restDensity(i) * sim.boundaryGradW[i];
         for (int d = 0; d < D; ++d) {
