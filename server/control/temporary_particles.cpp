@@ -186,8 +186,8 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
         for (uint32_t q = off[i]; q < off[i + 1] && !crowded; ++q)
           crowded = (xtp - f.x[nbr[q]]).squaredNorm() < crowd2;
         if (crowded) continue;
-        // Cheapest test first: the template must hold liquid there at all
-        // (ρ_cp − ρ > η ρ0 needs ρ_cp > η ρ0, as ρ >= 0).
+        // Then the cheaper half of step 1: the template must hold liquid
+        // there at all (ρ_cp − ρ > η ρ0 needs ρ_cp > η ρ0, as ρ >= 0).
         const Real rho0 = sim.restDensity(i);
         // Control density, as a fraction of the template's rest density.
         const Real rhoC = controlGrid ? poly6Sum<D>(*controlGrid, st.kernel, ytp, sortedMass_.data()) * (rho0 / rho0T) : 0;
