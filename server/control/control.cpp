@@ -1,6 +1,6 @@
-// Before any include: GCC 12 flags the placeholder operand of
-// _mm512_undefined_ps inside the AVX-512 intrinsics (reductions, rsqrt14)
-// as uninitialised: a false alarm.
+// GCC 12 warns that the AVX-512 reductions and rsqrt14 read an uninitialised
+// operand: it is _mm512_undefined_ps, by design, so the warning is false.
+// The pragmas precede the includes, where the intrinsics are parsed.
 #pragma GCC diagnostic ignored "-Wuninitialized"
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
 #include "control/control.h"
@@ -350,17 +350,8 @@ void Control<D>::addInstanceForces(size_t i, Simulation<D>& sim, Real applyFor) 
   const auto& mc = grids.controlMasses();
   const Real invRho0 = Real(1) / Real(inst.templ().header.restDensity);
   const long nc = long(xc.size());
-  // v_j as the liquid should follow it: played at `speed`, negated when
-  // reversed (paper §3.5), plus the instance's own motion, in template space.
-  s.controlVelocity.resize(size_t(nc));
   const Mat<D> linv = s.toTemplate.linear;
   const bool moving = inst.spec.transform.animated();
-#pragma omp parallel for schedule(static) if (nc >= kParallelMin)
-  for (long j = 0; j < nc; ++j) {
-    Vec<D> v = s.velocityFactor * vc[j];
-    if (moving) v += linv * (s.velocityGradient * s.toWorld.point(xc[j]) + s.velocityOffset);
-    s.controlVelocity[j] = v;
-  }
   const ParamValues& p = inst.spec.params;
   const Real wa = Real(p.get("attraction_weight")) * kAccelerationScale;
   const Real wv = Real(p.get("velocity_weight")) * kRateScale;
@@ -391,8 +382,13 @@ void Control<D>::addInstanceForces(size_t i, Simulation<D>& sim, Real applyFor) 
       const Real volume = mc[q] * invRho0;
       forceA_[k] = s.alpha[q] * volume;
       forceC_[k] = (Real(1) - s.alpha[q]) * volume;
+      // v_j as the liquid should follow it: played at `speed`, negated when
+      // reversed (paper §3.5), plus the instance's own motion, in template
+      // space.
+      Vec<D> v = s.velocityFactor * vc[q];
+      if (moving) v += linv * (s.velocityGradient * s.toWorld.point(xc[q]) + s.velocityOffset);
       for (int d = 0; d < D; ++d) {
-        forceV_[d][k] = s.controlVelocity[q][d];
+        forceV_[d][k] = v[d];
         forceR_[d][k] = 0;
       }
     } else {

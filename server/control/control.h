@@ -107,7 +107,6 @@ class Control : public Effect<D> {
     Vec<D> velocityOffset = Vec<D>::Zero();
     Real velocityFactor = 1; // speed, negated when reversed
     std::vector<Real> alpha; // per control particle of the frame
-    std::vector<Vec<D>> controlVelocity;  // v_j as the liquid should see it, template space
     std::vector<uint32_t> liquid;  // gathered liquid particles
     std::vector<Vec<D>> y;         // their template-space positions
     std::vector<Real> fade;        // t^γ (0 outside the band)

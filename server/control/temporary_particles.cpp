@@ -1,9 +1,9 @@
 // Temporary particles (paper §3.4): seeded where a template holds more liquid
 // than the simulation (Algorithm 1), removed once they have left every
 // instance and sit in enough original liquid (Algorithm 2).
-// Before any include: GCC 12 flags the placeholder operand of
-// _mm512_undefined_ps inside the AVX-512 intrinsics (reductions, rsqrt14)
-// as uninitialised: a false alarm.
+// GCC 12 warns that the AVX-512 reductions and rsqrt14 read an uninitialised
+// operand: it is _mm512_undefined_ps, by design, so the warning is false.
+// The pragmas precede the includes, where the intrinsics are parsed.
 #pragma GCC diagnostic ignored "-Wuninitialized"
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
 #include "control/control.h"

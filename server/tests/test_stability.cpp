@@ -528,32 +528,19 @@ void standOnTheFloor(InstanceSpec<2>& spec) {
   k.translation.y() = 0.5 * k.scale.y() * double(dropTemplate()->source->region().size().y());
 }
 
-TEST(Stability, InstanceScaledByAFifth) {
+// One drop instance, scaled and standing on the floor.
+void runScaledInstance(const Eigen::Vector2d& scale, const char* name) {
   SingleThread one;
   InstanceSpec<2> spec = impactInstance();
-  spec.transform.keys[0].scale = Eigen::Vector2d(0.2, 0.2);
+  spec.transform.keys[0].scale = scale;
   standOnTheFloor(spec);
   InstanceCase c;
-  runDropInstance(spec, c, "instance scaled 0.2");
+  runDropInstance(spec, c, name);
 }
 
-TEST(Stability, InstanceScaledByFive) {
-  SingleThread one;
-  InstanceSpec<2> spec = impactInstance();
-  spec.transform.keys[0].scale = Eigen::Vector2d(5, 5);
-  standOnTheFloor(spec);
-  InstanceCase c;
-  runDropInstance(spec, c, "instance scaled 5");
-}
-
-TEST(Stability, InstanceScaledNonUniformly4To1) {
-  SingleThread one;
-  InstanceSpec<2> spec = impactInstance();
-  spec.transform.keys[0].scale = Eigen::Vector2d(2, 0.5);
-  standOnTheFloor(spec);
-  InstanceCase c;
-  runDropInstance(spec, c, "instance scaled 2 x 0.5");
-}
+TEST(Stability, InstanceScaledByAFifth) { runScaledInstance(Eigen::Vector2d(0.2, 0.2), "instance scaled 0.2"); }
+TEST(Stability, InstanceScaledByFive) { runScaledInstance(Eigen::Vector2d(5, 5), "instance scaled 5"); }
+TEST(Stability, InstanceScaledNonUniformly4To1) { runScaledInstance(Eigen::Vector2d(2, 0.5), "instance scaled 2 x 0.5"); }
 
 // Mirrored in x and upside down (reflected in y), lowered so that the
 // template's pool, now at the top of its box, lies on the scene's pool: the
