@@ -222,48 +222,41 @@ json block(double x0, double y0, double x1, double y1, const char* phase = "wate
 
 }  // namespace
 
+// A closed tank run for `frames` frames under the speed bound, single-threaded.
+void runClosedTank(const json& scene, double maxSpeed, int frames, const char* name) {
+  SingleThread one;
+  Simulation<2> sim(parseScene<2>(scene));
+  FrameBounds b;
+  b.maxSpeed = maxSpeed;
+  b.closed = true;
+  RunRecord rec;
+  runBounded(sim, frames, b, rec, name);
+}
+
 // A column of aspect 4:1 (0.1 × 0.4 m) collapses and crashes into the far
 // wall 0.7 m away, runs up it and falls back.
 TEST(Stability, TallColumnCrashesIntoTheFarWall) {
-  SingleThread one;
   json s = tank2D(0.005, 0.8, 0.6);
   s["fluid_blocks"].push_back(block(0, 0, 0.1, 0.4));
-  Simulation<2> sim(parseScene<2>(s));
-  FrameBounds b;
-  b.maxSpeed = speedBound(0, 0.4);
-  b.closed = true;
-  RunRecord rec;
-  runBounded(sim, 54, b, rec, "tall column");  // the front reaches the far wall at about 0.35 s
+  runClosedTank(s, speedBound(0, 0.4), 54, "tall column");  // the front reaches the far wall at about 0.35 s
 }
 
 // A jet (0.12 × 0.04 m of water at 6 m/s) hits the side wall head-on.
 TEST(Stability, FastJetHitsAWallHeadOn) {
-  SingleThread one;
   json s = tank2D(0.005, 0.6, 0.4);
   const double v0 = 6;
   s["fluid_blocks"].push_back(block(0.05, 0.15, 0.17, 0.19, "water", v0, 0));
-  Simulation<2> sim(parseScene<2>(s));
-  FrameBounds b;
-  b.maxSpeed = speedBound(v0, 0.19);
-  b.closed = true;
-  RunRecord rec;
-  runBounded(sim, 24, b, rec, "fast jet");  // impact at 0.07 s, then the sheet runs along the wall and falls
+  runClosedTank(s, speedBound(v0, 0.19), 24, "fast jet");  // impact at 0.07 s, then the sheet runs along the wall and falls
 }
 
 // The same jet in zero gravity: nothing else in the scene, only the energy
 // the jet starts with.
 TEST(Stability, ZeroGravityJetHitsAWall) {
-  SingleThread one;
   json s = tank2D(0.005, 0.6, 0.4);
   s["gravity"] = {0, 0};
   const double v0 = 4;
   s["fluid_blocks"].push_back(block(0.05, 0.15, 0.17, 0.21, "water", v0, 0));
-  Simulation<2> sim(parseScene<2>(s));
-  FrameBounds b;
-  b.maxSpeed = speedBound(v0, 0);
-  b.closed = true;
-  RunRecord rec;
-  runBounded(sim, 30, b, rec, "zero-gravity jet");
+  runClosedTank(s, speedBound(v0, 0), 30, "zero-gravity jet");
 }
 
 // Particles that start where no particle should be: a lattice that begins
@@ -528,14 +521,22 @@ void standOnTheFloor(InstanceSpec<2>& spec) {
   k.translation.y() = 0.5 * k.scale.y() * double(dropTemplate()->source->region().size().y());
 }
 
-// One drop instance, scaled and standing on the floor.
-void runScaledInstance(const Eigen::Vector2d& scale, const char* name) {
+// One run of the impact instance as `edit` changes it, single-threaded.
+template <class Edit>
+InstanceCase runImpactInstance(const char* name, Edit edit) {
   SingleThread one;
   InstanceSpec<2> spec = impactInstance();
-  spec.transform.keys[0].scale = scale;
-  standOnTheFloor(spec);
+  edit(spec);
   InstanceCase c;
   runDropInstance(spec, c, name);
+  return c;
+}
+
+InstanceCase runScaledInstance(const Eigen::Vector2d& scale, const char* name) {
+  return runImpactInstance(name, [&](InstanceSpec<2>& spec) {
+    spec.transform.keys[0].scale = scale;
+    standOnTheFloor(spec);
+  });
 }
 
 TEST(Stability, InstanceScaledByAFifth) { runScaledInstance(Eigen::Vector2d(0.2, 0.2), "instance scaled 0.2"); }
@@ -547,49 +548,41 @@ TEST(Stability, InstanceScaledNonUniformly4To1) { runScaledInstance(Eigen::Vecto
 // drop comes up from below the floor, where its control particles lie
 // outside the tank, and the splash points down.
 TEST(Stability, InstanceReflected) {
-  SingleThread one;
-  InstanceSpec<2> spec = impactInstance();
-  spec.transform.keys[0].reflect = {true, true};
-  const AABB<2> region = dropTemplate()->source->region();
-  spec.transform.keys[0].translation.y() = double(region.center().y()) - (double(region.max.y()) - 0.144);
-  InstanceCase c;
-  runDropInstance(spec, c, "instance reflected x and y");
+  runImpactInstance("instance reflected x and y", [](InstanceSpec<2>& spec) {
+    spec.transform.keys[0].reflect = {true, true};
+    const AABB<2> region = dropTemplate()->source->region();
+    spec.transform.keys[0].translation.y() = double(region.center().y()) - (double(region.max.y()) - 0.144);
+  });
 }
 
 // Play speed 0.05: each template frame is held for 20 scene frames and its
 // velocities scaled by 0.05 (template time 0-0.04 s: the drop just before
 // it touches the pool, 0.8 s of scene).
 TEST(Stability, PlaySpeedOneTwentieth) {
-  SingleThread one;
-  InstanceSpec<2> spec = impactInstance();
-  spec.time.cropEnd = 0.04;
-  spec.time.speed = 0.05;
-  InstanceCase c;
-  runDropInstance(spec, c, "speed 0.05");
+  runImpactInstance("speed 0.05", [](InstanceSpec<2>& spec) {
+    spec.time.cropEnd = 0.04;
+    spec.time.speed = 0.05;
+  });
 }
 
 // Play speed 20: the whole template (1 s) in 3 scene frames, a new template
 // frame every substep or two, its velocities ×20.
 TEST(Stability, PlaySpeedTwenty) {
-  SingleThread one;
-  InstanceSpec<2> spec = impactInstance();
-  spec.time.cropEnd = -1;
-  spec.time.speed = 20;
-  InstanceCase c;
-  runDropInstance(spec, c, "speed 20");
+  runImpactInstance("speed 20", [](InstanceSpec<2>& spec) {
+    spec.time.cropEnd = -1;
+    spec.time.speed = 20;
+  });
 }
 
 // Reversed: the splash runs backwards and the drop re-forms in the air
 // above the pool, where the simulation has no liquid, so temporary
 // particles are seeded by the dozen; when the instance ends they must all go.
 TEST(Stability, ReverseWithManyTemporaryParticles) {
-  SingleThread one;
-  InstanceSpec<2> spec = impactInstance();
-  spec.time.cropBegin = 0;
-  spec.time.cropEnd = 0.6;
-  spec.time.reverse = true;
-  InstanceCase c;
-  runDropInstance(spec, c, "reverse");
+  const InstanceCase c = runImpactInstance("reverse", [](InstanceSpec<2>& spec) {
+    spec.time.cropBegin = 0;
+    spec.time.cropEnd = 0.6;
+    spec.time.reverse = true;
+  });
   EXPECT_GE(c.rec.mostTemporary, 50u) << "the reversed drop must seed many temporary particles";
 }
 
@@ -597,17 +590,15 @@ TEST(Stability, ReverseWithManyTemporaryParticles) {
 // (10 m/s), at the recording's height, so the template's pool and splash
 // are dragged through the liquid.
 TEST(Stability, InstanceSweepsFastThroughTheLiquid) {
-  SingleThread one;
-  InstanceSpec<2> spec = impactInstance();
-  const Eigen::Vector2d c = spec.transform.keys[0].translation;
-  TransformKey<2> a, b;
-  a.time = 0.15;
-  a.translation = Eigen::Vector2d(0.1, c.y());
-  b.time = 0.25;
-  b.translation = Eigen::Vector2d(1.1, c.y());
-  spec.transform.keys = {a, b};
-  InstanceCase run;
-  runDropInstance(spec, run, "fast sweep");
+  runImpactInstance("fast sweep", [](InstanceSpec<2>& spec) {
+    const Eigen::Vector2d c = spec.transform.keys[0].translation;
+    TransformKey<2> a, b;
+    a.time = 0.15;
+    a.translation = Eigen::Vector2d(0.1, c.y());
+    b.time = 0.25;
+    b.translation = Eigen::Vector2d(1.1, c.y());
+    spec.transform.keys = {a, b};
+  });
 }
 
 // ---------------------------------------------------------------------------
