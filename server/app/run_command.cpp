@@ -90,15 +90,15 @@ void writeJsonAtomically(const std::string& path, const nlohmann::json& j) {
 template <int D>
 int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
   SimulationSetup<D> setup = parseScene<D>(sceneJson, opt.particleRadius);
+  std::string solverName = setup.solver.name.empty() ? "dfsph" : setup.solver.name;
   if (!opt.solver.empty()) {
     if (!PressureSolverRegistry<D>::instance().find(opt.solver))
       throw SceneError("solver.method", "unknown solver '" + opt.solver + "' given by --solver");
     // The scene's own solver keeps the scene's tolerances (the reference
     // benchmarks name theirs); another solver starts from its defaults, as
     // the scene's parameters belong to the solver it names.
-    const std::string current = setup.solver.name.empty() ? "dfsph" : setup.solver.name;
-    if (opt.solver != current) {
-      setup.solver.name = opt.solver;
+    if (opt.solver != solverName) {
+      setup.solver.name = solverName = opt.solver;
       setup.solver.values = ParamValues();
     }
   }
@@ -134,7 +134,6 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
 
   // The solver's parameters as the run uses them (declared defaults, then
   // the scene's): a benchmark's figures mean little without its tolerances.
-  const std::string solverName = setup.solver.name.empty() ? "dfsph" : setup.solver.name;
   nlohmann::json solverParameters = nlohmann::json::object();
   std::string solverText;
   if (const auto* entry = PressureSolverRegistry<D>::instance().find(solverName))

@@ -269,17 +269,14 @@ void Control<D>::gather(size_t i, const Simulation<D>& sim) {
   s.liquid.clear();
   s.y.clear();
   s.fade.clear();
+  // Transform and fade the candidates (in parallel when there are many),
+  // then keep them in cell order: the result does not depend on the thread
+  // count.
   const long nc = long(candidates.size());
-  if (nc < 1024) {
-    for (uint32_t p : candidates) gatherParticle(i, sim, p);
-    return;
-  }
-  // Many candidates: transform and fade them in parallel, then keep them in
-  // cell order (the result does not depend on the thread count).
   candidateY_.resize(size_t(nc));
   candidateFade_.resize(size_t(nc));
   const int phase = instances_[i].spec.phase;
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (nc >= 1024)
   for (long k = 0; k < nc; ++k) {
     const uint32_t p = candidates[k];
     candidateFade_[k] = -1;  // not gathered
@@ -288,6 +285,7 @@ void Control<D>::gather(size_t i, const Simulation<D>& sim) {
     if (!s.gatherBox.contains(y)) continue;
     const Real t = bandCoordinate(i, y);
     candidateY_[k] = y;
+    // Inside the box t = 1: no pow for most of the liquid.
     candidateFade_[k] = t >= 1 ? Real(1) : t > 0 ? std::pow(t, s.decay) : Real(0);
   }
   for (long k = 0; k < nc; ++k) {
@@ -296,19 +294,6 @@ void Control<D>::gather(size_t i, const Simulation<D>& sim) {
     s.y.push_back(candidateY_[k]);
     s.fade.push_back(candidateFade_[k]);
   }
-}
-
-template <int D>
-void Control<D>::gatherParticle(size_t i, const Simulation<D>& sim, uint32_t p) {
-  State& s = state_[i];
-  if (sim.fluid.phase[p] != instances_[i].spec.phase) return;
-  const Vec<D> y = s.toTemplate.point(sim.fluid.x[p]);
-  if (!s.gatherBox.contains(y)) return;
-  const Real t = bandCoordinate(i, y);
-  s.liquid.push_back(p);
-  s.y.push_back(y);
-  // Inside the box t = 1: no pow for most of the liquid.
-  s.fade.push_back(t >= 1 ? Real(1) : t > 0 ? std::pow(t, s.decay) : Real(0));
 }
 
 // α_j = 1 − min(Σ_i (m_i/ρ_i) W(x_j − x_i, h), 1): equation (3) in [SPDM20],

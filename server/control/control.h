@@ -115,9 +115,6 @@ class Control : public Effect<D> {
 
   void prepare(size_t i, double time);
   void gather(size_t i, const Simulation<D>& sim);
-  // Adds particle p to instance i's gathered liquid if it is of its phase and
-  // inside its gather box.
-  void gatherParticle(size_t i, const Simulation<D>& sim, uint32_t p);
   void computeCoverage(size_t i, const Simulation<D>& sim);
   void addInstanceForces(size_t i, Simulation<D>& sim, Real applyFor);
   double measureFidelity(size_t i);
