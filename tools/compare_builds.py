@@ -10,6 +10,10 @@ It is how "a plain dam break runs no slower than before issue 7" is
 measured (README, Performance): OLD is a build of the commit before the
 effects work. Both runs must do the same work (same substeps and solver
 iterations); the script says so when they do not.
+
+For a scene with template instances it also compares control's time per
+frame with an active instance and its share of the simulation's time (as
+`flowclip bench control` reports them).
 """
 import argparse
 import json
@@ -35,7 +39,12 @@ def run(binary, scene, frames, threads, radius):
     finally:
         os.unlink(stats)
     frames_ = s["frames"]
+    active = [fr for fr in frames_ if any(i["active"] for i in fr.get("instances", []))]
+    control_ms = sum(fr["control_ms"] for fr in active)
+    simulation_ms = sum(fr["simulation_ms"] for fr in active)
     return {
+        "control_ms": control_ms / len(active) if active else None,
+        "control_pct": 100 * control_ms / simulation_ms if simulation_ms > 0 else None,
         "us": s["summary"]["us_per_particle_step"],
         "wall_s": s["summary"]["wall_s"],
         "substeps": sum(fr["substeps"] for fr in frames_),
@@ -71,6 +80,12 @@ def main():
         print(f"{w}: {med[w]:.3f} us/particle-step median (range {spread[w][0]:.3f}-{spread[w][1]:.3f}), "
               f"{r['substeps']} substeps, {r['iterations']} solver iterations")
     print(f"new / old: {med['new'] / med['old']:.3f}")
+    if res["new"][0]["control_ms"] is not None and res["old"][0]["control_ms"] is not None:
+        for w in ("old", "new"):
+            ms = statistics.median(r["control_ms"] for r in res[w])
+            pct = [r["control_pct"] for r in res[w]]
+            print(f"{w}: control {ms:.3f} ms per active frame median, {statistics.median(pct):.2f} % of the simulation "
+                  f"(range {min(pct):.2f}-{max(pct):.2f} %)")
     same = res["old"][0]["substeps"] == res["new"][0]["substeps"] and res["old"][0]["iterations"] == res["new"][0]["iterations"]
     print("same work: yes" if same else "same work: NO (substeps or iterations differ: the physics changed, not only the speed)")
 

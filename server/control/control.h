@@ -147,6 +147,8 @@ class Control : public Effect<D> {
   std::vector<Vec<D>> forcePoints_;
   std::vector<Real> forceA_, forceC_;
   std::array<std::vector<Real>, D> forceV_, forceR_;
+  std::vector<uint32_t> occupiedCells_;         // localGrid_'s cells holding liquid
+  std::vector<std::vector<Real>> nearPoints_;   // per thread: the force fields near one cell
   std::vector<Vec<D>> controlAcc_;    // per liquid particle
   std::vector<uint32_t> controlled_;  // particles with a non-zero controlAcc_
   std::vector<uint8_t> touched_;      // per particle: in controlled_

@@ -69,6 +69,9 @@ class NeighborhoodSearch {
   const Real* staticSorted(int d) const { return staticPos_[d].data(); }
   const uint32_t* staticOrder() const { return staticIdx_.data(); }
   size_t staticCount() const { return staticIdx_.size(); }
+  // Cell c's static points are [start[c], start[c + 1]) of the sorted
+  // arrays (cellCount() + 1 entries once setStaticPoints ran).
+  const uint32_t* staticCellStart() const { return statStart_.data(); }
   // f(begin, end) for each row of cells around p: every static point within
   // r <= radius() of p is in one of these ranges of the sorted arrays.
   // (Trimming each row to the sphere's chord by binary search over x-sorted
