@@ -42,23 +42,30 @@ AABB<D> imageBox(const Affine<D>& map, const AABB<D>& box) {
 }
 
 // The sums of equations (2), (4) and (5) at a liquid particle at y
-// (template space), in one scan over the instance's control and repulsion
-// particles near it: A = α m/ρ0, C = (1 − α) m/ρ0, V = v_j (control
-// particles; 0 for repulsion ones), R = m/ρ0 · n_k (repulsion particles; 0
-// for control ones). velocity is Σ C W (V − u), formed at the end from
-// Σ C W V and Σ C W (= rate).
+// (template space): over the control particles near it, A = α m/ρ0,
+// C = (1 − α) m/ρ0, V = v_j; over the repulsion particles near it,
+// R = m/ρ0 · n_k. velocity is Σ C W (V − u), formed at the end from Σ C W V
+// and Σ C W (= rate).
 template <int D>
 struct ControlSums {
   Vec<D> attraction = Vec<D>::Zero(), velocity = Vec<D>::Zero(), repulsion = Vec<D>::Zero();
   Real rate = 0;
 };
 
-// What the force sums read per control or repulsion particle, one array per
-// field: position per axis, A, C, V per axis, R per axis.
+// What the sums read, one array per field: per control particle its
+// position per axis, A, C and V per axis; per repulsion particle its
+// position and R per axis. Kept apart, so that neither sum loads or adds
+// the other kind's zeros.
 template <int D>
-struct ForceFields {
-  static constexpr int kCount = 3 * D + 2;
-  static constexpr int X = 0, A = D, C = D + 1, V = D + 2, R = 2 * D + 2;
+struct ControlFields {
+  static constexpr int kCount = 2 * D + 2;
+  static constexpr int X = 0, A = D, C = D + 1, V = D + 2;
+  std::array<const Real*, kCount> field;
+};
+template <int D>
+struct RepulsionFields {
+  static constexpr int kCount = 2 * D;
+  static constexpr int X = 0, R = D;
   std::array<const Real*, kCount> field;
 };
 
@@ -170,27 +177,29 @@ void occupiedCells(const NeighborhoodSearch<D>& grid, std::vector<uint32_t>& out
     if (start[c] < start[c + 1]) out.push_back(uint32_t(c));
 }
 
-// Per-thread scratch of `fields` arrays of `stride` Reals each, grown (never
-// shrunk) to fit: allocation happens at the first frames only.
-void reserveScratch(std::vector<std::vector<Real>>& perThread, size_t stride, int fields) {
+// Per-thread scratch of at least `values` Reals, grown (never shrunk):
+// allocation happens at the first frames only.
+void reserveScratch(std::vector<std::vector<Real>>& perThread, size_t values) {
   perThread.resize(size_t(omp_get_max_threads()));
   for (auto& buf : perThread)
-    if (buf.size() < stride * size_t(fields)) buf.resize(stride * size_t(fields));
+    if (buf.size() < values) buf.resize(values);
 }
 
+// Equations (2) and (4) over `count` control particles gathered by
+// nearPoints; the repulsion sum is left 0.
 template <int D>
-ControlSums<D> forceSums(const ForceFields<D>& in, size_t count, const Poly6<D>& kernel, const Vec<D>& y,
-                         const Vec<D>& u, Real dMin) {
-  using FF = ForceFields<D>;
+ControlSums<D> controlSums(const ControlFields<D>& in, size_t count, const Poly6<D>& kernel, const Vec<D>& y,
+                           const Vec<D>& u, Real dMin) {
+  using F = ControlFields<D>;
   const Real h2 = kernel.radius() * kernel.radius(), kc = kernel.coefficient();
   ControlSums<D> out;
   Vec<D> velocityWeighted = Vec<D>::Zero();
   if constexpr (kVectorSums) {
 #if defined(__AVX512F__)
-    __m512 yv[D], att[D], vel[D], rep[D];
+    __m512 yv[D], att[D], vel[D];
     for (int d = 0; d < D; ++d) {
       yv[d] = _mm512_set1_ps(y[d]);
-      att[d] = vel[d] = rep[d] = _mm512_setzero_ps();
+      att[d] = vel[d] = _mm512_setzero_ps();
     }
     __m512 rate = _mm512_setzero_ps();
     const __m512 h2v = _mm512_set1_ps(h2), invDMinV = _mm512_set1_ps(1 / dMin);
@@ -199,7 +208,7 @@ ControlSums<D> forceSums(const ForceFields<D>& in, size_t count, const Poly6<D>&
       __m512 r[D];
       __m512 d2 = _mm512_setzero_ps();
       for (int d = 0; d < D; ++d) {
-        r[d] = _mm512_sub_ps(_mm512_maskz_loadu_ps(live, in.field[FF::X + d] + k), yv[d]);
+        r[d] = _mm512_sub_ps(_mm512_maskz_loadu_ps(live, in.field[F::X + d] + k), yv[d]);
         d2 = _mm512_fmadd_ps(r[d], r[d], d2);
       }
       const __mmask16 hit = _mm512_mask_cmp_ps_mask(live, d2, h2v, _CMP_LT_OQ);
@@ -211,44 +220,82 @@ ControlSums<D> forceSums(const ForceFields<D>& in, size_t count, const Poly6<D>&
       // direction and weight).
       // At d = 0 the estimate is +inf and min gives 1/d_min.
       const __m512 inv = _mm512_min_ps(_mm512_rsqrt14_ps(d2), invDMinV);
-      const __m512 pull = _mm512_mul_ps(_mm512_mul_ps(_mm512_maskz_loadu_ps(hit, in.field[FF::A] + k), w), inv);
-      const __m512 covered = _mm512_mul_ps(_mm512_maskz_loadu_ps(hit, in.field[FF::C] + k), w);
+      const __m512 pull = _mm512_mul_ps(_mm512_mul_ps(_mm512_maskz_loadu_ps(hit, in.field[F::A] + k), w), inv);
+      const __m512 covered = _mm512_mul_ps(_mm512_maskz_loadu_ps(hit, in.field[F::C] + k), w);
       for (int d = 0; d < D; ++d) {
         att[d] = _mm512_fmadd_ps(pull, r[d], att[d]);
-        vel[d] = _mm512_fmadd_ps(covered, _mm512_maskz_loadu_ps(hit, in.field[FF::V + d] + k), vel[d]);
-        rep[d] = _mm512_fmadd_ps(w, _mm512_maskz_loadu_ps(hit, in.field[FF::R + d] + k), rep[d]);
+        vel[d] = _mm512_fmadd_ps(covered, _mm512_maskz_loadu_ps(hit, in.field[F::V + d] + k), vel[d]);
       }
       rate = _mm512_add_ps(rate, covered);
     }
     for (int d = 0; d < D; ++d) {
       out.attraction[d] = _mm512_reduce_add_ps(att[d]);
       velocityWeighted[d] = _mm512_reduce_add_ps(vel[d]);
-      out.repulsion[d] = _mm512_reduce_add_ps(rep[d]);
     }
     out.rate = _mm512_reduce_add_ps(rate);
 #endif
   } else {
     for (size_t k = 0; k < count; ++k) {
       Vec<D> r;
-      for (int d = 0; d < D; ++d) r[d] = in.field[FF::X + d][k] - y[d];
+      for (int d = 0; d < D; ++d) r[d] = in.field[F::X + d][k] - y[d];
       const Real d2 = r.squaredNorm();
       if (!(d2 < h2)) continue;
       const Real t = h2 - d2;
       const Real w = t * t * t;
-      out.attraction += (in.field[FF::A][k] * w / std::max(std::sqrt(d2), dMin)) * r;
-      const Real covered = in.field[FF::C][k] * w;
-      for (int d = 0; d < D; ++d) {
-        velocityWeighted[d] += covered * in.field[FF::V + d][k];
-        out.repulsion[d] += w * in.field[FF::R + d][k];
-      }
+      out.attraction += (in.field[F::A][k] * w / std::max(std::sqrt(d2), dMin)) * r;
+      const Real covered = in.field[F::C][k] * w;
+      for (int d = 0; d < D; ++d) velocityWeighted[d] += covered * in.field[F::V + d][k];
       out.rate += covered;
     }
   }
   out.attraction *= kc;
-  out.repulsion *= kc;
   out.rate *= kc;
   out.velocity = kc * velocityWeighted - out.rate * u;
   return out;
+}
+
+// Σ_k R_k W(y − x_k, h_T) of equation (5) over `count` repulsion particles
+// gathered by nearPoints.
+template <int D>
+Vec<D> repulsionSum(const RepulsionFields<D>& in, size_t count, const Poly6<D>& kernel, const Vec<D>& y) {
+  using F = RepulsionFields<D>;
+  const Real h2 = kernel.radius() * kernel.radius();
+  Vec<D> out = Vec<D>::Zero();
+  if constexpr (kVectorSums) {
+#if defined(__AVX512F__)
+    __m512 yv[D], rep[D];
+    for (int d = 0; d < D; ++d) {
+      yv[d] = _mm512_set1_ps(y[d]);
+      rep[d] = _mm512_setzero_ps();
+    }
+    const __m512 h2v = _mm512_set1_ps(h2);
+    for (size_t k = 0; k < count; k += 16) {
+      const __mmask16 live = count - k >= 16 ? __mmask16(0xFFFF) : __mmask16((1u << (count - k)) - 1);
+      __m512 d2 = _mm512_setzero_ps();
+      for (int d = 0; d < D; ++d) {
+        const __m512 r = _mm512_sub_ps(_mm512_maskz_loadu_ps(live, in.field[F::X + d] + k), yv[d]);
+        d2 = _mm512_fmadd_ps(r, r, d2);
+      }
+      const __mmask16 hit = _mm512_mask_cmp_ps_mask(live, d2, h2v, _CMP_LT_OQ);
+      if (!hit) continue;
+      const __m512 t = _mm512_maskz_sub_ps(hit, h2v, d2);
+      const __m512 w = _mm512_mul_ps(_mm512_mul_ps(t, t), t);  // 0 off the hits
+      for (int d = 0; d < D; ++d)
+        rep[d] = _mm512_fmadd_ps(w, _mm512_maskz_loadu_ps(hit, in.field[F::R + d] + k), rep[d]);
+    }
+    for (int d = 0; d < D; ++d) out[d] = _mm512_reduce_add_ps(rep[d]);
+#endif
+  } else {
+    for (size_t k = 0; k < count; ++k) {
+      Real d2 = 0;
+      for (int d = 0; d < D; ++d) d2 += (in.field[F::X + d][k] - y[d]) * (in.field[F::X + d][k] - y[d]);
+      if (!(d2 < h2)) continue;
+      const Real t = h2 - d2;
+      const Real w = t * t * t;
+      for (int d = 0; d < D; ++d) out[d] += w * in.field[F::R + d][k];
+    }
+  }
+  return kernel.coefficient() * out;
 }
 
 template <int D>
@@ -412,10 +459,9 @@ void Control<D>::gather(size_t i, const Simulation<D>& sim) {
 }
 
 // α_j = 1 − min(Σ_i (m_i/ρ_i) W(x_j − x_i, h), 1): equation (3) in [SPDM20],
-// with the liquid's volumes mapped into template space. Also builds the
-// grids the force sums walk: the gathered liquid (localGrid_) and the
-// frame's control and repulsion particles (forceGrid_), both on the same
-// cells.
+// with the liquid's volumes mapped into template space. Also builds two of
+// the grids the force sums walk: the gathered liquid (localGrid_) and the
+// frame's control particles (controlGrid_), on the same cells.
 template <int D>
 void Control<D>::computeCoverage(size_t i, const Simulation<D>& sim) {
   State& s = state_[i];
@@ -427,17 +473,9 @@ void Control<D>::computeCoverage(size_t i, const Simulation<D>& sim) {
   // Built even when empty: the force sums walk its cells.
   localGrid_.setGrid(s.gatherBox, hT);
   localGrid_.setStaticPoints(s.y);
-  // One grid over the frame's control and (when on) repulsion particles, so
-  // that each liquid particle scans its neighbourhood once for equations
-  // (2), (4) and (5). Built per evaluation: the frame changes every time.
-  const auto& xr = grids.repulsionPositions();
-  const size_t nr = repulsionWeight(instances_[i].spec.params) > 0 ? xr.size() : 0;
-  forcePoints_.assign(xc.begin(), xc.end());
-  forcePoints_.insert(forcePoints_.end(), xr.begin(), xr.begin() + long(nr));
-  if (!forcePoints_.empty()) {
-    forceGrid_.setGrid(s.gatherBox, hT);
-    forceGrid_.setStaticPoints(forcePoints_);
-  }
+  // Built per evaluation: the template frame changes every time.
+  controlGrid_.setGrid(s.gatherBox, hT);
+  controlGrid_.setStaticPoints(xc);
   if (s.liquid.empty() || nc == 0) return;
   const Real invScale = Real(1) / s.volumeScale;
   const uint32_t* order = localGrid_.staticOrder();
@@ -451,13 +489,13 @@ void Control<D>::computeCoverage(size_t i, const Simulation<D>& sim) {
   std::array<const Real*, D + 1> liquidFields;
   for (int d = 0; d < D; ++d) liquidFields[d] = localGrid_.staticSorted(d);
   liquidFields[D] = sortedVolume_.data();
-  // The control particles one cell of forceGrid_ at a time: they share the
-  // liquid around.
-  occupiedCells(forceGrid_, occupiedCells_);
-  const uint32_t* cellStart = forceGrid_.staticCellStart();
-  const uint32_t* pointOrder = forceGrid_.staticOrder();
+  // The control particles one cell of controlGrid_ at a time: they share
+  // the liquid around.
+  occupiedCells(controlGrid_, occupiedCells_);
+  const uint32_t* cellStart = controlGrid_.staticCellStart();
+  const uint32_t* pointOrder = controlGrid_.staticOrder();
   const size_t stride = size_t(n) + 16;  // + one register: the packing stores whole ones
-  reserveScratch(nearPoints_, stride, D + 1);
+  reserveScratch(nearPoints_, stride * (D + 1));
   const long cells = long(occupiedCells_.size());
 #pragma omp parallel for schedule(dynamic, 4)
   for (long ci = 0; ci < cells; ++ci) {
@@ -465,12 +503,9 @@ void Control<D>::computeCoverage(size_t i, const Simulation<D>& sim) {
     const uint32_t b = cellStart[c], e = cellStart[c + 1];
     Vec<D> lo = Vec<D>::Constant(std::numeric_limits<Real>::max()), hi = -lo;
     for (uint32_t k = b; k < e; ++k) {
-      const uint32_t q = pointOrder[k];
-      if (q >= uint32_t(nc)) continue;  // a repulsion particle
-      lo = lo.cwiseMin(xc[q]);
-      hi = hi.cwiseMax(xc[q]);
+      lo = lo.cwiseMin(xc[pointOrder[k]]);
+      hi = hi.cwiseMax(xc[pointOrder[k]]);
     }
-    if (!(lo[0] <= hi[0])) continue;
     Real* buf = nearPoints_[size_t(omp_get_thread_num())].data();
     std::array<Real*, D + 1> nearOut;
     std::array<const Real*, D + 1> near;
@@ -478,7 +513,6 @@ void Control<D>::computeCoverage(size_t i, const Simulation<D>& sim) {
     const size_t count = nearPoints<D, D + 1>(localGrid_, liquidFields, lo, hi, hT, nearOut);
     for (uint32_t k = b; k < e; ++k) {
       const uint32_t q = pointOrder[k];
-      if (q >= uint32_t(nc)) continue;
       const Real sum = poly6SumNear<D>(near, count, s.kernel, xc[q]);
       s.alpha[q] = Real(1) - std::min(sum * invScale, Real(1));
     }
@@ -501,50 +535,53 @@ void Control<D>::addInstanceForces(size_t i, Simulation<D>& sim, Real applyFor) 
   const Real wa = Real(p.get("attraction_weight")) * kAccelerationScale;
   const Real wv = Real(p.get("velocity_weight")) * kRateScale;
   const Real wr = repulsionWeight(p);
-  // forceGrid_ (computeCoverage built it) orders the control particles and
-  // then the repulsion ones: the fields below follow its cell order.
-  const size_t np = forcePoints_.size();
-  const auto& repN = grids.repulsionNormals();
-  const auto& repSrc = grids.repulsionSources();
-  const uint32_t* order = forceGrid_.staticOrder();
-  forceA_.resize(np);
-  forceC_.resize(np);
-  for (auto& v : forceV_) v.resize(np);
-  for (auto& v : forceR_) v.resize(np);
-#pragma omp parallel for schedule(static) if (long(np) >= kParallelMin)
-  for (size_t k = 0; k < np; ++k) {
+  // The sums' fields, in controlGrid_'s order (computeCoverage built it)
+  // and in repulsionGrid_'s.
+  const uint32_t* order = controlGrid_.staticOrder();
+  forceA_.resize(size_t(nc));
+  forceC_.resize(size_t(nc));
+  for (auto& v : forceV_) v.resize(size_t(nc));
+#pragma omp parallel for schedule(static) if (nc >= kParallelMin)
+  for (long k = 0; k < nc; ++k) {
     const uint32_t q = order[k];
-    if (q < uint32_t(nc)) {
-      const Real volume = mc[q] * invRho0;
-      forceA_[k] = s.alpha[q] * volume;
-      forceC_[k] = (Real(1) - s.alpha[q]) * volume;
-      // v_j as the liquid should follow it: played at `speed`, negated when
-      // reversed (paper §3.5), plus the instance's own motion, in template
-      // space.
-      Vec<D> v = s.velocityFactor * vc[q];
-      if (moving) v += linv * (s.velocityGradient * s.toWorld.point(xc[q]) + s.velocityOffset);
-      for (int d = 0; d < D; ++d) {
-        forceV_[d][k] = v[d];
-        forceR_[d][k] = 0;
-      }
-    } else {
-      const uint32_t r = q - uint32_t(nc);
-      const Real volume = mc[repSrc[r]] * invRho0;
-      forceA_[k] = forceC_[k] = 0;
-      for (int d = 0; d < D; ++d) {
-        forceV_[d][k] = 0;
-        forceR_[d][k] = volume * repN[r][d];
-      }
-    }
+    const Real volume = mc[q] * invRho0;
+    forceA_[k] = s.alpha[q] * volume;
+    forceC_[k] = (Real(1) - s.alpha[q]) * volume;
+    // v_j as the liquid should follow it: played at `speed`, negated when
+    // reversed (paper §3.5), plus the instance's own motion, in template
+    // space.
+    Vec<D> v = s.velocityFactor * vc[q];
+    if (moving) v += linv * (s.velocityGradient * s.toWorld.point(xc[q]) + s.velocityOffset);
+    for (int d = 0; d < D; ++d) forceV_[d][k] = v[d];
   }
-  using FF = ForceFields<D>;
-  FF fields;
-  fields.field[FF::A] = forceA_.data();
-  fields.field[FF::C] = forceC_.data();
+  using CF = ControlFields<D>;
+  using RF = RepulsionFields<D>;
+  CF controlFields;
+  controlFields.field[CF::A] = forceA_.data();
+  controlFields.field[CF::C] = forceC_.data();
   for (int d = 0; d < D; ++d) {
-    fields.field[FF::X + d] = np > 0 ? forceGrid_.staticSorted(d) : nullptr;
-    fields.field[FF::V + d] = forceV_[d].data();
-    fields.field[FF::R + d] = forceR_[d].data();
+    controlFields.field[CF::X + d] = controlGrid_.staticSorted(d);
+    controlFields.field[CF::V + d] = forceV_[d].data();
+  }
+  const auto& xr = grids.repulsionPositions();
+  const size_t nr = wr > 0 ? xr.size() : 0;
+  RF repulsionFields;
+  if (nr > 0) {
+    repulsionGrid_.setGrid(s.gatherBox, s.kernel.radius());
+    repulsionGrid_.setStaticPoints(xr);
+    const auto& repN = grids.repulsionNormals();
+    const auto& repSrc = grids.repulsionSources();
+    const uint32_t* rorder = repulsionGrid_.staticOrder();
+    for (auto& v : forceR_) v.resize(nr);
+    for (size_t k = 0; k < nr; ++k) {
+      const uint32_t r = rorder[k];
+      const Real volume = mc[repSrc[r]] * invRho0;
+      for (int d = 0; d < D; ++d) forceR_[d][k] = volume * repN[r][d];
+    }
+    for (int d = 0; d < D; ++d) {
+      repulsionFields.field[RF::X + d] = repulsionGrid_.staticSorted(d);
+      repulsionFields.field[RF::R + d] = forceR_[d].data();
+    }
   }
   const Real maxRate = applyFor > 0 ? Real(1) / applyFor : std::numeric_limits<Real>::max();
   const Real hT = s.kernel.radius();
@@ -566,13 +603,16 @@ void Control<D>::addInstanceForces(size_t i, Simulation<D>& sim, Real applyFor) 
   const Mat<D> l = s.toWorld.linear;
   const auto& kernel = s.kernel;
   const long n = long(s.liquid.size());
-  // The liquid one cell of localGrid_ (built on s.y, same grid as
-  // forceGrid_) at a time: its particles share the force points around.
+  // The liquid one cell of localGrid_ (built on s.y, the same cells as
+  // controlGrid_ and repulsionGrid_) at a time: its particles share the
+  // control and repulsion particles around.
   occupiedCells(localGrid_, occupiedCells_);
   const uint32_t* cellStart = localGrid_.staticCellStart();
   const uint32_t* liquidOrder = localGrid_.staticOrder();
-  const size_t stride = np + 16;  // + one register: the packing stores whole ones
-  reserveScratch(nearPoints_, stride, FF::kCount);
+  // + one register per field: the packing stores whole ones.
+  const size_t controlStride = size_t(nc) + 16, repulsionStride = nr + 16;
+  const size_t repulsionAt = controlStride * CF::kCount;
+  reserveScratch(nearPoints_, repulsionAt + repulsionStride * RF::kCount);
   const long cells = long(occupiedCells_.size());
 #pragma omp parallel for schedule(dynamic, 2)
   for (long ci = 0; ci < cells; ++ci) {
@@ -587,10 +627,16 @@ void Control<D>::addInstanceForces(size_t i, Simulation<D>& sim, Real applyFor) 
     }
     if (!(lo[0] <= hi[0])) continue;  // none of the cell's liquid is controlled
     Real* buf = nearPoints_[size_t(omp_get_thread_num())].data();
-    FF near;
-    std::array<Real*, FF::kCount> nearOut;
-    for (int f = 0; f < FF::kCount; ++f) near.field[f] = nearOut[f] = buf + size_t(f) * stride;
-    const size_t count = np > 0 ? nearPoints<D, FF::kCount>(forceGrid_, fields.field, lo, hi, hT, nearOut) : 0;
+    CF nearControl;
+    RF nearRepulsion;
+    std::array<Real*, CF::kCount> controlOut;
+    std::array<Real*, RF::kCount> repulsionOut;
+    for (int f = 0; f < CF::kCount; ++f) nearControl.field[f] = controlOut[f] = buf + size_t(f) * controlStride;
+    for (int f = 0; f < RF::kCount; ++f)
+      nearRepulsion.field[f] = repulsionOut[f] = buf + repulsionAt + size_t(f) * repulsionStride;
+    const size_t controls = nearPoints<D, CF::kCount>(controlGrid_, controlFields.field, lo, hi, hT, controlOut);
+    const size_t repulsions =
+        nr > 0 ? nearPoints<D, RF::kCount>(repulsionGrid_, repulsionFields.field, lo, hi, hT, repulsionOut) : 0;
     for (uint32_t kk = b; kk < e; ++kk) {
       const uint32_t k = liquidOrder[kk];
       if (!(s.fade[k] > 0)) continue;
@@ -600,11 +646,12 @@ void Control<D>::addInstanceForces(size_t i, Simulation<D>& sim, Real applyFor) 
       // Equation (2) in [SPDM20]: towards uncovered control particles;
       // equation (4): towards their velocity, where covered; equation (5):
       // away from the repulsion layer (the stored normals point outwards).
-      const ControlSums<D> sums = forceSums<D>(near, count, kernel, y, u, dMin);
+      const ControlSums<D> sums = controlSums<D>(nearControl, controls, kernel, y, u, dMin);
       const Vec<D>& attraction = sums.attraction;
       const Vec<D>& velocity = sums.velocity;
       const Real rate = sums.rate;
-      const Vec<D> repulsion = -sums.repulsion;
+      const Vec<D> repulsion =
+          repulsions > 0 ? Vec<D>(-repulsionSum<D>(nearRepulsion, repulsions, kernel, y)) : Vec<D>::Zero();
       // Explicit relaxation overshoots once rate · Δt > 1: cap it there.
       const Real vRate = wv * rate;
       const Real vScale = vRate > maxRate ? maxRate / vRate : Real(1);

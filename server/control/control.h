@@ -139,16 +139,15 @@ class Control : public Effect<D> {
   NeighborhoodSearch<D> localGrid_;   // gathered liquid in template space (for α)
   std::vector<Real> sortedVolume_;    // their volumes m/ρ, in localGrid_'s cell order
   std::vector<Real> sortedMass_;      // seeding: control masses in their grid's order
-  // The instance's control and repulsion particles in one grid (template
-  // space), and per particle in its cell order what the force sums read:
-  // α m/ρ0, (1 − α) m/ρ0, v_j per axis (control), m/ρ0 · n_k per axis
-  // (repulsion); the other kind's entries are 0.
-  NeighborhoodSearch<D> forceGrid_;
-  std::vector<Vec<D>> forcePoints_;
+  // The frame's control and repulsion particles in grids (template space,
+  // localGrid_'s cells), and per particle in their cell order what the
+  // force sums read: α m/ρ0, (1 − α) m/ρ0, v_j per axis (control);
+  // m/ρ0 · n_k per axis (repulsion).
+  NeighborhoodSearch<D> controlGrid_, repulsionGrid_;
   std::vector<Real> forceA_, forceC_;
   std::array<std::vector<Real>, D> forceV_, forceR_;
   std::vector<uint32_t> occupiedCells_;         // localGrid_'s cells holding liquid
-  std::vector<std::vector<Real>> nearPoints_;   // per thread: the force fields near one cell
+  std::vector<std::vector<Real>> nearPoints_;   // per thread: the fields near one cell
   std::vector<Vec<D>> controlAcc_;    // per liquid particle
   std::vector<uint32_t> controlled_;  // particles with a non-zero controlAcc_
   std::vector<uint8_t> touched_;      // per particle: in controlled_
