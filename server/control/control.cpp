@@ -701,10 +701,19 @@ double Control<D>::measureFidelity(size_t i) {
     }
     return l;
   };
-  for (const auto& x : grids.controlPositions())
-    if (region.contains(x)) occupancy_[cellOf(x)] |= 1;
-  for (size_t k = 0; k < s.y.size(); ++k)
-    if (region.contains(s.y[k])) occupancy_[cellOf(s.y[k])] |= 2;
+  // The cells of the control particles, then of the liquid, in parallel
+  // (the arithmetic); marked in one thread (a byte each).
+  const auto& xc = grids.controlPositions();
+  const long nc = long(xc.size()), total = nc + long(s.y.size());
+  constexpr uint32_t kOutside = ~uint32_t(0);
+  fidelityCells_.resize(size_t(total));
+#pragma omp parallel for schedule(static) if (total >= kParallelMin)
+  for (long k = 0; k < total; ++k) {
+    const Vec<D>& y = k < nc ? xc[size_t(k)] : s.y[size_t(k - nc)];
+    fidelityCells_[size_t(k)] = region.contains(y) ? uint32_t(cellOf(y)) : kOutside;
+  }
+  for (long k = 0; k < total; ++k)
+    if (fidelityCells_[size_t(k)] != kOutside) occupancy_[fidelityCells_[size_t(k)]] |= k < nc ? 1 : 2;
   size_t both = 0, any = 0;
   for (uint8_t o : occupancy_) {
     both += o == 3;

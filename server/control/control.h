@@ -130,12 +130,15 @@ class Control : public Effect<D> {
   ParamValues settings_;
   std::vector<State> state_;          // one per instance
   std::vector<uint8_t> occupancy_;    // fidelity scratch
+  std::vector<uint32_t> fidelityCells_;
   std::vector<uint32_t> candidates_;  // gather scratch (kept: no allocation in a step)
   std::vector<Vec<D>> candidateY_;
   std::vector<Real> candidateFade_;   // < 0: not gathered
   std::vector<uint32_t> seedSources_; // seeding scratch: liquid near an instance box
   std::vector<uint32_t> temporaryScratch_;  // removal pass scratch
   std::vector<uint8_t> verdictScratch_;
+  std::vector<uint8_t> emittedScratch_;     // seeding: a source already seeded this frame
+  std::vector<std::vector<std::pair<uint32_t, NewParticle<D>>>> seedCandidates_;  // per thread
   NeighborhoodSearch<D> localGrid_;   // gathered liquid in template space (for α)
   std::vector<Real> sortedVolume_;    // their volumes m/ρ, in localGrid_'s cell order
   std::vector<Real> sortedMass_;      // seeding: control masses in their grid's order

@@ -126,7 +126,8 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
   if (seeding) {
     const auto& dom = sim.setup().domain;
     const auto& obstacles = sim.setup().obstacles;
-    std::vector<uint8_t> emitted(size_t(n), 0);
+    std::vector<uint8_t>& emitted = emittedScratch_;
+    emitted.assign(size_t(n), 0);
     const uint32_t* off = sim.pairOffsets();
     const uint32_t* nbr = sim.pairNeighbors();
     for (size_t s = 0; s < instances_.size(); ++s) {
@@ -154,7 +155,9 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
         for (size_t k = 0; k < sortedMass_.size(); ++k) sortedMass_[k] = mc[order[k]];
       }
       const long m = long(sources.size());
-      std::vector<std::vector<std::pair<uint32_t, NewParticle<D>>>> local(static_cast<size_t>(omp_get_max_threads()));
+      auto& local = seedCandidates_;
+      local.resize(static_cast<size_t>(omp_get_max_threads()));
+      for (auto& v : local) v.clear();
 #pragma omp parallel for schedule(dynamic, 16)
       for (long k = 0; k < m; ++k) {
         const uint32_t i = sources[k];
