@@ -86,6 +86,11 @@ def main():
             pct = [r["control_pct"] for r in res[w]]
             print(f"{w}: control {ms:.3f} ms per active frame median, {statistics.median(pct):.2f} % of the simulation "
                   f"(range {min(pct):.2f}-{max(pct):.2f} %)")
+        # Runs k of old and new are neighbours in time: their ratio cancels
+        # most of a change in the machine's speed.
+        paired = [n["control_ms"] / o["control_ms"] for o, n in zip(res["old"], res["new"])]
+        print(f"control new / old, paired runs: {statistics.median(paired):.3f} median "
+              f"(range {min(paired):.3f}-{max(paired):.3f})")
     same = res["old"][0]["substeps"] == res["new"][0]["substeps"] and res["old"][0]["iterations"] == res["new"][0]["iterations"]
     print("same work: yes" if same else "same work: NO (substeps or iterations differ: the physics changed, not only the speed)")
 

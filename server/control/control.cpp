@@ -427,34 +427,51 @@ void Control<D>::gather(size_t i, const Simulation<D>& sim) {
   // since, so the box grown by a cell finds every particle now inside it
   // (the exact test below uses today's positions).
   sim.search.dynamicInBox(s.worldBox.grown(sim.search.radius()), candidates);
-  s.liquid.clear();
-  s.y.clear();
-  s.fade.clear();
-  // Transform and fade the candidates (in parallel when there are many),
-  // then keep them in cell order: the result does not depend on the thread
-  // count.
+  // Transform and fade the candidates, then keep them in cell order, in
+  // parallel when there are many: each thread its own block of
+  // candidates, written after the blocks before it (the result does not
+  // depend on the thread count).
   const long nc = long(candidates.size());
   candidateY_.resize(size_t(nc));
   candidateFade_.resize(size_t(nc));
+  keptBefore_.assign(size_t(omp_get_max_threads()) + 1, 0);
   const int phase = instances_[i].spec.phase;
   const bool linearFade = s.decay == 1;  // the default γ: no pow in the band
-#pragma omp parallel for schedule(static) if (nc >= 1024)
-  for (long k = 0; k < nc; ++k) {
-    const uint32_t p = candidates[k];
-    candidateFade_[k] = -1;  // not gathered
-    if (sim.fluid.phase[p] != phase) continue;
-    const Vec<D> y = s.toTemplate.point(sim.fluid.x[p]);
-    if (!s.gatherBox.contains(y)) continue;
-    const Real t = bandCoordinate(i, y);
-    candidateY_[k] = y;
-    // Inside the box t = 1: no pow for most of the liquid.
-    candidateFade_[k] = t >= 1 ? Real(1) : t > 0 ? (linearFade ? t : std::pow(t, s.decay)) : Real(0);
-  }
-  for (long k = 0; k < nc; ++k) {
-    if (candidateFade_[k] < 0) continue;
-    s.liquid.push_back(candidates[k]);
-    s.y.push_back(candidateY_[k]);
-    s.fade.push_back(candidateFade_[k]);
+#pragma omp parallel if (nc >= 1024)
+  {
+    const int t = omp_get_thread_num(), threads = omp_get_num_threads();
+    const long b = nc * t / threads, e = nc * (t + 1) / threads;
+    size_t kept = 0;
+    for (long k = b; k < e; ++k) {
+      const uint32_t p = candidates[k];
+      candidateFade_[k] = -1;  // not gathered
+      if (sim.fluid.phase[p] != phase) continue;
+      const Vec<D> y = s.toTemplate.point(sim.fluid.x[p]);
+      if (!s.gatherBox.contains(y)) continue;
+      const Real f = bandCoordinate(i, y);
+      candidateY_[k] = y;
+      // Inside the box t = 1: no pow for most of the liquid.
+      candidateFade_[k] = f >= 1 ? Real(1) : f > 0 ? (linearFade ? f : std::pow(f, s.decay)) : Real(0);
+      ++kept;
+    }
+    keptBefore_[size_t(t) + 1] = kept;
+#pragma omp barrier
+#pragma omp single
+    {
+      for (int u = 0; u < threads; ++u) keptBefore_[size_t(u) + 1] += keptBefore_[size_t(u)];
+      const size_t total = keptBefore_[size_t(threads)];
+      s.liquid.resize(total);
+      s.y.resize(total);
+      s.fade.resize(total);
+    }
+    size_t w = keptBefore_[size_t(t)];
+    for (long k = b; k < e; ++k) {
+      if (candidateFade_[k] < 0) continue;
+      s.liquid[w] = candidates[k];
+      s.y[w] = candidateY_[k];
+      s.fade[w] = candidateFade_[k];
+      ++w;
+    }
   }
 }
 

@@ -134,6 +134,7 @@ class Control : public Effect<D> {
   std::vector<uint32_t> candidates_;  // gather scratch (kept: no allocation in a step)
   std::vector<Vec<D>> candidateY_;
   std::vector<Real> candidateFade_;   // < 0: not gathered
+  std::vector<size_t> keptBefore_;    // per thread: candidates kept by the threads before it
   std::vector<uint32_t> seedSources_; // seeding scratch: liquid near an instance box
   std::vector<uint32_t> temporaryScratch_;  // removal pass scratch
   std::vector<uint8_t> verdictScratch_;

@@ -190,20 +190,42 @@ void NeighborhoodSearch<D>::dynamicInBox(const AABB<D>& box, std::vector<uint32_
   out.clear();
   if (dynStart_.empty() || box.empty()) return;
   const VecI<D> lo = cellCoord(box.min), hi = cellCoord(box.max);
-  VecI<D> c = lo;
-  while (true) {
-    // One row along x is one contiguous range of the sorted points.
+  // One row along x is one contiguous range of the sorted points; rows are
+  // numbered y-fastest (then z).
+  long rows = 1;
+  for (int d = 1; d < D; ++d) rows *= long(hi[d] - lo[d] + 1);
+  auto scanRow = [&](long r, std::vector<uint32_t>& dst) {
+    VecI<D> c = lo;
+    for (int d = 1; d < D; ++d) {
+      const long span = long(hi[d] - lo[d] + 1);
+      c[d] = lo[d] + int(r % span);
+      r /= span;
+    }
     const size_t a = linearCell(c);
     const size_t b = a + size_t(hi[0] - lo[0]) + 1;
     for (uint32_t k = dynStart_[a]; k < dynStart_[b]; ++k) {
       bool inside = true;
       for (int d = 0; d < D; ++d) inside = inside && dynSorted_[d][k] >= box.min[d] && dynSorted_[d][k] <= box.max[d];
-      if (inside) out.push_back(dynSortedIdx_[k]);
+      if (inside) dst.push_back(dynSortedIdx_[k]);
     }
-    int d = 1;
-    while (d < D && ++c[d] > hi[d]) c[d] = lo[d], ++d;
-    if (d >= D) break;
+  };
+  // Many candidates: the rows in one block per thread, concatenated in
+  // thread order, which is the row order of the serial scan.
+  const size_t candidates = dynStart_[linearCell(hi) + 1] - dynStart_[linearCell(lo)];
+  const int threads = omp_get_max_threads();
+  if (candidates < 4096 || threads < 2 || rows < 2 * threads || omp_in_parallel()) {
+    for (long r = 0; r < rows; ++r) scanRow(r, out);
+    return;
   }
+  if (int(boxBuf_.size()) < threads) boxBuf_.resize(size_t(threads));
+#pragma omp parallel num_threads(threads)
+  {
+    std::vector<uint32_t>& mine = boxBuf_[size_t(omp_get_thread_num())];
+    mine.clear();
+#pragma omp for schedule(static)
+    for (long r = 0; r < rows; ++r) scanRow(r, mine);
+  }
+  for (int t = 0; t < threads; ++t) out.insert(out.end(), boxBuf_[size_t(t)].begin(), boxBuf_[size_t(t)].end());
 }
 
 template <int D>

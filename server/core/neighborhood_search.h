@@ -85,7 +85,9 @@ class NeighborhoodSearch {
   }
 
   // Indices of the dynamic points (as of the last update) inside `box`, in
-  // cell order: a scan of the box's cells, not of every point.
+  // cell order: a scan of the box's cells, not of every point. Called
+  // outside a parallel region, it scans in parallel (with per-search
+  // scratch: not for concurrent calls on one search).
   void dynamicInBox(const AABB<D>& box, std::vector<uint32_t>& out) const;
 
   VecI<D> cellCoord(const Vec<D>& p) const;
@@ -156,6 +158,7 @@ class NeighborhoodSearch {
   NeighborList dyn_;
   mutable std::vector<std::pair<uint64_t, uint32_t>> mortonKeys_;  // zOrder's scratch
   std::vector<std::vector<uint32_t>> threadBuf_;
+  mutable std::vector<std::vector<uint32_t>> boxBuf_;  // dynamicInBox's per-thread rows
   std::vector<uint32_t> threadCounts_;
 };
 
