@@ -139,14 +139,20 @@ class DFSPH final : public PressureSolver<D> {
     // the number density K_i = Δt p_i/δ_i², so p_i = δ_i² (K_i + K_i^div)/Δt.
     auto& f = sim.fluid;
     if (!numberDensity_) {
-#pragma omp parallel for schedule(static)
-      for (long i = 0; i < n; ++i)
-        f.pressure[i] = f.density[i] * f.density[i] * (kappaDensity_[i] + kappaDivergence_[i] / dt);
+#pragma omp parallel
+      {
+        const auto [first, last] = sim.threadParticles();
+        for (long i = first; i < last; ++i)
+          f.pressure[i] = f.density[i] * f.density[i] * (kappaDensity_[i] + kappaDivergence_[i] / dt);
+      }
     } else {
-#pragma omp parallel for schedule(static)
-      for (long i = 0; i < n; ++i) {
-        const Real delta = f.density[i] / f.mass[i];
-        f.pressure[i] = delta * delta * (kappaDensity_[i] + kappaDivergence_[i] / dt);
+#pragma omp parallel
+      {
+        const auto [first, last] = sim.threadParticles();
+        for (long i = first; i < last; ++i) {
+          const Real delta = f.density[i] / f.mass[i];
+          f.pressure[i] = delta * delta * (kappaDensity_[i] + kappaDivergence_[i] / dt);
+        }
       }
     }
     return rep;
@@ -162,11 +168,13 @@ class DFSPH final : public PressureSolver<D> {
   // divergence stiffness does not depend on Δt (called with dt = 1).
   // Expects residual_ to hold the current residual.
   void warmStartFrom(Simulation<D>& sim, std::vector<Real>& kappa, Real dt) {
-    const long n = long(sim.fluid.size());
-#pragma omp parallel for schedule(static)
-    for (long i = 0; i < n; ++i) {
-      kappa[i] = residual_[i] > 0 ? Real(0.5) * kappa[i] : Real(0);
-      stiffness_[i] = kappa[i] * dt;
+#pragma omp parallel
+    {
+      const auto [first, last] = sim.threadParticles();
+      for (long i = first; i < last; ++i) {
+        kappa[i] = residual_[i] > 0 ? Real(0.5) * kappa[i] : Real(0);
+        stiffness_[i] = kappa[i] * dt;
+      }
     }
     updateVelocities(sim);
   }
@@ -176,50 +184,54 @@ class DFSPH final : public PressureSolver<D> {
     const uint32_t* off = sim.pairOffsets();
     const uint32_t* nbr = sim.pairNeighbors();
     const auto& f = sim.fluid;
-    const long n = long(f.size());
-#pragma omp parallel for schedule(static)
-    for (long i = 0; i < n; ++i) {
-      const Real rho0 = sim.restDensity_[f.phase[i]];
-      Real s, floor;
-      if constexpr (!ND) {
-        Vec<D> sum = rho0 * sim.boundaryGradW[i];
-        Real sumSq = 0;
-        for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
-          const Vec<D> g = sim.massGradWAt(k);
-          sum += g;
-          sumSq += g.squaredNorm();
+#pragma omp parallel
+    {
+      const auto [first, last] = sim.threadParticles();
+      for (long i = first; i < last; ++i) {
+        const Real rho0 = sim.restDensity_[f.phase[i]];
+        Real s, floor;
+        if constexpr (!ND) {
+          Vec<D> sum = rho0 * sim.boundaryGradW[i];
+          Real sumSq = 0;
+          for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
+            const Vec<D> g = sim.massGradWAt(k);
+            sum += g;
+            sumSq += g.squaredNorm();
+          }
+          s = sum.squaredNorm() + sumSq;
+          floor = Real(1e-6) * rho0 * rho0;
+        } else {
+          // S_i = |Σ_j ∇W_ij + (ρ0_i/m_i) Σ_b V_b ∇W_ib|² + Σ_j (m_i/m_j)|∇W_ij|² (the diagonal; see the top).
+          const Real mi = f.mass[i];
+          Vec<D> sum = (rho0 / mi) * sim.boundaryGradW[i];
+          Real sumSq = 0;
+          for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
+            Vec<D> g;
+            for (int d = 0; d < D; ++d) g[d] = sim.gradW[d][k];
+            sum += g;
+            sumSq += g.squaredNorm() / f.mass[nbr[k]];
+          }
+          s = sum.squaredNorm() + mi * sumSq;
+          floor = Real(1e-6) * (rho0 / mi) * (rho0 / mi);
         }
-        s = sum.squaredNorm() + sumSq;
-        floor = Real(1e-6) * rho0 * rho0;
-      } else {
-        // S_i = |Σ_j ∇W_ij + (ρ0_i/m_i) Σ_b V_b ∇W_ib|² + Σ_j (m_i/m_j)|∇W_ij|² (the diagonal; see the top).
-        const Real mi = f.mass[i];
-        Vec<D> sum = (rho0 / mi) * sim.boundaryGradW[i];
-        Real sumSq = 0;
-        for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
-          Vec<D> g;
-          for (int d = 0; d < D; ++d) g[d] = sim.gradW[d][k];
-          sum += g;
-          sumSq += g.squaredNorm() / f.mass[nbr[k]];
-        }
-        s = sum.squaredNorm() + mi * sumSq;
-        floor = Real(1e-6) * (rho0 / mi) * (rho0 / mi);
+        factor_[i] = s > floor ? Real(1) / s : Real(0);
+        // Too few neighbours: a surface particle cannot be compressed, and its
+        // divergence estimate is unreliable ([BK17], Section 4).
+        deficient_[i] = (off[i + 1] - off[i] + sim.boundaryNeighbors[i]) < (D == 3 ? 20u : 7u);
       }
-      factor_[i] = s > floor ? Real(1) / s : Real(0);
-      // Too few neighbours: a surface particle cannot be compressed, and its
-      // divergence estimate is unreliable ([BK17], Section 4).
-      deficient_[i] = (off[i + 1] - off[i] + sim.boundaryNeighbors[i]) < (D == 3 ? 20u : 7u);
     }
   }
 
   // Adds this iteration's stiffness K_i = r_i α_i to the accumulated one and
   // corrects the velocities with it.
   void applyStiffness(Simulation<D>& sim, std::vector<Real>& kappa, Real dt) {
-    const long n = long(sim.fluid.size());
-#pragma omp parallel for schedule(static)
-    for (long i = 0; i < n; ++i) {
-      stiffness_[i] = residual_[i] * factor_[i];
-      kappa[i] += stiffness_[i] / dt;
+#pragma omp parallel
+    {
+      const auto [first, last] = sim.threadParticles();
+      for (long i = first; i < last; ++i) {
+        stiffness_[i] = residual_[i] * factor_[i];
+        kappa[i] += stiffness_[i] / dt;
+      }
     }
     updateVelocities(sim);
   }
@@ -241,49 +253,51 @@ class DFSPH final : public PressureSolver<D> {
     const Real* gx = grad[0].data();
     const Real* gy = grad[1].data();
     auto& f = sim.fluid;
-    const long n = long(f.size());
     double ix = 0, iy = 0, iz = 0;
     // Named scalar accumulators with `omp simd`, so the neighbour loop
     // vectorises (the reduction may be reordered).
-#pragma omp parallel for schedule(static) reduction(+ : ix, iy, iz)
-    for (long i = 0; i < n; ++i) {
-      const Real ki = stiffness[i];
-      const uint32_t b = off[i], e = off[i + 1];
-      Real dx = 0, dy = 0, dz = 0;
-      if constexpr (D == 2) {
+#pragma omp parallel reduction(+ : ix, iy, iz)
+    {
+      const auto [first, last] = sim.threadParticles();
+      for (long i = first; i < last; ++i) {
+        const Real ki = stiffness[i];
+        const uint32_t b = off[i], e = off[i + 1];
+        Real dx = 0, dy = 0, dz = 0;
+        if constexpr (D == 2) {
 #pragma omp simd reduction(+ : dx, dy)
-        for (uint32_t k = b; k < e; ++k) {
-          const Real s = ki + stiffness[nbr[k]];
-          dx += s * gx[k];
-          dy += s * gy[k];
-        }
-      } else {
-        const Real* gz = grad[D - 1].data();
+          for (uint32_t k = b; k < e; ++k) {
+            const Real s = ki + stiffness[nbr[k]];
+            dx += s * gx[k];
+            dy += s * gy[k];
+          }
+        } else {
+          const Real* gz = grad[D - 1].data();
 #pragma omp simd reduction(+ : dx, dy, dz)
-        for (uint32_t k = b; k < e; ++k) {
-          const Real s = ki + stiffness[nbr[k]];
-          dx += s * gx[k];
-          dy += s * gy[k];
-          dz += s * gz[k];
+          for (uint32_t k = b; k < e; ++k) {
+            const Real s = ki + stiffness[nbr[k]];
+            dx += s * gx[k];
+            dy += s * gy[k];
+            dz += s * gz[k];
+          }
         }
+        Real kb = ki * sim.restDensity_[f.phase[i]];
+        if constexpr (ND) {
+          // Both terms carry 1/m_i, the boundary one once more (its weight V_b/V_i).
+          const Real inv = Real(1) / f.mass[i];
+          dx *= inv;
+          dy *= inv;
+          dz *= inv;
+          kb *= inv * inv;
+        }
+        const Vec<D>& gb = sim.boundaryGradW[i];
+        f.v[i][0] -= dx + kb * gb[0];
+        f.v[i][1] -= dy + kb * gb[1];
+        if constexpr (D == 3) f.v[i][2] -= dz + kb * gb[2];
+        const double mk = -double(f.mass[i]) * double(kb);
+        ix += mk * gb[0];
+        iy += mk * gb[1];
+        if constexpr (D == 3) iz += mk * gb[2];
       }
-      Real kb = ki * sim.restDensity_[f.phase[i]];
-      if constexpr (ND) {
-        // Both terms carry 1/m_i, the boundary one once more (its weight V_b/V_i).
-        const Real inv = Real(1) / f.mass[i];
-        dx *= inv;
-        dy *= inv;
-        dz *= inv;
-        kb *= inv * inv;
-      }
-      const Vec<D>& gb = sim.boundaryGradW[i];
-      f.v[i][0] -= dx + kb * gb[0];
-      f.v[i][1] -= dy + kb * gb[1];
-      if constexpr (D == 3) f.v[i][2] -= dz + kb * gb[2];
-      const double mk = -double(f.mass[i]) * double(kb);
-      ix += mk * gb[0];
-      iy += mk * gb[1];
-      if constexpr (D == 3) iz += mk * gb[2];
     }
     boundaryImpulse_[0] += ix;
     boundaryImpulse_[1] += iy;
@@ -304,13 +318,16 @@ class DFSPH final : public PressureSolver<D> {
     const auto& f = sim.fluid;
     const long n = long(f.size());
     double sum = 0;
-#pragma omp parallel for schedule(static) reduction(+ : sum)
-    for (long i = 0; i < n; ++i) {
-      const Real rho0 = sim.restDensity_[f.phase[i]];
-      Real r = rateOfDensity<ND>(sim, i, rho0);
-      r = deficient_[i] ? Real(0) : std::max(r, Real(0));
-      residual_[i] = r;
-      sum += double(r / rho0);
+#pragma omp parallel reduction(+ : sum)
+    {
+      const auto [first, last] = sim.threadParticles();
+      for (long i = first; i < last; ++i) {
+        const Real rho0 = sim.restDensity_[f.phase[i]];
+        Real r = rateOfDensity<ND>(sim, i, rho0);
+        r = deficient_[i] ? Real(0) : std::max(r, Real(0));
+        residual_[i] = r;
+        sum += double(r / rho0);
+      }
     }
     return n ? Real(sum / double(n)) : Real(0);
   }
@@ -332,15 +349,18 @@ class DFSPH final : public PressureSolver<D> {
     const Real deferred = Real(1) - sim.stepScale();
     double sum = 0;
     Real mx = 0;
-#pragma omp parallel for schedule(static) reduction(+ : sum) reduction(max : mx)
-    for (long i = 0; i < n; ++i) {
-      const Real rho0 = sim.restDensity_[f.phase[i]];
-      const Real predicted = f.density[i] - deferred * std::max(f.density[i] - rho0, Real(0)) +
-                             dt * rateOfDensity<ND>(sim, i, rho0);
-      const Real err = std::max(predicted - rho0, Real(0));
-      residual_[i] = err / dt;
-      mx = std::max(mx, err / rho0);
-      sum += double(err / rho0);
+#pragma omp parallel reduction(+ : sum) reduction(max : mx)
+    {
+      const auto [first, last] = sim.threadParticles();
+      for (long i = first; i < last; ++i) {
+        const Real rho0 = sim.restDensity_[f.phase[i]];
+        const Real predicted = f.density[i] - deferred * std::max(f.density[i] - rho0, Real(0)) +
+                               dt * rateOfDensity<ND>(sim, i, rho0);
+        const Real err = std::max(predicted - rho0, Real(0));
+        residual_[i] = err / dt;
+        mx = std::max(mx, err / rho0);
+        sum += double(err / rho0);
+      }
     }
     maxErr = mx;
     return n ? Real(sum / double(n)) : Real(0);

@@ -267,8 +267,45 @@ void Simulation<D>::buildFluid() {
 // checked against the paper's text here.)
 template <int D>
 void Simulation<D>::computeDensities() {
+  splitWork();
   if (numberDensity_) computeDensitiesWith<true>();
   else computeDensitiesWith<false>();
+}
+
+template <int D>
+void Simulation<D>::splitWork() {
+  const auto& offsets = search.dynamicNeighbors().offsets;
+  const long n = long(fluid.size());
+  const int threads = omp_get_max_threads();
+  workSplit_.assign(size_t(threads) + 1, n);
+  workSplit_[0] = 0;
+  if (offsets.size() != size_t(n) + 1) {
+    for (int t = 1; t < threads; ++t) workSplit_[size_t(t)] = n * t / threads;
+    return;
+  }
+  // A particle's own terms (boundary sums, stores, reductions) cost about
+  // as much as this many pairs.
+  constexpr long kParticleCost = 6;
+  const long total = long(offsets[size_t(n)]) + kParticleCost * n;
+  for (int t = 1; t < threads; ++t) {
+    const long target = total * t / threads;
+    long lo = workSplit_[size_t(t) - 1], hi = n;  // first i with work(i) >= target
+    while (lo < hi) {
+      const long mid = (lo + hi) / 2;
+      if (long(offsets[size_t(mid)]) + kParticleCost * mid < target) lo = mid + 1;
+      else hi = mid;
+    }
+    workSplit_[size_t(t)] = lo;
+  }
+}
+
+template <int D>
+std::pair<long, long> Simulation<D>::threadParticles() const {
+  const long n = long(fluid.size());
+  const int t = omp_get_thread_num(), threads = omp_get_num_threads();
+  if (workSplit_.size() == size_t(threads) + 1 && workSplit_.back() == n)
+    return {workSplit_[size_t(t)], workSplit_[size_t(t) + 1]};
+  return {n * t / threads, n * (t + 1) / threads};
 }
 
 template <int D>
@@ -290,48 +327,51 @@ void Simulation<D>::computeDensitiesWith() {
   std::array<Real*, D> grad, plain;
   for (int d = 0; d < D; ++d) grad[d] = massGradW[d].data();
   for (int d = 0; d < D; ++d) plain[d] = NumberDensity ? gradW[d].data() : nullptr;
-#pragma omp parallel for schedule(static)
-  for (long i = 0; i < n; ++i) {
-    const Vec<D> xi = fluid.x[i];
-    // Mass sum: Σ_j m_j W_ij; number density: δ_i = Σ_j W_ij, the particle number density of [SP08] §4.
-    Real rho = NumberDensity ? w0 : fluid.mass[i] * w0;
-    const uint32_t kb = nf.offsets[i], ke = nf.offsets[i + 1];
+#pragma omp parallel
+  {
+    const auto [first, last] = (*this).threadParticles();
+    for (long i = first; i < last; ++i) {
+      const Vec<D> xi = fluid.x[i];
+      // Mass sum: Σ_j m_j W_ij; number density: δ_i = Σ_j W_ij, the particle number density of [SP08] §4.
+      Real rho = NumberDensity ? w0 : fluid.mass[i] * w0;
+      const uint32_t kb = nf.offsets[i], ke = nf.offsets[i + 1];
 #pragma omp simd reduction(+ : rho)
-    for (uint32_t k = kb; k < ke; ++k) {
-      const Real* xj = xs + size_t(D) * nbr[k];
-      Real r[D], r2 = 0;
-      for (int d = 0; d < D; ++d) {
-        r[d] = xi[d] - xj[d];
-        r2 += r[d] * r[d];
+      for (uint32_t k = kb; k < ke; ++k) {
+        const Real* xj = xs + size_t(D) * nbr[k];
+        Real r[D], r2 = 0;
+        for (int d = 0; d < D; ++d) {
+          r[d] = xi[d] - xj[d];
+          r2 += r[d] * r[d];
+        }
+        Real w, fac;
+        kernel.evaluateSquared(r2, w, fac);
+        const Real mj = mass[nbr[k]];
+        if constexpr (NumberDensity) rho += w;
+        else rho += mj * w;
+        for (int d = 0; d < D; ++d) grad[d][k] = mj * fac * r[d];
+        if constexpr (NumberDensity)
+          for (int d = 0; d < D; ++d) plain[d][k] = fac * r[d];
       }
-      Real w, fac;
-      kernel.evaluateSquared(r2, w, fac);
-      const Real mj = mass[nbr[k]];
-      if constexpr (NumberDensity) rho += w;
-      else rho += mj * w;
-      for (int d = 0; d < D; ++d) grad[d][k] = mj * fac * r[d];
-      if constexpr (NumberDensity)
-        for (int d = 0; d < D; ++d) plain[d][k] = fac * r[d];
+      // ρ_i = m_i δ_i, [SP08] §4 (its "adapted density").
+      if constexpr (NumberDensity) rho *= fluid.mass[i];
+      Real w;
+      Vec<D> g;
+      Real volume = 0, flux = 0;
+      Vec<D> gb = Vec<D>::Zero();
+      unsigned count = 0;
+      search.forEachStaticNear(xi, h, [&](uint32_t b, const Vec<D>& xb) {
+        kernel.evaluate(xi - xb, w, g);
+        const Real vb = boundary.volume[b];
+        volume += vb * w;
+        gb += vb * g;
+        flux += vb * boundary.v[b].dot(g);
+        ++count;
+      });
+      fluid.density[i] = rho + restDensity_[fluid.phase[i]] * volume;
+      boundaryGradW[i] = gb;
+      boundaryFlux[i] = flux;
+      boundaryNeighbors[i] = uint16_t(std::min(count, 65535u));
     }
-    // ρ_i = m_i δ_i, [SP08] §4 (its "adapted density").
-    if constexpr (NumberDensity) rho *= fluid.mass[i];
-    Real w;
-    Vec<D> g;
-    Real volume = 0, flux = 0;
-    Vec<D> gb = Vec<D>::Zero();
-    unsigned count = 0;
-    search.forEachStaticNear(xi, h, [&](uint32_t b, const Vec<D>& xb) {
-      kernel.evaluate(xi - xb, w, g);
-      const Real vb = boundary.volume[b];
-      volume += vb * w;
-      gb += vb * g;
-      flux += vb * boundary.v[b].dot(g);
-      ++count;
-    });
-    fluid.density[i] = rho + restDensity_[fluid.phase[i]] * volume;
-    boundaryGradW[i] = gb;
-    boundaryFlux[i] = flux;
-    boundaryNeighbors[i] = uint16_t(std::min(count, 65535u));
   }
 }
 
@@ -340,8 +380,11 @@ Real Simulation<D>::cflTimeStep() const {
   Real vmax2 = 0;
   const long n = long(fluid.size());
   const Real h = lastDt_;
-#pragma omp parallel for schedule(static) reduction(max : vmax2)
-  for (long i = 0; i < n; ++i) vmax2 = std::max(vmax2, (fluid.v[i] + h * fluid.a[i]).squaredNorm());
+#pragma omp parallel reduction(max : vmax2)
+  {
+    const auto [first, last] = (*this).threadParticles();
+    for (long i = first; i < last; ++i) vmax2 = std::max(vmax2, (fluid.v[i] + h * fluid.a[i]).squaredNorm());
+  }
   const Real cfl = Real(setup_.settings.get("cfl_factor"));
   const Real vmax = std::sqrt(vmax2);
   Real dtMax = Real(setup_.settings.get("dt_max"));
@@ -566,8 +609,11 @@ FrameStats Simulation<D>::advanceFrame() {
     fs.divergenceMs += took();
 
     // Non-pressure accelerations: gravity, then the scene's effects in order.
-#pragma omp parallel for schedule(static)
-    for (long i = 0; i < n; ++i) fluid.a[i] = gravity_;
+#pragma omp parallel
+    {
+      const auto [first, last] = (*this).threadParticles();
+      for (long i = first; i < last; ++i) fluid.a[i] = gravity_;
+    }
     for (Effect<D>* e : accelerationStages_) e->addAccelerations(*this);
     fs.nonPressureMs += took();
 
@@ -578,8 +624,11 @@ FrameStats Simulation<D>::advanceFrame() {
     if (remaining <= dt) dt = Real(remaining);
     else if (remaining < 2.0 * dt) dt = Real(0.5 * remaining);
 
-#pragma omp parallel for schedule(static)
-    for (long i = 0; i < n; ++i) fluid.v[i] += dt * fluid.a[i];
+#pragma omp parallel
+    {
+      const auto [first, last] = (*this).threadParticles();
+      for (long i = first; i < last; ++i) fluid.v[i] += dt * fluid.a[i];
+    }
 
     bool substepConverged = div.converged;
     // Implicit solves on v* (implicit viscosity), before the pressure solve.
@@ -609,8 +658,11 @@ FrameStats Simulation<D>::advanceFrame() {
     for (Effect<D>* e : velocityStages_) e->correctVelocities(*this, dt);
     if (bodies_) bodies_->integrate(*this, dt, setup_.domain, radius_);
 
-#pragma omp parallel for schedule(static)
-    for (long i = 0; i < n; ++i) fluid.x[i] += dt * fluid.v[i];
+#pragma omp parallel
+    {
+      const auto [first, last] = (*this).threadParticles();
+      for (long i = first; i < last; ++i) fluid.x[i] += dt * fluid.v[i];
+    }
     time_ += double(dt);
     // Keep time exact at frame boundaries despite rounding.
     if (time_ >= frameEnd - 1e-9) time_ = frameEnd;

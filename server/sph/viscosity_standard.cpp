@@ -50,25 +50,28 @@ class ViscosityStandard final : public Effect<D> {
     const Real eps = Real(0.01) * h * h;
     const Real d = Real(2 * (D + 2));
     const long n = long(f.size());
-#pragma omp parallel for schedule(static)
-    for (long i = 0; i < n; ++i) {
-      const Vec<D> xi = f.x[i], vi = f.v[i];
-      const Real nui = nu[f.phase[i]];
-      Vec<D> a = Vec<D>::Zero();
-      for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
-        const uint32_t j = sim.pairNeighbors()[k];
-        const Vec<D> xij = xi - f.x[j];
-        const Real nuij = Real(0.5) * (nui + nu[f.phase[j]]);
-        a += (nuij / f.density[j] * (vi - f.v[j]).dot(xij) / (xij.squaredNorm() + eps)) * sim.massGradWAt(k);
+#pragma omp parallel
+    {
+      const auto [first, last] = sim.threadParticles();
+      for (long i = first; i < last; ++i) {
+        const Vec<D> xi = f.x[i], vi = f.v[i];
+        const Real nui = nu[f.phase[i]];
+        Vec<D> a = Vec<D>::Zero();
+        for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
+          const uint32_t j = sim.pairNeighbors()[k];
+          const Vec<D> xij = xi - f.x[j];
+          const Real nuij = Real(0.5) * (nui + nu[f.phase[j]]);
+          a += (nuij / f.density[j] * (vi - f.v[j]).dot(xij) / (xij.squaredNorm() + eps)) * sim.massGradWAt(k);
+        }
+        if (boundaryViscosity_ > 0)
+          sim.search.forEachStaticNear(xi, sim.supportRadius(), [&](uint32_t b, const Vec<D>& xb) {
+            const Vec<D> xib = xi - xb;
+            a += (boundaryViscosity_ * sim.boundary.volume[b] * (vi - sim.boundary.v[b]).dot(xib) /
+                  (xib.squaredNorm() + eps)) *
+                 sim.kernel.gradW(xib);
+          });
+        f.a[i] += d * a;
       }
-      if (boundaryViscosity_ > 0)
-        sim.search.forEachStaticNear(xi, sim.supportRadius(), [&](uint32_t b, const Vec<D>& xb) {
-          const Vec<D> xib = xi - xb;
-          a += (boundaryViscosity_ * sim.boundary.volume[b] * (vi - sim.boundary.v[b]).dot(xib) /
-                (xib.squaredNorm() + eps)) *
-               sim.kernel.gradW(xib);
-        });
-      f.a[i] += d * a;
     }
   }
 
