@@ -48,7 +48,7 @@ AABB<D> imageBox(const Affine<D>& map, const AABB<D>& box) {
 // and Σ C W (= rate).
 template <int D>
 struct ControlSums {
-  Vec<D> attraction = Vec<D>::Zero(), velocity = Vec<D>::Zero(), repulsion = Vec<D>::Zero();
+  Vec<D> attraction = Vec<D>::Zero(), velocity = Vec<D>::Zero();
   Real rate = 0;
 };
 

@@ -329,7 +329,7 @@ void Simulation<D>::computeDensitiesWith() {
   for (int d = 0; d < D; ++d) plain[d] = NumberDensity ? gradW[d].data() : nullptr;
 #pragma omp parallel
   {
-    const auto [first, last] = (*this).threadParticles();
+    const auto [first, last] = threadParticles();
     for (long i = first; i < last; ++i) {
       const Vec<D> xi = fluid.x[i];
       // Mass sum: Σ_j m_j W_ij; number density: δ_i = Σ_j W_ij, the particle number density of [SP08] §4.
@@ -378,11 +378,10 @@ void Simulation<D>::computeDensitiesWith() {
 template <int D>
 Real Simulation<D>::cflTimeStep() const {
   Real vmax2 = 0;
-  const long n = long(fluid.size());
   const Real h = lastDt_;
 #pragma omp parallel reduction(max : vmax2)
   {
-    const auto [first, last] = (*this).threadParticles();
+    const auto [first, last] = threadParticles();
     for (long i = first; i < last; ++i) vmax2 = std::max(vmax2, (fluid.v[i] + h * fluid.a[i]).squaredNorm());
   }
   const Real cfl = Real(setup_.settings.get("cfl_factor"));
@@ -611,7 +610,7 @@ FrameStats Simulation<D>::advanceFrame() {
     // Non-pressure accelerations: gravity, then the scene's effects in order.
 #pragma omp parallel
     {
-      const auto [first, last] = (*this).threadParticles();
+      const auto [first, last] = threadParticles();
       for (long i = first; i < last; ++i) fluid.a[i] = gravity_;
     }
     for (Effect<D>* e : accelerationStages_) e->addAccelerations(*this);
@@ -626,7 +625,7 @@ FrameStats Simulation<D>::advanceFrame() {
 
 #pragma omp parallel
     {
-      const auto [first, last] = (*this).threadParticles();
+      const auto [first, last] = threadParticles();
       for (long i = first; i < last; ++i) fluid.v[i] += dt * fluid.a[i];
     }
 
@@ -660,7 +659,7 @@ FrameStats Simulation<D>::advanceFrame() {
 
 #pragma omp parallel
     {
-      const auto [first, last] = (*this).threadParticles();
+      const auto [first, last] = threadParticles();
       for (long i = first; i < last; ++i) fluid.x[i] += dt * fluid.v[i];
     }
     time_ += double(dt);

@@ -49,7 +49,6 @@ class ViscosityStandard final : public Effect<D> {
     const Real h = sim.supportRadius();
     const Real eps = Real(0.01) * h * h;
     const Real d = Real(2 * (D + 2));
-    const long n = long(f.size());
 #pragma omp parallel
     {
       const auto [first, last] = sim.threadParticles();
