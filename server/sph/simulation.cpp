@@ -283,8 +283,8 @@ void Simulation<D>::splitWork() {
     for (int t = 1; t < threads; ++t) workSplit_[size_t(t)] = n * t / threads;
     return;
   }
-  // A particle's own terms (boundary sums, stores, reductions) cost about
-  // as much as this many pairs.
+  // A particle's own terms (boundary sums, stores, reductions) weighed as
+  // this many pairs: an estimate, not tuned (the pairs dominate).
   constexpr long kParticleCost = 6;
   const long total = long(offsets[size_t(n)]) + kParticleCost * n;
   for (int t = 1; t < threads; ++t) {
