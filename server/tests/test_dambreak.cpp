@@ -9,6 +9,7 @@
 #include "sph/simulation.h"
 
 #include <gtest/gtest.h>
+#include <omp.h>
 #include "physics_checks.h"
 
 #include <algorithm>
@@ -37,6 +38,51 @@ struct DamRun {
   double wallSeconds = 0;
   bool reachedFarWall = false;
 };
+
+// The threads' particle blocks (Simulation::threadParticles) cover every
+// particle once, in order, and hold equal work once the dam break flows:
+// pairs plus the per-particle share, to within one particle.
+TEST(ThreadBlocks, CoverTheParticlesWithEqualPairWork3D) {
+  const auto json = loadSceneJson(std::string(FLOWCLIP_SOURCE_DIR) + "/scenes/dambreak3d.json");
+  Simulation<3> sim(parseScene<3>(json, 0.04));
+  for (int f = 0; f < 20; ++f) sim.advanceFrame();
+  sim.refreshNeighbors();
+  const int threads = omp_get_max_threads();
+  std::vector<std::pair<long, long>> blocks(size_t(threads), {-1, -1});
+  int team = 0;
+#pragma omp parallel num_threads(threads)
+  {
+    blocks[size_t(omp_get_thread_num())] = sim.threadParticles();
+#pragma omp single
+    team = omp_get_num_threads();
+  }
+  ASSERT_EQ(team, threads);
+  const long n = long(sim.fluid.size());
+  const uint32_t* off = sim.pairOffsets();
+  long next = 0;
+  std::vector<double> work;
+  for (const auto& [first, last] : blocks) {
+    EXPECT_EQ(first, next) << "blocks must be contiguous";
+    EXPECT_LE(first, last);
+    next = last;
+    work.push_back(double(off[last] - off[first]) + 6.0 * double(last - first));
+  }
+  EXPECT_EQ(next, n);
+  const double total = double(off[n]) + 6.0 * double(n);
+  // The split's granularity: one particle's share and pairs.
+  uint32_t mostPairs = 0;
+  for (long i = 0; i < n; ++i) mostPairs = std::max(mostPairs, off[i + 1] - off[i]);
+  const double granularity = 6.0 + double(mostPairs);
+  for (double w : work) EXPECT_NEAR(w, total / threads, granularity) << "a block's work";
+  // The scene must need the balancing: blocks of equal particle counts would
+  // be further apart than that (with more than one thread).
+  if (threads > 1) {
+    const long half = n / threads;
+    const double equalCount = double(off[half]) + 6.0 * double(half);
+    EXPECT_GT(std::abs(equalCount - total / threads), 4 * granularity)
+        << n << " particles: equal counts are already balanced, the test shows nothing";
+  }
+}
 
 // Runs until the front is within 2r of the far wall, or maxSeconds.
 template <int D>

@@ -2,6 +2,7 @@
 #include "core/neighborhood_search.h"
 #include "sph/particles.h"
 #include <gtest/gtest.h>
+#include <omp.h>
 #include <algorithm>
 #include <random>
 #include <set>
@@ -163,4 +164,46 @@ TEST(NeighborhoodSearch, NonFiniteAndFarPointsDoNotCrash) {
   EXPECT_EQ(ns.dynamicNeighbors().count(0), 1u);
   EXPECT_EQ(*ns.dynamicNeighbors().begin(0), 3u);
   EXPECT_EQ(ns.dynamicNeighbors().count(1), 0u);  // NaN is nobody's neighbour
+}
+
+// The box query returns exactly the points inside the box, each once, in
+// cell order; from 4096 candidates on it scans rows in parallel, and the
+// result must be the one-thread result, element for element.
+template <int D>
+void checkBoxQuery(const std::vector<Vec<D>>& x, const AABB<D>& grid, Real r, const AABB<D>& query) {
+  NeighborhoodSearch<D> ns;
+  ns.setGrid(grid, r);
+  ns.update(x);
+  std::vector<uint32_t> got;
+  ns.dynamicInBox(query, got);
+  std::vector<uint32_t> sorted = got, expected;
+  std::sort(sorted.begin(), sorted.end());
+  EXPECT_TRUE(std::adjacent_find(sorted.begin(), sorted.end()) == sorted.end()) << "a point listed twice";
+  for (uint32_t i = 0; i < x.size(); ++i)
+    if (query.contains(x[i])) expected.push_back(i);
+  EXPECT_EQ(sorted, expected);
+  for (size_t k = 1; k < got.size(); ++k)
+    ASSERT_LE(ns.linearCell(ns.cellCoord(x[got[k - 1]])), ns.linearCell(ns.cellCoord(x[got[k]])))
+        << "not in cell order at " << k;
+  const int threads = omp_get_max_threads();
+  omp_set_num_threads(1);
+  std::vector<uint32_t> serial;
+  ns.dynamicInBox(query, serial);
+  omp_set_num_threads(threads);
+  EXPECT_EQ(got, serial);
+}
+
+TEST(NeighborhoodSearch, BoxQueryEqualsBruteForceInCellOrder3D) {
+  const AABB<3> grid(Vec<3>(0, 0, 0), Vec<3>(1, 1, 1));
+  const auto x = randomPoints<3>(30000, grid, 5);
+  checkBoxQuery<3>(x, grid, 0.05f, AABB<3>(Vec<3>(0.1f, 0.05f, 0.2f), Vec<3>(0.9f, 0.8f, 0.95f)));  // rows in parallel
+  checkBoxQuery<3>(x, grid, 0.05f, AABB<3>(Vec<3>(0.4f, 0.4f, 0.4f), Vec<3>(0.5f, 0.55f, 0.5f)));   // a few candidates
+  checkBoxQuery<3>(x, grid, 0.05f, AABB<3>(Vec<3>(-1, -1, 0.5f), Vec<3>(2, 2, 3)));                 // past the grid
+}
+
+TEST(NeighborhoodSearch, BoxQueryEqualsBruteForceInCellOrder2D) {
+  const AABB<2> grid(Vec<2>(0, 0), Vec<2>(1, 1));
+  const auto x = randomPoints<2>(20000, grid, 6);
+  checkBoxQuery<2>(x, grid, 0.02f, AABB<2>(Vec<2>(0.05f, 0.1f), Vec<2>(0.95f, 0.9f)));
+  checkBoxQuery<2>(x, grid, 0.02f, AABB<2>(Vec<2>(0.5f, 0.5f), Vec<2>(0.52f, 0.6f)));
 }
