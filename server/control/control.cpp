@@ -129,38 +129,9 @@ size_t nearPoints(const NeighborhoodSearch<D>& grid, const std::array<const Real
 // (fields: position per axis, then w).
 template <int D>
 Real poly6SumNear(const std::array<const Real*, D + 1>& in, size_t count, const Poly6<D>& kernel, const Vec<D>& p) {
-  const Real h2 = kernel.radius() * kernel.radius();
-  Real sum = 0;
-  if constexpr (kVectorSums) {
-#if defined(__AVX512F__)
-    __m512 pv[D];
-    for (int d = 0; d < D; ++d) pv[d] = _mm512_set1_ps(p[d]);
-    const __m512 h2v = _mm512_set1_ps(h2);
-    __m512 acc = _mm512_setzero_ps();
-    for (size_t k = 0; k < count; k += 16) {
-      const __mmask16 live = count - k >= 16 ? __mmask16(0xFFFF) : __mmask16((1u << (count - k)) - 1);
-      __m512 d2 = _mm512_setzero_ps();
-      for (int d = 0; d < D; ++d) {
-        const __m512 dd = _mm512_sub_ps(_mm512_maskz_loadu_ps(live, in[d] + k), pv[d]);
-        d2 = _mm512_fmadd_ps(dd, dd, d2);
-      }
-      const __mmask16 hit = _mm512_mask_cmp_ps_mask(live, d2, h2v, _CMP_LT_OQ);
-      const __m512 t = _mm512_maskz_sub_ps(hit, h2v, d2);
-      acc = _mm512_fmadd_ps(_mm512_mul_ps(_mm512_mul_ps(t, t), t), _mm512_maskz_loadu_ps(hit, in[D] + k), acc);
-    }
-    sum = _mm512_reduce_add_ps(acc);
-#endif
-  } else {
-    for (size_t k = 0; k < count; ++k) {
-      Real d2 = 0;
-      for (int d = 0; d < D; ++d) d2 += (in[d][k] - p[d]) * (in[d][k] - p[d]);
-      if (d2 < h2) {
-        const Real t = h2 - d2;
-        sum += in[D][k] * t * t * t;
-      }
-    }
-  }
-  return kernel.coefficient() * sum;
+  Poly6Accumulator<D> sum(kernel, p);
+  sum.add(in.data(), in[D], 0, count);
+  return sum.total();
 }
 
 // w_r as applied: 0 when the instance's repulsion layer is off.
