@@ -140,7 +140,7 @@ class Control : public Effect<D> {
   std::vector<uint8_t> verdictScratch_;
   std::vector<uint8_t> emittedScratch_;     // seeding: a source already seeded this frame
   std::vector<std::vector<std::pair<uint32_t, NewParticle<D>>>> seedCandidates_;  // per thread
-  NeighborhoodSearch<D> localGrid_;   // gathered liquid in template space (for α)
+  NeighborhoodSearch<D> localGrid_;   // gathered liquid in template space (for α and the forces)
   std::vector<Real> sortedVolume_;    // their volumes m/ρ, in localGrid_'s cell order
   std::vector<Real> sortedMass_;      // seeding: control masses in their grid's order
   // The frame's control and repulsion particles in grids (template space,
@@ -150,7 +150,7 @@ class Control : public Effect<D> {
   NeighborhoodSearch<D> controlGrid_, repulsionGrid_;
   std::vector<Real> forceA_, forceC_;
   std::array<std::vector<Real>, D> forceV_, forceR_;
-  std::vector<uint32_t> occupiedCells_;         // localGrid_'s cells holding liquid
+  std::vector<uint32_t> occupiedCells_;         // the cells holding points (controlGrid_'s, then localGrid_'s)
   std::vector<std::vector<Real>> nearPoints_;   // per thread: the fields near one cell
   std::vector<Vec<D>> controlAcc_;    // per liquid particle
   std::vector<uint32_t> controlled_;  // particles with a non-zero controlAcc_
