@@ -283,16 +283,13 @@ void Simulation<D>::splitWork() {
     for (int t = 1; t < threads; ++t) workSplit_[size_t(t)] = n * t / threads;
     return;
   }
-  // A particle's own terms (boundary sums, stores, reductions) weighed as
-  // this many pairs: an estimate, not tuned (the pairs dominate).
-  constexpr long kParticleCost = 6;
-  const long total = long(offsets[size_t(n)]) + kParticleCost * n;
+  const long total = long(offsets[size_t(n)]) + kParticleWorkInPairs * n;
   for (int t = 1; t < threads; ++t) {
     const long target = total * t / threads;
     long lo = workSplit_[size_t(t) - 1], hi = n;  // first i with work(i) >= target
     while (lo < hi) {
       const long mid = (lo + hi) / 2;
-      if (long(offsets[size_t(mid)]) + kParticleCost * mid < target) lo = mid + 1;
+      if (long(offsets[size_t(mid)]) + kParticleWorkInPairs * mid < target) lo = mid + 1;
       else hi = mid;
     }
     workSplit_[size_t(t)] = lo;

@@ -165,6 +165,10 @@ class Simulation {
   // dam break flows) and each thread keeps meeting its own particles in its
   // own cache.
   std::pair<long, long> threadParticles() const;
+  // threadParticles' weight of a particle's own terms (boundary sums,
+  // stores, reductions), in pairs: an estimate, not tuned (the pairs
+  // dominate).
+  static constexpr long kParticleWorkInPairs = 6;
   const uint32_t* pairNeighbors() const { return search.dynamicNeighbors().indices.data(); }
   // Under the number density only (empty otherwise): ∇W(x_i - x_j) per pair,
   // same order, for the pressure solvers' volume-form pair terms.

@@ -59,26 +59,27 @@ TEST(ThreadBlocks, CoverTheParticlesWithEqualPairWork3D) {
   ASSERT_EQ(team, threads);
   const long n = long(sim.fluid.size());
   const uint32_t* off = sim.pairOffsets();
+  const double particleWork = double(Simulation<3>::kParticleWorkInPairs);
   long next = 0;
   std::vector<double> work;
   for (const auto& [first, last] : blocks) {
     EXPECT_EQ(first, next) << "blocks must be contiguous";
     EXPECT_LE(first, last);
     next = last;
-    work.push_back(double(off[last] - off[first]) + 6.0 * double(last - first));
+    work.push_back(double(off[last] - off[first]) + particleWork * double(last - first));
   }
   EXPECT_EQ(next, n);
-  const double total = double(off[n]) + 6.0 * double(n);
+  const double total = double(off[n]) + particleWork * double(n);
   // The split's granularity: one particle's share and pairs.
   uint32_t mostPairs = 0;
   for (long i = 0; i < n; ++i) mostPairs = std::max(mostPairs, off[i + 1] - off[i]);
-  const double granularity = 6.0 + double(mostPairs);
+  const double granularity = particleWork + double(mostPairs);
   for (double w : work) EXPECT_NEAR(w, total / threads, granularity) << "a block's work";
   // The scene must need the balancing: blocks of equal particle counts would
   // be further apart than that (with more than one thread).
   if (threads > 1) {
     const long half = n / threads;
-    const double equalCount = double(off[half]) + 6.0 * double(half);
+    const double equalCount = double(off[half]) + particleWork * double(half);
     EXPECT_GT(std::abs(equalCount - total / threads), 4 * granularity)
         << n << " particles: equal counts are already balanced, the test shows nothing";
   }
