@@ -73,9 +73,13 @@ void NeighborhoodSearch<D>::countingSort(const std::vector<Vec<D>>& x, std::vect
 
 namespace {
 
+// A sixteen-wide step stores all sixteen lanes, up to 15 past its last hit.
+constexpr size_t kScanSlack = 16;
+
 // Writes the indices of the candidates k in [begin, end) within sqrt(r2) of p
 // (except `self`) to dst and returns how many. dst must have room for every
-// candidate: misses are written too, only the cursor skips them.
+// candidate plus kScanSlack: misses are written too, only the cursor skips
+// them.
 template <int D>
 size_t scanRow(const std::array<std::vector<Real>, D>& sorted, const uint32_t* sortedIdx, uint32_t begin,
                uint32_t end, const Vec<D>& p, Real r2, uint32_t self, uint32_t* dst) {
@@ -83,7 +87,10 @@ size_t scanRow(const std::array<std::vector<Real>, D>& sorted, const uint32_t* s
   uint32_t k = begin;
 #if defined(__AVX512F__)
   if constexpr (std::is_same_v<Real, float>) {
-    // Sixteen candidates per step; the hits are packed with one compress-store.
+    // Sixteen candidates per step; the hits are packed in a register and all
+    // sixteen lanes stored. The compress-to-memory form (vpcompressd m512) is
+    // microcoded on Zen 4 and made this search 4x slower there (18 ms of a
+    // 61 ms substep at 3D r = 0.0125); the register form is fast everywhere.
     __m512 pv[D];
     for (int d = 0; d < D; ++d) pv[d] = _mm512_set1_ps(p[d]);
     const __m512 r2v = _mm512_set1_ps(r2);
@@ -98,7 +105,7 @@ size_t scanRow(const std::array<std::vector<Real>, D>& sorted, const uint32_t* s
       const __m512i idx = _mm512_maskz_loadu_epi32(live, sortedIdx + k);
       const __mmask16 m = _mm512_mask_cmp_ps_mask(live, d2, r2v, _CMP_LE_OQ) &
                           ~_mm512_cmpeq_epi32_mask(idx, selfv);
-      _mm512_mask_compressstoreu_epi32(dst + hits, m, idx);
+      _mm512_storeu_si512(dst + hits, _mm512_maskz_compress_epi32(m, idx));
       hits += size_t(__builtin_popcount(unsigned(m)));
     }
     return hits;
@@ -163,7 +170,8 @@ void NeighborhoodSearch<D>::buildLists(const std::vector<Vec<D>>& x, const std::
       }
       // Room for every candidate, so the loop below can write each one and
       // advance the cursor only for hits, without a branch.
-      if (buf.size() < used + candidates) buf.resize(std::max(2 * buf.size(), used + candidates + 1024));
+      if (buf.size() < used + candidates + kScanSlack)
+        buf.resize(std::max(2 * buf.size(), used + candidates + kScanSlack + 1024));
       uint32_t* dst = buf.data() + used;
       size_t hits = 0;
       for (int rr = 0; rr < nrows; ++rr)
