@@ -1,0 +1,223 @@
+#!/usr/bin/env python3
+"""Times SPlisHSPlasH and flowclip on the same dam breaks, alternating runs on
+this machine, and prints each one's µs per particle-step and wall seconds
+per simulated second with our share of SPlisHSPlasH's.
+
+    build/venv/bin/python tools/bench_reference.py                 # all four scenes/bench scenes, once each
+    build/venv/bin/python tools/bench_reference.py --only 3d_r0125 --repeat 3 --out ref.json
+
+Why: the figures issue 2 quotes for SPlisHSPlasH were read on one host on
+one day. The virtual machines this project runs on differ by up to 1.7x in
+speed from one session to the next (a Zen 5 host one day, a Zen 4 host
+another), so our figures can only be compared with figures taken on the
+same host in the same hour. This script takes both.
+
+SPlisHSPlasH comes from its own wheel on PyPI (pysplishsplash, pinned
+below: single precision, OpenMP, the AVX code paths; not the -march=native
+build of the quoted figures), installed into build/splishsplash-venv on
+first use. Nothing of it is in this repository. Its scenes are written from
+the DamBreakModel.json and DamBreakModel_2D.json it ships, with the
+settings of our reference scenes (scenes/bench/): particle radius, DFSPH
+density tolerance 0.05 % (3D) / 0.1 % (2D), divergence 0.1 %, CFL factor
+1, steps <= 5 ms, standard viscosity 0.01, its volume-map boundaries; the
+2D scene's micropolar vorticity is switched off, since ours has none.
+Both run 2 threads. SPlisHSPlasH's time is the sum of its own SimStep
+timer (initialisation excluded, as ours); its steps are counted by a
+per-step callback.
+"""
+import argparse
+import json
+import os
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+WHEEL = "pysplishsplash==2.19.0"
+
+# name: (our scene, SPlisHSPlasH's shipped scene, particle radius, density tolerance %)
+SCENES = {
+    "3d_r010": ("scenes/bench/dambreak3d_r010.json", "DamBreakModel.json", 0.01, 0.05),
+    "3d_r0125": ("scenes/bench/dambreak3d_r0125.json", "DamBreakModel.json", 0.0125, 0.05),
+    "2d_r010": ("scenes/bench/dambreak2d_r010.json", "DamBreakModel_2D.json", 0.01, 0.1),
+    "2d_r005": ("scenes/bench/dambreak2d_r005.json", "DamBreakModel_2D.json", 0.005, 0.1),
+}
+
+# Runs inside SPlisHSPlasH's venv: argv = scene, simulated seconds.
+DRIVER = r"""
+import json, resource, sys
+import pysplishsplash as sph
+scene, seconds = sys.argv[1], float(sys.argv[2])
+base = sph.Exec.SimulatorBase()
+base.init(["splash", "--no-gui", "--no-cache", "--no-initial-pause", "--output-dir", sys.argv[3],
+           "--stopAt", str(seconds), scene], "reference")
+state = {"steps": 0, "particles": 0}
+def step():
+    if state["steps"] == 0:
+        state["particles"] = sph.Simulation.getCurrent().getFluidModel(0).numActiveParticles()
+    state["steps"] += 1
+base.setTimeStepCB(step)
+base.run()
+state["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+print("DRIVER " + json.dumps(state), flush=True)
+"""
+
+
+def venv_python(build):
+    venv = os.path.join(build, "splishsplash-venv")
+    py = os.path.join(venv, "bin", "python")
+    if not os.path.exists(py):
+        print(f"installing {WHEEL} into {venv}", file=sys.stderr, flush=True)
+        subprocess.run([sys.executable, "-m", "venv", venv], check=True)
+        subprocess.run([py, "-m", "pip", "install", "-q", WHEEL], check=True)
+    # The wheel bundles its own libGLdispatch/libGLX/libOpenGL; loaded next to
+    # Debian's libGLX (which Chromium brings) they crash at import
+    # (__glDispatchInit). Debian's copies serve instead.
+    libs = subprocess.run([py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                          check=True, capture_output=True, text=True).stdout.strip()
+    bundled = os.path.join(libs, "pysplishsplash.libs")
+    system = "/lib/x86_64-linux-gnu"
+    for name in os.listdir(bundled):
+        m = re.match(r"(libGLdispatch|libGLX|libOpenGL)-[0-9a-f]+\.so\.0", name)
+        path = os.path.join(bundled, name)
+        if m and not os.path.islink(path) and os.path.exists(os.path.join(system, m.group(1) + ".so.0")):
+            os.replace(path, path + ".bundled")
+            os.symlink(os.path.join(system, m.group(1) + ".so.0"), path)
+    data = os.path.join(venv, "bin", "data")
+    return py, data
+
+
+def reference_scene(data, shipped, radius, tolerance, path):
+    with open(os.path.join(data, "Scenes", shipped)) as fh:
+        s = json.load(fh)
+    c = s["Configuration"]
+    c.update({"particleRadius": radius, "cflMethod": 1, "cflFactor": 1, "cflMaxTimeStepSize": 0.005, "pause": False})
+    c["DFSPH"].update({"maxError": tolerance, "maxErrorV": 0.1, "minIterations": 2, "maxIterations": 100})
+    for m in s["Materials"]:
+        m.pop("vorticityMethod", None)
+        m["viscosityMethod"] = 1
+        m["Standard viscosity"] = {"viscosity": 0.01}
+    for b in s["RigidBodies"]:
+        b["geometryFile"] = os.path.join(data, "models", os.path.basename(b["geometryFile"]))
+    with open(path, "w") as fh:
+        json.dump(s, fh, indent=1)
+
+
+def run_reference(py, scene, seconds, threads, workdir):
+    env = dict(os.environ, OMP_NUM_THREADS=str(threads))
+    out = subprocess.run([py, "-c", DRIVER, scene, str(seconds), workdir], env=env, check=True,
+                         capture_output=True, text=True, cwd=workdir).stdout
+    def number(label):
+        m = re.search(re.escape(label) + r":\s*([0-9.eE+-]+)", out)
+        if not m:
+            raise RuntimeError(f"SPlisHSPlasH printed no '{label}'")
+        return float(m.group(1))
+    state = json.loads(out.split("DRIVER ", 1)[1].splitlines()[0])
+    step_ms = number("Time sum: SimStep")
+    simulated = number("Total number: Time step size")
+    steps, n = state["steps"], state["particles"]
+    return {
+        "particles": n,
+        "steps": steps,
+        "simulated_s": simulated,
+        "us_per_particle_step": step_ms * 1e3 / (steps * n),
+        "wall_s_per_simulated_s": step_ms / 1e3 / simulated,
+        "density_iterations_per_step": number("Average number: DFSPH - iterations"),
+        "divergence_iterations_per_step": number("Average number: DFSPH - iterationsV"),
+        "peak_rss_mb": state["peak_rss_mb"],
+    }
+
+
+def run_ours(binary, scene, seconds, threads):
+    with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as f:
+        stats = f.name
+    try:
+        subprocess.run([binary, "run", scene, "--seconds", str(seconds), "--threads", str(threads), "--stats", stats,
+                        "--quiet"], check=True, cwd=ROOT)
+        with open(stats) as fh:
+            s = json.load(fh)
+    finally:
+        os.unlink(stats)
+    frames, summary = s["frames"], s["summary"]
+    steps = summary["substeps"]
+    return {
+        "particles": summary["liquid_particles"],
+        "steps": steps,
+        "simulated_s": summary["simulated_s"],
+        "us_per_particle_step": summary["us_per_particle_step"],
+        "wall_s_per_simulated_s": summary["wall_s_per_simulated_s"],
+        "density_iterations_per_step": sum(f["density_iterations"] for f in frames) / steps,
+        "divergence_iterations_per_step": sum(f["divergence_iterations"] for f in frames) / steps,
+        "peak_rss_mb": summary["peak_rss_mb"],
+    }
+
+
+def spread(values, fmt):
+    lo, hi, med = min(values), max(values), statistics.median(values)
+    return fmt.format(med) if lo == hi else (fmt + " ({}–{})").format(med, fmt.format(lo), fmt.format(hi))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--only", nargs="+", choices=sorted(SCENES), help="scenes to run (default: all four)")
+    ap.add_argument("--seconds", type=float, default=2.0, help="simulated seconds per run")
+    ap.add_argument("--repeat", type=int, default=1, help="alternating pairs of runs per scene")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--binary", default=os.path.join(ROOT, "build", "flowclip"))
+    ap.add_argument("--out", help="also write every run as JSON")
+    args = ap.parse_args()
+    if args.repeat < 1 or args.seconds <= 0:
+        ap.error("--repeat must be >= 1 and --seconds > 0")
+
+    py, data = venv_python(os.path.join(ROOT, "build"))
+    names = args.only or list(SCENES)
+    results = {}
+    with tempfile.TemporaryDirectory() as work:
+        total = len(names) * args.repeat * 2
+        done = 0
+        for name in names:
+            ours_scene, shipped, radius, tolerance = SCENES[name]
+            ref_scene = os.path.join(work, name + ".json")
+            reference_scene(data, shipped, radius, tolerance, ref_scene)
+            runs = {"splishsplash": [], "flowclip": []}
+            for k in range(args.repeat):
+                # Alternate which goes first, so a drift in the host's speed
+                # over the pair does not favour one.
+                order = ["splishsplash", "flowclip"] if k % 2 == 0 else ["flowclip", "splishsplash"]
+                for who in order:
+                    done += 1
+                    print(f"[{done}/{total}] {name} {who} ({args.seconds:g} simulated s)", file=sys.stderr, flush=True)
+                    r = (run_reference(py, ref_scene, args.seconds, args.threads, work) if who == "splishsplash"
+                         else run_ours(args.binary, ours_scene, args.seconds, args.threads))
+                    runs[who].append(r)
+            results[name] = runs
+
+    sys.stderr.flush()
+    print("| scene | particles (ours / SPlisHSPlasH) | steps | density / divergence iterations per step "
+          "| µs / particle-step | wall s / simulated s | peak RSS MB | ours / theirs (µs, wall) |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name, runs in results.items():
+        o, r = runs["flowclip"], runs["splishsplash"]
+        us_ratio = [100 * a["us_per_particle_step"] / b["us_per_particle_step"] for a, b in zip(o, r)]
+        wall_ratio = [100 * a["wall_s_per_simulated_s"] / b["wall_s_per_simulated_s"] for a, b in zip(o, r)]
+        print(f"| {name} | {o[0]['particles']} / {r[0]['particles']} | {o[0]['steps']} / {r[0]['steps']} "
+              f"| {o[0]['density_iterations_per_step']:.2f} / {o[0]['divergence_iterations_per_step']:.2f} vs "
+              f"{r[0]['density_iterations_per_step']:.2f} / {r[0]['divergence_iterations_per_step']:.2f} "
+              f"| {spread([x['us_per_particle_step'] for x in o], '{:.3f}')} vs "
+              f"{spread([x['us_per_particle_step'] for x in r], '{:.3f}')} "
+              f"| {spread([x['wall_s_per_simulated_s'] for x in o], '{:.1f}')} vs "
+              f"{spread([x['wall_s_per_simulated_s'] for x in r], '{:.1f}')} "
+              f"| {max(x['peak_rss_mb'] for x in o):.0f} vs {max(x['peak_rss_mb'] for x in r):.0f} "
+              f"| {spread(us_ratio, '{:.1f}')} %, {spread(wall_ratio, '{:.1f}')} % |")
+    if args.out:
+        tmp = args.out + ".tmp"
+        with open(tmp, "w") as fh:
+            json.dump({"threads": args.threads, "seconds": args.seconds, "reference": WHEEL, "scenes": results},
+                      fh, indent=1)
+        os.replace(tmp, args.out)
+
+
+if __name__ == "__main__":
+    main()
