@@ -17,10 +17,11 @@ below: single precision, OpenMP, the AVX code paths; not the -march=native
 build of the quoted figures), installed into build/splishsplash-venv on
 first use. Nothing of it is in this repository. Its scenes are written from
 the DamBreakModel.json and DamBreakModel_2D.json it ships, with the
-settings of our reference scenes (scenes/bench/): particle radius, DFSPH
-density tolerance 0.05 % (3D) / 0.1 % (2D), divergence 0.1 %, CFL factor
-1, steps <= 5 ms, standard viscosity 0.01, its volume-map boundaries; the
-2D scene's micropolar vorticity is switched off, since ours has none.
+settings read from our reference scenes (scenes/bench/): particle radius,
+DFSPH density and divergence tolerances, CFL factor, step limit, gravity,
+rest density and standard viscosity (`reference_scene`); its tank, block
+and volume-map boundaries stay its own, and the 2D scene's micropolar
+vorticity is switched off, since ours has none.
 Both run 2 threads. SPlisHSPlasH's time is the sum of its own SimStep
 timer (initialisation excluded, as ours); its steps are counted by a
 per-step callback.
@@ -37,12 +38,12 @@ import tempfile
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 WHEEL = "pysplishsplash==2.19.0"
 
-# name: (our scene, SPlisHSPlasH's shipped scene, particle radius, density tolerance %)
+# name: (our reference scene, the SPlisHSPlasH scene it is written from)
 SCENES = {
-    "3d_r010": ("scenes/bench/dambreak3d_r010.json", "DamBreakModel.json", 0.01, 0.05),
-    "3d_r0125": ("scenes/bench/dambreak3d_r0125.json", "DamBreakModel.json", 0.0125, 0.05),
-    "2d_r010": ("scenes/bench/dambreak2d_r010.json", "DamBreakModel_2D.json", 0.01, 0.1),
-    "2d_r005": ("scenes/bench/dambreak2d_r005.json", "DamBreakModel_2D.json", 0.005, 0.1),
+    "3d_r010": ("scenes/bench/dambreak3d_r010.json", "DamBreakModel.json"),
+    "3d_r0125": ("scenes/bench/dambreak3d_r0125.json", "DamBreakModel.json"),
+    "2d_r010": ("scenes/bench/dambreak2d_r010.json", "DamBreakModel_2D.json"),
+    "2d_r005": ("scenes/bench/dambreak2d_r005.json", "DamBreakModel_2D.json"),
 }
 
 # Runs inside SPlisHSPlasH's venv: argv = scene, simulated seconds.
@@ -89,35 +90,61 @@ def venv_python(build):
     return py, data
 
 
-def reference_scene(data, shipped, radius, tolerance, path):
-    with open(os.path.join(data, "Scenes", shipped)) as fh:
-        s = json.load(fh)
+def reference_scene(ours, shipped):
+    """SPlisHSPlasH's shipped scene `shipped` (a dict) with the settings of
+    our scene `ours` (a dict, scenes/bench/*.json): the same particle radius,
+    DFSPH tolerances, CFL factor, step limit and viscosity. Its tank and
+    block stay its own (ours copy them)."""
+    settings = ours.get("settings", {})
+    solver = ours["solver"]
+    if solver.get("method") != "dfsph":
+        raise ValueError(f"{ours.get('name')}: the reference runs DFSPH, the scene names {solver.get('method')}")
+    (phase,) = ours["phases"]
+    s = json.loads(json.dumps(shipped))
     c = s["Configuration"]
-    c.update({"particleRadius": radius, "cflMethod": 1, "cflFactor": 1, "cflMaxTimeStepSize": 0.005, "pause": False})
-    c["DFSPH"].update({"maxError": tolerance, "maxErrorV": 0.1, "minIterations": 2, "maxIterations": 100})
+    c.update({"particleRadius": ours["particle_radius"], "cflMethod": 1, "cflFactor": settings["cfl_factor"],
+              "cflMaxTimeStepSize": settings["dt_max"], "pause": False,
+              "gravitation": list(ours["gravity"]) + [0] * (3 - len(ours["gravity"]))})
+    c["DFSPH"].update({"maxError": solver["density_tolerance_pct"], "maxErrorV": solver["divergence_tolerance_pct"],
+                       "enableDivergenceSolver": True})
     for m in s["Materials"]:
+        # Ours has no vorticity model: the 2D scene's micropolar one goes.
         m.pop("vorticityMethod", None)
+        m["density0"] = phase["rest_density"]
         m["viscosityMethod"] = 1
-        m["Standard viscosity"] = {"viscosity": 0.01}
+        m["Standard viscosity"] = {"viscosity": phase["viscosity"]}
+    return s
+
+
+def write_reference_scene(data, ours_path, shipped_name, path):
+    with open(os.path.join(ROOT, ours_path)) as fh:
+        ours = json.load(fh)
+    with open(os.path.join(data, "Scenes", shipped_name)) as fh:
+        shipped = json.load(fh)
+    s = reference_scene(ours, shipped)
     for b in s["RigidBodies"]:
         b["geometryFile"] = os.path.join(data, "models", os.path.basename(b["geometryFile"]))
     with open(path, "w") as fh:
         json.dump(s, fh, indent=1)
 
 
-def run_reference(py, scene, seconds, threads, workdir):
-    env = dict(os.environ, OMP_NUM_THREADS=str(threads))
-    out = subprocess.run([py, "-c", DRIVER, scene, str(seconds), workdir], env=env, check=True,
-                         capture_output=True, text=True, cwd=workdir).stdout
+def parse_reference_output(out):
+    """The figures of one SPlisHSPlasH run from what the driver printed: its
+    own timing summary (SimStep, step sizes, iterations) and the driver's
+    DRIVER line (steps counted, fluid particles, peak RSS)."""
     def number(label):
         m = re.search(re.escape(label) + r":\s*([0-9.eE+-]+)", out)
         if not m:
             raise RuntimeError(f"SPlisHSPlasH printed no '{label}'")
         return float(m.group(1))
+    if "DRIVER " not in out:
+        raise RuntimeError("the SPlisHSPlasH driver printed no result line")
     state = json.loads(out.split("DRIVER ", 1)[1].splitlines()[0])
     step_ms = number("Time sum: SimStep")
     simulated = number("Total number: Time step size")
     steps, n = state["steps"], state["particles"]
+    if steps <= 0 or n <= 0 or simulated <= 0:
+        raise RuntimeError(f"SPlisHSPlasH ran {steps} steps of {n} particles over {simulated} s")
     return {
         "particles": n,
         "steps": steps,
@@ -128,6 +155,13 @@ def run_reference(py, scene, seconds, threads, workdir):
         "divergence_iterations_per_step": number("Average number: DFSPH - iterationsV"),
         "peak_rss_mb": state["peak_rss_mb"],
     }
+
+
+def run_reference(py, scene, seconds, threads, workdir):
+    env = dict(os.environ, OMP_NUM_THREADS=str(threads))
+    out = subprocess.run([py, "-c", DRIVER, scene, str(seconds), workdir], env=env, check=True,
+                         capture_output=True, text=True, cwd=workdir).stdout
+    return parse_reference_output(out)
 
 
 def run_ours(binary, scene, seconds, threads):
@@ -178,9 +212,9 @@ def main():
         total = len(names) * args.repeat * 2
         done = 0
         for name in names:
-            ours_scene, shipped, radius, tolerance = SCENES[name]
+            ours_scene, shipped = SCENES[name]
             ref_scene = os.path.join(work, name + ".json")
-            reference_scene(data, shipped, radius, tolerance, ref_scene)
+            write_reference_scene(data, ours_scene, shipped, ref_scene)
             runs = {"splishsplash": [], "flowclip": []}
             for k in range(args.repeat):
                 # Alternate which goes first, so a drift in the host's speed

@@ -1,0 +1,103 @@
+"""tools/bench_reference.py without SPlisHSPlasH itself: the reference scenes
+it writes carry our bench scenes' settings, and a SPlisHSPlasH run's printed
+summary becomes the figures the README quotes."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import pathlib
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+_spec = importlib.util.spec_from_file_location("bench_reference", ROOT / "tools" / "bench_reference.py")
+bench_reference = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(bench_reference)
+
+# The shape of SPlisHSPlasH's shipped dam breaks, with values unlike ours so
+# that a setting not carried over shows.
+SHIPPED = {
+    "Configuration": {
+        "particleRadius": 0.025, "sim2D": True, "pause": True, "gravitation": [0, -1, 0],
+        "cflMethod": 2, "cflFactor": 0.5, "cflMaxTimeStepSize": 0.01, "boundaryHandlingMethod": 2,
+        "DFSPH": {"minIterations": 2, "maxIterations": 100, "maxError": 0.5, "maxIterationsV": 100,
+                  "maxErrorV": 0.7, "enableDivergenceSolver": False},
+    },
+    "Materials": [{"id": "Fluid", "density0": 500, "viscosityMethod": 3, "vorticityMethod": 1,
+                   "Standard viscosity": {"viscosity": 0.5}}],
+    "RigidBodies": [{"geometryFile": "../models/UnitBox.obj", "scale": [4, 4, 1], "isWall": True}],
+    "FluidBlocks": [{"start": [-2.0, 0.0, -1], "end": [-0.5, 1.5, 1]}],
+}
+
+
+@pytest.mark.parametrize("name", sorted(bench_reference.SCENES))
+def test_reference_scene_carries_our_settings(name):
+    ours_path, shipped_name = bench_reference.SCENES[name]
+    ours = json.loads((ROOT / ours_path).read_text())
+    shipped = json.loads(json.dumps(SHIPPED))
+    s = bench_reference.reference_scene(ours, shipped)
+    c = s["Configuration"]
+    assert c["particleRadius"] == ours["particle_radius"]
+    assert c["DFSPH"]["maxError"] == ours["solver"]["density_tolerance_pct"]
+    assert c["DFSPH"]["maxErrorV"] == ours["solver"]["divergence_tolerance_pct"]
+    assert c["DFSPH"]["enableDivergenceSolver"] is True
+    assert c["cflMethod"] == 1
+    assert c["cflFactor"] == ours["settings"]["cfl_factor"]
+    assert c["cflMaxTimeStepSize"] == ours["settings"]["dt_max"]
+    assert c["pause"] is False
+    assert c["gravitation"][:ours["dimension"]] == ours["gravity"]
+    (m,) = s["Materials"]
+    (phase,) = ours["phases"]
+    assert m["density0"] == phase["rest_density"]
+    assert m["viscosityMethod"] == 1 and m["Standard viscosity"]["viscosity"] == phase["viscosity"]
+    assert "vorticityMethod" not in m
+    # Its tank and block stay its own; the shipped dict is not modified.
+    assert s["RigidBodies"] == SHIPPED["RigidBodies"] and s["FluidBlocks"] == SHIPPED["FluidBlocks"]
+    assert shipped == SHIPPED
+    # 3D scenes come from the 3D dam break, 2D from the 2D one.
+    assert shipped_name == ("DamBreakModel_2D.json" if ours["dimension"] == 2 else "DamBreakModel.json")
+
+
+def test_reference_refuses_a_scene_of_another_solver():
+    ours = json.loads((ROOT / "scenes/bench/dambreak2d_r010.json").read_text())
+    ours["solver"] = {"method": "wcsph"}
+    with pytest.raises(ValueError, match="wcsph"):
+        bench_reference.reference_scene(ours, SHIPPED)
+
+
+# Lines as SPlisHSPlasH 2.19 prints them at the end of a run (3D r = 0.0125).
+OUTPUT = """Number of fluid particles: 59319
+Average time: SimStep: 127.177 ms
+---------------------------------------------------------------------------
+Time sum: SimStep: 156300 ms
+Time sum: pressureSolve: 38694.4 ms
+Time sum: neighborhood_search: 79335.9 ms
+---------------------------------------------------------------------------
+Average number: Time step size: 0.00162537
+Average number: DFSPH - iterations: 4.73881
+Average number: DFSPH - iterationsV: 1.00325
+---------------------------------------------------------------------------
+Total number: Time step size: 1.99759
+Total number: DFSPH - iterations: 5824
+DRIVER {"steps": 1229, "particles": 59319, "peak_rss_mb": 97.4}
+"""
+
+
+def test_reference_figures_from_its_summary():
+    r = bench_reference.parse_reference_output(OUTPUT)
+    assert r["steps"] == 1229 and r["particles"] == 59319
+    assert r["simulated_s"] == pytest.approx(1.99759)
+    # SimStep's sum over steps × particles; not the neighbour search's line.
+    assert r["us_per_particle_step"] == pytest.approx(156300e3 / (1229 * 59319))
+    assert r["wall_s_per_simulated_s"] == pytest.approx(156.3 / 1.99759)
+    assert r["density_iterations_per_step"] == pytest.approx(4.73881)
+    assert r["divergence_iterations_per_step"] == pytest.approx(1.00325)
+    assert r["peak_rss_mb"] == pytest.approx(97.4)
+
+
+@pytest.mark.parametrize("drop", ["Time sum: SimStep", "DRIVER", "Total number: Time step size"])
+def test_reference_output_missing_a_figure_is_an_error(drop):
+    out = "\n".join(line for line in OUTPUT.splitlines() if not line.startswith(drop))
+    with pytest.raises(RuntimeError):
+        bench_reference.parse_reference_output(out)
