@@ -145,7 +145,7 @@ int benchSolver(const BenchOptions& opt) {
       results.push_back(row);
     }
   }
-  if (!opt.out.empty()) std::ofstream(opt.out) << results.dump(1) << '\n';
+  if (!opt.out.empty()) writeJsonAtomically(opt.out, results);
   return worst;
 }
 

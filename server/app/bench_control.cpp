@@ -66,6 +66,7 @@ struct ControlBenchOptions {
   int frames = 0;  // 0: until the last instance of each scene ends
   std::string templates = "templates";
   int threads = 0;
+  int repeat = 1;  // runs per scene and mode; the one of median control share is reported
   std::string out;
 };
 
@@ -263,20 +264,51 @@ TableRow paperRow(const PaperRow& p) {
           p.simulationMs, p.controlMs, p.controlPct, p.memory, p.storageMb, "-"};
 }
 
-std::string verdict(const ScenePlan& plan, const std::map<std::string, ControlRun>& runs) {
+// A mode's repeated runs: the one of median control share (the upper of the
+// two middle ones for an even count: a noisy host never rounds the verdict
+// down) and the range of the shares.
+struct RepeatedRuns {
+  ControlRun median;
+  double lowPct = 0, highPct = 0;
+  std::vector<double> pcts;  // in run order
+};
+
+RepeatedRuns medianRun(const std::vector<ControlRun>& runs) {
+  RepeatedRuns out;
+  if (runs.empty()) return out;
+  std::vector<ControlRun> sorted = runs;
+  std::sort(sorted.begin(), sorted.end(),
+            [](const ControlRun& a, const ControlRun& b) { return a.controlPct() < b.controlPct(); });
+  out.median = sorted[sorted.size() / 2];
+  out.lowPct = sorted.front().controlPct();
+  out.highPct = sorted.back().controlPct();
+  for (const auto& r : runs) out.pcts.push_back(r.controlPct());
+  return out;
+}
+
+std::string spread(const RepeatedRuns& r) {
+  if (r.pcts.size() < 2) return "";
+  return " (median of " + std::to_string(r.pcts.size()) + " runs, " + fixed(r.lowPct, 1) + "-" +
+         fixed(r.highPct, 1) + " %)";
+}
+
+std::string verdict(const ScenePlan& plan, const std::map<std::string, RepeatedRuns>& repeated) {
+  std::map<std::string, ControlRun> runs;
+  for (const auto& [label, r] : repeated) runs[label] = r.median;
   const auto paper = runs.find(kModes[0].label);
   if (paper == runs.end()) return plan.stem + ": no verdict (the per-frame run failed)";
   const ControlRun& r = paper->second;
   if (!r.activeFrames)
     return plan.stem + ": no verdict (no frame with an active instance in " + std::to_string(r.frames) + " frames)";
-  std::string line = plan.stem + ": control is " + fixed(r.controlPct(), 1) +
-                     " % of the simulation's time with forces once per frame: " +
+  std::string line = plan.stem + ": control is " + fixed(r.controlPct(), 1) + " %" +
+                     spread(repeated.at(kModes[0].label)) + " of the simulation's time with forces once per frame: " +
                      (r.controlPct() < kTargetPct ? "meets" : "misses") + " the target (under " +
                      fixed(kTargetPct, 0) + " %)";
   const auto substep = runs.find(kModes[1].label);
   if (substep != runs.end() && substep->second.activeFrames) {
     const ControlRun& s = substep->second;
-    line += "; every substep: " + fixed(s.controlPct(), 1) + " % (control " +
+    line += "; every substep: " + fixed(s.controlPct(), 1) + " %" + spread(repeated.at(kModes[1].label)) +
+            " (control " +
             fixed(r.controlMs > 0 ? s.controlMs / r.controlMs : 0, 1) + "x, " +
             (s.controlPct() < kTargetPct ? "within" : "over") + " the target)";
   }
@@ -337,33 +369,43 @@ int benchControl(const ControlBenchOptions& opt) {
       continue;
     }
     const int frames = opt.frames > 0 ? opt.frames : plan.frames;
-    std::map<std::string, ControlRun> runs;
+    // Repetitions alternate the two modes, so that a change in the host's
+    // speed during the scene reaches both.
+    std::map<std::string, std::vector<ControlRun>> runs;
+    for (int rep = 0; rep < opt.repeat; ++rep) {
+      for (const Mode& mode : kModes) {
+        const std::vector<std::string> args{self, "run", plan.file,
+                                            "--frames", std::to_string(frames),
+                                            "--templates", opt.templates,
+                                            "--control-setting", mode.setting,
+                                            "--threads", std::to_string(threads),
+                                            "--stats", tmp, "--quiet"};
+        std::fprintf(stderr, "bench: %s, %d frames, control forces %s (run %d/%d) ...\n", plan.stem.c_str(), frames,
+                     mode.label, rep + 1, opt.repeat);
+        const int code = runChild(args);
+        std::ifstream f(tmp);
+        if (code != 0 || !f) {
+          std::printf("%-12s %-19s failed (exit %d)\n", plan.stem.c_str(), mode.label, code);
+          worst = Failure;
+          continue;
+        }
+        try {
+          runs[mode.label].push_back(summarise(json::parse(f)));
+        } catch (const std::exception& e) {
+          std::printf("%-12s %-19s unreadable stats: %s\n", plan.stem.c_str(), mode.label, e.what());
+          worst = Failure;
+        }
+        f.close();
+        fs::remove(tmp);
+      }
+    }
+    std::map<std::string, RepeatedRuns> repeated;
     for (const Mode& mode : kModes) {
-      const std::vector<std::string> args{self, "run", plan.file,
-                                          "--frames", std::to_string(frames),
-                                          "--templates", opt.templates,
-                                          "--control-setting", mode.setting,
-                                          "--threads", std::to_string(threads),
-                                          "--stats", tmp, "--quiet"};
-      std::fprintf(stderr, "bench: %s, %d frames, control forces %s ...\n", plan.stem.c_str(), frames, mode.label);
-      const int code = runChild(args);
-      std::ifstream f(tmp);
-      if (code != 0 || !f) {
-        std::printf("%-12s %-19s failed (exit %d)\n", plan.stem.c_str(), mode.label, code);
-        worst = Failure;
-        continue;
-      }
-      ControlRun r;
-      try {
-        r = summarise(json::parse(f));
-      } catch (const std::exception& e) {
-        std::printf("%-12s %-19s unreadable stats: %s\n", plan.stem.c_str(), mode.label, e.what());
-        worst = Failure;
-        continue;
-      }
-      f.close();
-      fs::remove(tmp);
-      runs[mode.label] = r;
+      const auto it = runs.find(mode.label);
+      if (it == runs.end() || it->second.empty()) continue;
+      const RepeatedRuns rr = medianRun(it->second);
+      repeated[mode.label] = rr;
+      const ControlRun& r = rr.median;
       ++measured;
       printRow(ourRow(plan, mode, r));
       results.push_back({{"scene_file", plan.file},
@@ -378,6 +420,7 @@ int benchControl(const ControlBenchOptions& opt) {
                          {"simulation_ms_per_frame", r.simulationMs},
                          {"control_ms_per_frame", r.controlMs},
                          {"control_pct", r.controlPct()},
+                         {"control_pct_runs", rr.pcts},
                          {"peak_rss_mb", r.peakRssMb},
                          {"template_storage_mb", plan.storageMb},
                          {"templates", plan.templates},
@@ -386,11 +429,11 @@ int benchControl(const ControlBenchOptions& opt) {
     }
     const auto paper = paperTable1().find(plan.stem);
     if (paper != paperTable1().end()) printRow(paperRow(paper->second));
-    verdicts.push_back(verdict(plan, runs));
+    verdicts.push_back(verdict(plan, repeated));
   }
   if (!verdicts.empty()) std::printf("\n");
   for (const auto& v : verdicts) std::printf("%s\n", v.c_str());
-  if (!opt.out.empty()) std::ofstream(opt.out) << results.dump(1) << '\n';
+  if (!opt.out.empty()) writeJsonAtomically(opt.out, results);
   if (measured == 0 && worst == Ok) {
     std::fprintf(stderr, "error: nothing measured (no scene with template instances and its templates)\n");
     return BadInput;
@@ -411,6 +454,10 @@ void addBenchControlCommand(CLI::App& bench) {
       ->check(CLI::PositiveNumber);
   cmd->add_option("--templates", opt->templates, "template database directory (default: templates)");
   cmd->add_option("--threads", opt->threads, "OpenMP threads (default: all cores)")->check(CLI::PositiveNumber);
+  cmd->add_option("--repeat", opt->repeat,
+                  "runs per scene and mode, alternating the modes; the run of median control share is reported "
+                  "with the range")
+      ->check(CLI::PositiveNumber);
   cmd->add_option("--out", opt->out, "also write the results as JSON");
   cmd->callback([opt] {
     const int code = benchControl(*opt);

@@ -1,6 +1,7 @@
 #pragma once
 // Sub-commands of the flowclip executable.
 #include <CLI/CLI.hpp>
+#include <nlohmann/json_fwd.hpp>
 #include <string>
 #include <vector>
 
@@ -19,6 +20,10 @@ void addBenchAccuracyCommand(CLI::App& bench); // bench accuracy (bench_accuracy
 enum ExitCode { Ok = 0, Failure = 1, BadInput = 2, SimulationFailed = 3, Interrupted = 130 };
 
 double peakRssMb();
+// Writes j to a temporary name next to `path`, then renames: a reader never
+// sees half a file, and a failed write leaves an existing file as it was.
+// Throws std::runtime_error naming the path.
+void writeJsonAtomically(const std::string& path, const nlohmann::json& j);
 std::string selfExecutable();
 // Runs args[0] (an absolute path) with args in a child process and waits:
 // its exit status, -1 if it could not start or did not exit normally.

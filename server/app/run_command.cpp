@@ -75,17 +75,6 @@ void overrideControlSettings(const std::vector<std::string>& overrides, ParamVal
   }
 }
 
-// Writes to a temporary name, then renames: a reader never sees half a file.
-void writeJsonAtomically(const std::string& path, const nlohmann::json& j) {
-  const std::string tmp = path + ".tmp-" + std::to_string(getpid());
-  {
-    std::ofstream f(tmp);
-    if (!f) throw std::runtime_error("cannot write '" + path + "'");
-    f << j.dump(1) << '\n';
-    if (!f) throw std::runtime_error("cannot write '" + path + "'");
-  }
-  std::filesystem::rename(tmp, path);
-}
 
 template <int D>
 int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
@@ -259,6 +248,26 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
 }
 
 }  // namespace
+
+void writeJsonAtomically(const std::string& path, const nlohmann::json& j) {
+  const std::string tmp = path + ".tmp-" + std::to_string(getpid());
+  {
+    std::ofstream f(tmp);
+    if (!f) throw std::runtime_error("cannot write '" + path + "'");
+    f << j.dump(1) << '\n';
+    f.close();
+    if (!f) {
+      std::remove(tmp.c_str());
+      throw std::runtime_error("cannot write '" + path + "'");
+    }
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) {
+    std::remove(tmp.c_str());
+    throw std::runtime_error("cannot write '" + path + "': " + ec.message());
+  }
+}
 
 void addRunCommand(CLI::App& app) {
   auto opt = std::make_shared<RunOptions>();
