@@ -155,6 +155,8 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
         for (size_t k = 0; k < sortedMass_.size(); ++k) sortedMass_[k] = mc[order[k]];
       }
       const long m = long(sources.size());
+      const Real* massGradW[D];
+      for (int d = 0; d < D; ++d) massGradW[d] = sim.massGradW[d].data();
       auto& local = seedCandidates_;
       local.resize(static_cast<size_t>(omp_get_max_threads()));
       for (auto& v : local) v.clear();
@@ -163,14 +165,7 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
         const uint32_t i = sources[k];
         if (emitted[i] || f.phase[i] != phase || !insideBox(s, st.toTemplate.point(f.x[i]))) continue;
         // ∇ρ_i from the substep's pair gradients and the boundary's.
-        Vec<D> g = sim.restDensity(i) * sim.boundaryGradW[i];
-        for (int d = 0; d < D; ++d) {
-          const Real* pair = sim.massGradW[d].data();
-          Real sum = 0;
-#pragma omp simd reduction(+ : sum)
-          for (uint32_t q = off[i]; q < off[i + 1]; ++q) sum += pair[q];
-          g[d] += sum;
-        }
+        const Vec<D> g = sim.restDensity(i) * sim.boundaryGradW[i] + sumRanges<D>(massGradW, off[i], off[i + 1]);
         // A gradient this small gives no direction to seed along (a
         // symmetric neighbourhood). It is not what filters the liquid's
         // interior: the particles' disorder keeps ‖∇ρ‖ above it almost

@@ -1,7 +1,9 @@
 // Kernel normalisation and discrete consistency on regular lattices.
+#include "core/kernel_sums.h"
 #include "core/kernels.h"
 #include <gtest/gtest.h>
 #include <cmath>
+#include <vector>
 
 using namespace fc;
 
@@ -133,3 +135,30 @@ TEST(Kernels, Poly6LatticeConsistency3D) {
   EXPECT_NEAR(g.norm() * 2 * r, 0.0, kTight);
   EXPECT_NEAR((m - Mat<3>::Identity()).norm(), 0.0, 0.03);
 }
+
+// sumRanges: the per-axis sum over [begin, end), whatever the range's length
+// and offset (sixteen-wide bodies, masked tails, empty ranges), equals the
+// sum taken in double.
+template <int D>
+void checkSumRanges() {
+  std::vector<std::vector<Real>> axes(D, std::vector<Real>(200));
+  for (int d = 0; d < D; ++d)
+    for (size_t k = 0; k < axes[d].size(); ++k) axes[d][k] = Real(std::sin(0.7 * double(k) + d) * (1 + d));
+  const Real* a[D];
+  for (int d = 0; d < D; ++d) a[d] = axes[d].data();
+  for (size_t begin : {0, 1, 5, 16, 31})
+    for (size_t length = 0; length <= 70; ++length) {
+      const Vec<D> s = sumRanges<D>(a, begin, begin + length);
+      for (int d = 0; d < D; ++d) {
+        double expected = 0, magnitude = 0;
+        for (size_t k = begin; k < begin + length; ++k) {
+          expected += double(a[d][k]);
+          magnitude += std::abs(double(a[d][k]));
+        }
+        EXPECT_NEAR(double(s[d]), expected, kTight * (1 + magnitude))
+            << "axis " << d << ", begin " << begin << ", length " << length;
+      }
+    }
+}
+TEST(KernelSums, SumRangesEqualTheSumForEveryLengthAndOffset2D) { checkSumRanges<2>(); }
+TEST(KernelSums, SumRangesEqualTheSumForEveryLengthAndOffset3D) { checkSumRanges<3>(); }
