@@ -485,7 +485,13 @@ void Control<D>::computeCoverage(size_t i, const Simulation<D>& sim) {
   const size_t stride = size_t(n) + 16;  // + one register: the packing stores whole ones
   reserveScratch(nearPoints_, stride * (D + 1));
   const long cells = long(occupiedCells_.size());
-#pragma omp parallel for schedule(dynamic, 4)
+  // Guided, not dynamic in chunks of a few cells: a few hundred cells a
+  // frame, and every chunk taken is an atomic on one shared counter that
+  // both threads bounce between their caches (blade3d on a Zen 4 host:
+  // coverage 18-20 -> 14-18 ms over the run, the forces' loop 31-36 ->
+  // 26-28 ms). Each cell writes only its own particles: the result does not
+  // depend on the schedule.
+#pragma omp parallel for schedule(guided)
   for (long ci = 0; ci < cells; ++ci) {
     const uint32_t c = occupiedCells_[size_t(ci)];
     const uint32_t b = cellStart[c], e = cellStart[c + 1];
@@ -602,7 +608,8 @@ void Control<D>::addInstanceForces(size_t i, Simulation<D>& sim, Real applyFor) 
   const size_t repulsionAt = controlStride * CF::kCount;
   reserveScratch(nearPoints_, repulsionAt + repulsionStride * RF::kCount);
   const long cells = long(occupiedCells_.size());
-#pragma omp parallel for schedule(dynamic, 2)
+  // Guided: see computeCoverage.
+#pragma omp parallel for schedule(guided)
   for (long ci = 0; ci < cells; ++ci) {
     const uint32_t c = occupiedCells_[size_t(ci)];
     const uint32_t b = cellStart[c], e = cellStart[c + 1];
