@@ -46,7 +46,7 @@ SCENES = {
     "2d_r005": ("scenes/bench/dambreak2d_r005.json", "DamBreakModel_2D.json"),
 }
 
-# Runs inside SPlisHSPlasH's venv: argv = scene, simulated seconds.
+# Runs inside SPlisHSPlasH's venv: argv = scene, simulated seconds, output directory.
 DRIVER = r"""
 import json, resource, sys
 import pysplishsplash as sph
@@ -93,8 +93,9 @@ def venv_python(build):
 def reference_scene(ours, shipped):
     """SPlisHSPlasH's shipped scene `shipped` (a dict) with the settings of
     our scene `ours` (a dict, scenes/bench/*.json): the same particle radius,
-    DFSPH tolerances, CFL factor, step limit and viscosity. Its tank and
-    block stay its own (ours copy them)."""
+    DFSPH tolerances, CFL factor, step limit, gravity, rest density and
+    viscosity. Its tank and block stay its own (ours copy them). A scene of
+    another solver is a ValueError."""
     settings = ours.get("settings", {})
     solver = ours["solver"]
     if solver.get("method") != "dfsph":

@@ -75,7 +75,6 @@ void overrideControlSettings(const std::vector<std::string>& overrides, ParamVal
   }
 }
 
-
 template <int D>
 int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
   SimulationSetup<D> setup = parseScene<D>(sceneJson, opt.particleRadius);
