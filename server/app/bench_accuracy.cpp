@@ -868,7 +868,7 @@ int benchAccuracy(const Options& opt) {
     for (const auto& [name, idx] : {std::pair<const char*, long>{"draft", pick.draft}, {"preview", pick.preview},
                                     {"final", pick.final}})
       if (idx >= 0) presets.push_back(presetJson(results[size_t(idx)], name, descriptions.at(name)));
-    std::ofstream(out / "presets.json") << json({{"source", source}, {"presets", presets}}).dump(1) << '\n';
+    writeJsonAtomically((out / "presets.json").string(), json({{"source", source}, {"presets", presets}}));
   }
   std::fprintf(stderr, "bench accuracy: %zu points in %.0f s (mean load %.1f): %s/accuracy.csv, accuracy.md, "
                        "presets.json\n", results.size(), totalS, meanLoad, opt.out.c_str());

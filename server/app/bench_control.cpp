@@ -293,22 +293,19 @@ std::string spread(const RepeatedRuns& r) {
 }
 
 std::string verdict(const ScenePlan& plan, const std::map<std::string, RepeatedRuns>& repeated) {
-  std::map<std::string, ControlRun> runs;
-  for (const auto& [label, r] : repeated) runs[label] = r.median;
-  const auto paper = runs.find(kModes[0].label);
-  if (paper == runs.end()) return plan.stem + ": no verdict (the per-frame run failed)";
-  const ControlRun& r = paper->second;
+  const auto paper = repeated.find(kModes[0].label);
+  if (paper == repeated.end()) return plan.stem + ": no verdict (the per-frame run failed)";
+  const ControlRun& r = paper->second.median;
   if (!r.activeFrames)
     return plan.stem + ": no verdict (no frame with an active instance in " + std::to_string(r.frames) + " frames)";
-  std::string line = plan.stem + ": control is " + fixed(r.controlPct(), 1) + " %" +
-                     spread(repeated.at(kModes[0].label)) + " of the simulation's time with forces once per frame: " +
+  std::string line = plan.stem + ": control is " + fixed(r.controlPct(), 1) + " %" + spread(paper->second) +
+                     " of the simulation's time with forces once per frame: " +
                      (r.controlPct() < kTargetPct ? "meets" : "misses") + " the target (under " +
                      fixed(kTargetPct, 0) + " %)";
-  const auto substep = runs.find(kModes[1].label);
-  if (substep != runs.end() && substep->second.activeFrames) {
-    const ControlRun& s = substep->second;
-    line += "; every substep: " + fixed(s.controlPct(), 1) + " %" + spread(repeated.at(kModes[1].label)) +
-            " (control " +
+  const auto substep = repeated.find(kModes[1].label);
+  if (substep != repeated.end() && substep->second.median.activeFrames) {
+    const ControlRun& s = substep->second.median;
+    line += "; every substep: " + fixed(s.controlPct(), 1) + " %" + spread(substep->second) + " (control " +
             fixed(r.controlMs > 0 ? s.controlMs / r.controlMs : 0, 1) + "x, " +
             (s.controlPct() < kTargetPct ? "within" : "over") + " the target)";
   }

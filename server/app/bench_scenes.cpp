@@ -176,12 +176,7 @@ int benchScenes(const Options& opt) {
   fs::remove_all(tmp, ec);
   std::printf("(ours: this machine, %s threads; control %% is of the simulation ms, as the paper's. Paper: i9-9900K, 8 cores.)\n",
               opt.threads > 0 ? std::to_string(opt.threads).c_str() : "all");
-  if (!opt.out.empty()) {
-    std::ofstream o(opt.out + ".tmp");
-    o << json{{"scenes", results}}.dump(1) << "\n";
-    o.close();
-    fs::rename(opt.out + ".tmp", opt.out, ec);
-  }
+  if (!opt.out.empty()) writeJsonAtomically(opt.out, json{{"scenes", results}});
   return failures ? SimulationFailed : Ok;
 }
 
