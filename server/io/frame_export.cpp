@@ -1,6 +1,7 @@
 #include "io/frame_export.h"
 
 #include "io/hdf5_util.h"
+#include "io/staged_files.h"
 
 #include <hdf5.h>
 #include <omp.h>
@@ -81,7 +82,7 @@ const char* datasetName(int ds) {
 
 template <int D>
 FrameExporter<D>::FrameExporter(const std::string& path, const ExportHeader& header)
-    : path_(path), tempPath_(path + ".tmp-" + std::to_string(::getpid())),
+    : path_(path), tempPath_(stagingPath(path)),
       uncaughtAtCreation_(std::uncaught_exceptions()) {
   for (auto& d : datasets_) d = -1;
   auto invalid = [&](const std::string& what) {
@@ -93,6 +94,11 @@ FrameExporter<D>::FrameExporter(const std::string& path, const ExportHeader& hea
   if (header.domainMin.size() != size_t(D) || header.domainMax.size() != size_t(D))
     invalid("domain min/max must have " + std::to_string(D) + " values");
   if (header.phases.size() > 256) invalid("more than 256 phases do not fit the uint8 phase column");
+  {
+    // The leftovers of an export killed earlier in this directory go first.
+    const std::filesystem::path dir = std::filesystem::path(path_).parent_path();
+    recoverPublishing(dir.empty() ? "." : dir.string());
+  }
 
   hdf5::Quiet quiet;
   {

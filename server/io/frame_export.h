@@ -20,10 +20,11 @@
 // with shuffle + deflate. Particle chunks are compressed in parallel by the
 // exporter itself (same bytes as HDF5's filters) and written directly.
 //
-// Publication is atomic: frames go to "<path>.tmp-<pid>", which is renamed to
-// <path> only by a successful close(). Until then an existing file at <path>
-// is untouched; after a failure the temporary file is removed and <path> is
-// never created or replaced.
+// Publication is atomic: frames go to the hidden stagingPath(path)
+// (io/staged_files.h), which is fsynced and renamed to <path> only by a
+// successful close(). Until then an existing file at <path> is untouched;
+// after a failure the temporary file is removed and <path> is never created
+// or replaced; after a crash recoverPublishing() deletes it.
 #include "sph/particles.h"
 #include "sph/phase.h"
 #include <cstdint>
@@ -61,9 +62,11 @@ struct ExportColumns {
 template <int D>
 class FrameExporter {
  public:
-  // Creates "<path>.tmp-<pid>" and writes the header. Throws
-  // std::runtime_error naming `path` if the file cannot be created or the
-  // header is inconsistent (dimension != D, domain sizes != D).
+  // Runs recoverPublishing() on the directory of `path` (the leftovers of
+  // an export killed earlier), creates the temporary file tempPath() and
+  // writes the header. Throws std::runtime_error naming `path` if the file
+  // cannot be created or the header is inconsistent (dimension != D, domain
+  // sizes != D).
   FrameExporter(const std::string& path, const ExportHeader& header);
   // Calls close() without throwing. If the exporter is destroyed while an
   // exception unwinds the stack (the run failed), the temporary file is

@@ -256,10 +256,11 @@ std::string publishTemplate(const std::string& templatesDir, const Template<D>& 
                             const std::string& forceHint) {
   const TemplateDatabase db(templatesDir);
   const std::string path = db.pathFor(tpl.header.name);
+  recoverPublishing(templatesDir);  // a crashed publish's templates back to their old files before checking
   if (!force) checkTemplateAbsent(tpl.header.name, path, forceHint);
   createTemplatesDir(templatesDir);
   StagedFiles staged(force);
-  const std::string tmp = stagingPath(path, "rec");
+  const std::string tmp = stagingPath(path);
   staged.stage(tmp, path);
   writeTemplate<D>(tmp, tpl);
   commitTemplates(staged, forceHint);
@@ -269,6 +270,7 @@ std::string publishTemplate(const std::string& templatesDir, const Template<D>& 
 RecordResult recordRecipe(const Recipe& recipe, const RecordOptions& options) {
   namespace fs = std::filesystem;
   TemplateDatabase db(options.templatesDir);
+  recoverPublishing(options.templatesDir);  // a crashed publish's templates back to their old files before checking
   std::vector<std::string> paths;
   for (const CaptureSpec& c : recipe.captures) {
     paths.push_back(db.pathFor(c.name));
@@ -293,7 +295,7 @@ RecordResult recordRecipe(const Recipe& recipe, const RecordOptions& options) {
     StagedFiles commit(options.force);
     for (size_t k = 0; k < tpls.size(); ++k) {
       const auto w0 = std::chrono::steady_clock::now();
-      const std::string staged = stagingPath(paths[k], "rec");
+      const std::string staged = stagingPath(paths[k]);
       commit.stage(staged, paths[k]);
       writeTemplate<D>(staged, tpls[k]);
       RecordedTemplate t;

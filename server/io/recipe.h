@@ -108,7 +108,8 @@ std::vector<Template<D>> captureTemplates(const Recipe& recipe, const RecordOpti
 // its final name, and only when all are written are they moved to their
 // names (without force, by a link that fails if the name has appeared
 // meanwhile, so no existing file is replaced). If anything fails, every new
-// file is removed and every replaced one put back. Throws DatabaseError
+// file is removed and every replaced one put back; after a crash,
+// recoverPublishing(templatesDir) does it (io/staged_files.h). Throws DatabaseError
 // before simulating if a template exists and !force (existing files are
 // untouched), plus everything captureTemplates throws and TemplateError on
 // write failures.

@@ -1,6 +1,7 @@
 #include "io/template_file.h"
 
 #include "io/hdf5_util.h"
+#include "io/staged_files.h"
 
 #include <hdf5.h>
 
@@ -414,9 +415,9 @@ void writeTemplate(const std::string& path, const Template<D>& tpl) {
     offset[f + 1] = row;
   }
 
-  // Write to a temporary file next to `path`, then rename.
-  static std::atomic<unsigned> counter{0};
-  const std::string tmp = path + ".tmp-" + std::to_string(::getpid()) + "-" + std::to_string(counter++);
+  // Write to a temporary file next to `path`, then rename; its hidden name is
+  // one recoverPublishing() deletes after a crash.
+  const std::string tmp = stagingPath(path);
   hdf5::Quiet quiet;
   bool created = false;
   auto abandon = [&](const std::string& what, bool hdf5) {

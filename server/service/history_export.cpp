@@ -128,10 +128,11 @@ HistoryExport writeFrames(const std::string& h5Path, const std::vector<FramePtr>
     largest = std::max(largest, n);
   }
 
-  // Both files staged next to their names; removed unless both are published.
+  // Both files staged next to their names; removed unless both are published,
+  // also after a crash (recoverPublishing).
   StagedFiles publish(/*replace=*/true);
-  const std::string h5Staged = stagingPath(h5Path, "export");
-  const std::string xdmfStaged = stagingPath(xdmfPath, "export");
+  const std::string h5Staged = stagingPath(h5Path);
+  const std::string xdmfStaged = stagingPath(xdmfPath);
   publish.stage(h5Staged, h5Path);
   publish.stage(xdmfStaged, xdmfPath);
 
@@ -186,12 +187,6 @@ HistoryExport writeFrames(const std::string& h5Path, const std::vector<FramePtr>
     return ec ? uint64_t(0) : uint64_t(size);
   };
   res.bytes = sizeOf(h5Path) + sizeOf(xdmfPath);
-  try {
-    // Make the renames durable; the files are published, so not a failure.
-    const fs::path dir = fs::path(h5Path).parent_path();
-    hdf5::syncPath(dir.empty() ? "." : dir.string(), true);
-  } catch (const std::exception&) {
-  }
   return res;
 }
 

@@ -32,10 +32,12 @@ std::string xdmfPathFor(const std::string& h5Path);
 // Writes `frames` (oldest first, all of header.dimension) to h5Path and its
 // sidecar. header.source and header.solverColumns are set here. Both files
 // are written under hidden temporary names next to their final ones and
-// moved there together, replacing existing files, only once both are
-// complete; on any failure neither final name changes and no temporary file
-// stays. Throws std::invalid_argument (no frames, frames of another
-// dimension) and std::runtime_error naming h5Path (I/O).
+// moved there together (io/staged_files.h), replacing existing files (or
+// only one of them), only once both are complete; on any failure neither
+// final name changes and no temporary file stays; after a crash at any
+// instant, recoverPublishing(directory) leaves both old or both new. Throws
+// std::invalid_argument (no frames, frames of another dimension) and
+// std::runtime_error naming h5Path (I/O).
 HistoryExport writeHistoryExport(const std::string& h5Path, const std::vector<FramePtr>& frames, ExportHeader header);
 
 }  // namespace fc::service

@@ -1,6 +1,7 @@
 #include "service/rest_api.h"
 
 #include "io/scene.h"
+#include "io/staged_files.h"
 #include "io/stats_json.h"
 #include "io/template_file.h"
 #include "service/frame_encoding.h"
@@ -220,29 +221,11 @@ json findInstance(const json& scene, const std::string& name) {
 void writeFileAtomically(const fs::path& path, const std::string& text, bool replace) {
   std::error_code ec;
   fs::create_directories(path.parent_path(), ec);
-  const fs::path tmp = path.parent_path() / ("." + path.filename().string() + ".tmp-" + std::to_string(::getpid()));
-  {
-    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-    out << text;
-    out.flush();
-    if (!out) {
-      fs::remove(tmp, ec);
-      throw std::runtime_error("cannot write " + path.string());
-    }
-  }
-  if (replace) {
-    fs::rename(tmp, path, ec);
-  } else if (::link(tmp.c_str(), path.c_str()) != 0) {
-    const int err = errno;
-    fs::remove(tmp, ec);
-    if (err == EEXIST) throw ApiError(409, path.filename().string() + " already exists (send \"force\": true to replace it)", "name");
-    throw std::runtime_error("cannot write " + path.string() + ": " + std::strerror(err));
-  } else {
-    fs::remove(tmp, ec);
-  }
-  if (ec) {
-    fs::remove(tmp, ec);
-    throw std::runtime_error("cannot write " + path.string() + ": " + ec.message());
+  try {
+    publishFile(path.string(), text, replace);  // io/staged_files.h: old or new file, also after a crash
+  } catch (const PublishError& e) {
+    if (e.exists) throw ApiError(409, path.filename().string() + " already exists (send \"force\": true to replace it)", "name");
+    throw std::runtime_error("cannot write " + path.string() + ": " + e.what());
   }
 }
 

@@ -6,13 +6,18 @@
 #include "service/history_export.h"
 #include "service/session.h"
 
+#include "io/staged_files.h"
 #include "io/template_database.h"
 #include "io/template_file.h"
 #include "tests/hdf5_test_util.h"
 
 #include <gtest/gtest.h>
 #include <hdf5.h>
+#include <omp.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
@@ -264,6 +269,78 @@ TEST(SessionHistoryExport, FailuresLeaveNoFileAndKeepExistingOnes) {
   EXPECT_EQ(readFile(h5), "old");
   EXPECT_TRUE(fs::is_directory(fx.tmp.file("keep.xdmf")));
   EXPECT_EQ(fx.tmp.entries(), (std::vector<std::string>{"keep.h5", "keep.xdmf", "templates"}));
+}
+
+// Killed at each crash point of publishing in turn (a forked child), then
+// recovered: both files old or both new, nothing else in the directory.
+TEST(SessionHistoryExport, KilledAtAnyStepLeavesBothFilesOldOrBothNew) {
+  Fixture fx(2);
+  const std::vector<FramePtr> frames = fx.session->history();
+  ExportHeader h;
+  h.sceneName = "tank";
+  h.dimension = 2;
+  h.particleRadius = 0.02;
+  h.frameRate = 60;
+  h.phases = {Phase{}};
+  h.domainMin = {0, 0};
+  h.domainMax = {1, 1};
+  h.createdBy = "test";
+  const std::string dir = fx.tmp.file("exports"), h5 = dir + "/e.h5", xdmf = dir + "/e.xdmf";
+  // Both files exist, or only the sidecar (the other was deleted by hand).
+  for (const bool withH5 : {true, false}) {
+    int olds = 0, news = 0;
+    for (int k = 1;; ++k) {
+      ASSERT_LT(k, 50) << "the export never finished";
+      fs::remove_all(dir);
+      fs::create_directories(dir);
+      if (withH5) std::ofstream(h5) << "old h5";
+      std::ofstream(xdmf) << "old xdmf";
+      std::fflush(nullptr);
+      const pid_t pid = ::fork();
+      if (pid == 0) {
+        ::alarm(20);            // a hang fails the test instead of blocking it
+        omp_set_num_threads(1);  // the parent's OpenMP threads do not exist here
+        StagedFiles::testCrashAfter(k);
+        try {
+          writeHistoryExport(h5, frames, h);
+        } catch (...) {
+          ::_exit(3);
+        }
+        ::_exit(0);
+      }
+      int status = 0;
+      ::waitpid(pid, &status, 0);
+      ASSERT_TRUE(WIFEXITED(status)) << "step " << k << ": signal " << WTERMSIG(status);
+      const int code = WEXITSTATUS(status);
+      ASSERT_TRUE(code == 0 || code == StagedFiles::kTestCrashStatus) << "step " << k << ": status " << code;
+      const PublishRecovery r = recoverPublishing(dir);
+      EXPECT_TRUE(r.errors.empty()) << r.errors.front();
+      std::vector<std::string> names;
+      for (const auto& e : fs::directory_iterator(dir)) names.push_back(e.path().filename().string());
+      std::sort(names.begin(), names.end());
+      const bool oldX = readFile(xdmf) == "old xdmf";
+      if (oldX) {
+        ++olds;
+        const std::vector<std::string> expected =
+            withH5 ? std::vector<std::string>{"e.h5", "e.xdmf"} : std::vector<std::string>{"e.xdmf"};
+        EXPECT_EQ(names, expected) << "step " << k;
+        if (withH5) {
+          EXPECT_EQ(readFile(h5), "old h5") << "step " << k;
+        }
+      } else {
+        ++news;
+        EXPECT_EQ(names, (std::vector<std::string>{"e.h5", "e.xdmf"})) << "step " << k;
+        EXPECT_GT(H5Fis_hdf5(h5.c_str()), 0) << "step " << k;
+        EXPECT_NE(readFile(xdmf).find(">e.h5:/particles/position<"), std::string::npos) << "step " << k;
+      }
+      if (code == 0) {
+        EXPECT_FALSE(oldX);
+        break;
+      }
+    }
+    EXPECT_GT(olds, 0);
+    EXPECT_GT(news, 0);
+  }
 }
 
 // ---- templates from the history ----------------------------------------------
