@@ -34,6 +34,7 @@ struct RunOptions {
   std::string solver;
   std::string templates = "templates";
   std::vector<std::string> controlSettings;  // KEY=VALUE, over the scene's "control" object
+  double frameTimeout = 0;                    // s of wall time per frame (0: no limit)
   bool quiet = false;
 };
 
@@ -158,6 +159,11 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
   // still exported and summarised.
   std::optional<InterruptGuard> interrupt(std::in_place);
   for (int f = 0; f < frames && !InterruptGuard::requested(); ++f) {
+    if (opt.frameTimeout > 0)
+      sim.setFrameLimits({std::chrono::steady_clock::now() +
+                              std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                  std::chrono::duration<double>(opt.frameTimeout)),
+                          nullptr});
     const FrameStats s = sim.advanceFrame();
     particleSteps += double(s.particles) * s.substeps;
     substeps += size_t(s.substeps);
@@ -169,8 +175,7 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
     if (!s.finite) {
       // A non-finite frame is never published: stop before exporting it.
       status = SimulationFailed;
-      failure = "non-finite position or velocity at frame " + std::to_string(s.frame) + " (t = " +
-                std::to_string(s.time) + " s); simulation stopped";
+      failure = failureText(s) + "; simulation stopped";
       break;
     }
     framesJson.push_back(frameStatsToJson(s, instances > 0));
@@ -283,6 +288,9 @@ void addRunCommand(CLI::App& app) {
       ->check(CLI::PositiveNumber);
   run->add_option("--solver", opt->solver, "override the scene's pressure solver (a different one runs with its default parameters)");
   run->add_option("--templates", opt->templates, "template database directory (default: templates)");
+  run->add_option("--frame-timeout", opt->frameTimeout,
+                  "stop with exit status 3 if one frame takes longer than this many wall seconds (default: no limit)")
+      ->check(CLI::NonNegativeNumber);
   run->add_option("--control-setting", opt->controlSettings,
                   "override a control setting of the scene, KEY=VALUE (e.g. forces_every_substep=1); repeatable");
   run->add_flag("--quiet", opt->quiet, "no progress line or summary");

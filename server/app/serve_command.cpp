@@ -5,6 +5,7 @@
 #include "service/http_server.h"
 #include "service/rest_api.h"
 
+#include <chrono>
 #include <cstdio>
 #include <memory>
 #include <string>
@@ -27,6 +28,8 @@ struct ServeOptions {
   int maxSessions = 8;
   double maxBodyMb = 8;
   double historyCapMb = 256;
+  int maxThreads = 0;
+  double frameTimeout = 120;
   int ioThreads = 2;
 };
 
@@ -43,6 +46,8 @@ int serve(const ServeOptions& o) {
   so.presetsFile = o.presets;
   so.maxSessions = o.maxSessions;
   so.historyCapBytes = size_t(o.historyCapMb * 1024 * 1024);
+  so.maxThreads = o.maxThreads;
+  so.frameTimeout = std::chrono::milliseconds(int64_t(o.frameTimeout * 1000));
   service::ServerOptions net;
   net.host = o.host;
   net.port = uint16_t(o.port);
@@ -88,6 +93,12 @@ void addServeCommand(CLI::App& app) {
       ->check(CLI::Range(0.001, 1024.0));
   cmd->add_option("--history-cap-mb", o->historyCapMb, "replay history per session, MB (default 256)")
       ->check(CLI::Range(1.0, 1e6));
+  cmd->add_option("--max-threads", o->maxThreads, "OpenMP threads per session, the ceiling of a request's \"threads\" "
+                                                  "(default: the CPUs)")
+      ->check(CLI::Range(1, 1024));
+  cmd->add_option("--frame-timeout", o->frameTimeout,
+                  "a session whose frame runs longer than this many seconds goes to its error state (default 120)")
+      ->check(CLI::Range(0.1, 1e6));
   cmd->add_option("--io-threads", o->ioThreads, "network threads (default 2)")->check(CLI::Range(1, 64));
   cmd->callback([o] { throw ExitCode(serve(*o)); });
 }

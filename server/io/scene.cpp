@@ -1,12 +1,15 @@
 #include "io/scene.h"
 
+#include "core/text.h"
 #include "core/transform.h"
+#include "io/json_text.h"
 #include "io/obj_mesh.h"
 #include "io/template_database.h"
 
 #include "sph/emitters.h"
 #include "sph/pipeline.h"
 #include "sph/sampling.h"
+#include "sph/limits.h"
 #include "sph/settings.h"
 
 #include <algorithm>
@@ -173,6 +176,25 @@ Vec<D> getVec(const json& j, const std::string& path) {
   return v;
 }
 
+// Physical ranges (sph/limits.h): the message gives the range and what it is for.
+std::string rangeText(const PhysicalRange& r) {
+  return "[" + fmt(r.min) + ", " + fmt(r.max) + "]" + (r.unit[0] ? std::string(" ") + r.unit : std::string());
+}
+double inRange(double v, const std::string& path, const PhysicalRange& r) {
+  if (!r.contains(v)) fail(path, fmt(v) + " is outside the physical range " + rangeText(r) + " (" + r.help + ")");
+  return v;
+}
+template <int D>
+void normInRange(const Vec<D>& v, const std::string& path, const PhysicalRange& r) {
+  const double n = double(v.template cast<double>().norm());
+  if (!r.contains(n))
+    fail(path, "magnitude " + fmt(n) + " is outside the physical range " + rangeText(r) + " (" + r.help + ")");
+}
+template <int D>
+void componentsInRange(const Vec<D>& v, const std::string& path, const PhysicalRange& r) {
+  for (int d = 0; d < D; ++d) inRange(double(v[d]), at(path, size_t(d)), r);
+}
+
 std::string rangeText(const ParamSpec& s) {
   return "[" + fmt(s.min) + ", " + fmt(s.max) + "]" + (s.unit.empty() ? "" : " " + s.unit);
 }
@@ -237,6 +259,8 @@ template <int D>
 AABB<D> parseBox(const json& obj, const std::string& path) {
   AABB<D> box(getVec<D>(required(obj, path, "min", "lower corner, m"), key(path, "min")),
               getVec<D>(required(obj, path, "max", "upper corner, m"), key(path, "max")));
+  componentsInRange<D>(box.min, key(path, "min"), limits::kCoordinate);
+  componentsInRange<D>(box.max, key(path, "max"), limits::kCoordinate);
   for (int d = 0; d < D; ++d)
     if (!(box.min[d] < box.max[d]))
       fail(path, std::string("min must be less than max on every axis, but along ") + axisName(d) + " min[" +
@@ -264,10 +288,12 @@ std::vector<Phase> parsePhases(const json* j) {
     if (const json* m = member(o, "rest_density")) {
       ph.restDensity = getReal(*m, key(p, "rest_density"));
       if (ph.restDensity <= 0) fail(key(p, "rest_density"), fmt(ph.restDensity) + " kg/m^3 must be > 0");
+      inRange(ph.restDensity, key(p, "rest_density"), limits::kRestDensity);
     }
     if (const json* m = member(o, "viscosity")) {
       ph.viscosity = getReal(*m, key(p, "viscosity"));
       if (ph.viscosity < 0) fail(key(p, "viscosity"), fmt(ph.viscosity) + " m^2/s must be >= 0");
+      inRange(ph.viscosity, key(p, "viscosity"), limits::kViscosity);
     }
     if (const json* m = member(o, "color")) {
       const std::string cp = key(p, "color");
@@ -313,7 +339,10 @@ std::vector<FluidBlock<D>> parseFluidBlocks(const json& root, const std::vector<
     FluidBlock<D> b;
     b.box = parseBox<D>(o, p);
     if (const json* m = member(o, "phase")) b.phase = findPhase(*m, key(p, "phase"), phases);
-    if (const json* m = member(o, "velocity")) b.velocity = getVec<D>(*m, key(p, "velocity"));
+    if (const json* m = member(o, "velocity")) {
+      b.velocity = getVec<D>(*m, key(p, "velocity"));
+      normInRange<D>(b.velocity, key(p, "velocity"), limits::kSpeed);
+    }
     blocks.push_back(b);
   }
   return blocks;
@@ -337,12 +366,14 @@ MeshPlacement parseMeshPlacement(const json& o, const std::string& p) {
     if (m->is_number()) {
       const double v = getNumber(*m, sp);
       if (!(v > 0)) fail(sp, fmt(v) + " must be > 0");
+      inRange(v, sp, limits::kScale);
       pl.scale = {v, v, v};
     } else {
       expectType(m->is_array() && m->size() == 3, *m, sp, "a number (uniform scale) or an array of 3 numbers");
       for (size_t d = 0; d < 3; ++d) {
         pl.scale[d] = getNumber((*m)[d], at(sp, d));
         if (!(pl.scale[d] > 0)) fail(at(sp, d), fmt(pl.scale[d]) + " must be > 0");
+        inRange(pl.scale[d], at(sp, d), limits::kScale);
       }
     }
   }
@@ -350,7 +381,7 @@ MeshPlacement parseMeshPlacement(const json& o, const std::string& p) {
     const std::string tp = key(p, "translation");
     expectType(m->is_array(), *m, tp, "an array of 3 numbers");
     if (m->size() != 3) fail(tp, "expected 3 components (the scene is 3D), got " + std::to_string(m->size()));
-    for (size_t d = 0; d < 3; ++d) pl.translation[d] = getNumber((*m)[d], at(tp, d));
+    for (size_t d = 0; d < 3; ++d) pl.translation[d] = inRange(getNumber((*m)[d], at(tp, d)), at(tp, d), limits::kCoordinate);
   }
   if (const json* m = member(o, "rotation")) pl.rotationDeg = parseRotationDeg<3>(*m, key(p, "rotation"));
   return pl;
@@ -413,6 +444,8 @@ std::vector<Obstacle<D>> parseObstacles(const json* j, Real particleRadius, Real
       ob.center = getVec<D>(required(o, p, "center", "m"), key(p, "center"));
       ob.radius = getReal(required(o, p, "radius", "m"), key(p, "radius"));
       if (ob.radius <= 0) fail(key(p, "radius"), fmt(ob.radius) + " m must be > 0");
+      componentsInRange<D>(ob.center, key(p, "center"), limits::kCoordinate);
+      inRange(ob.radius, key(p, "radius"), limits::kCoordinate);
       ob.box = AABB<D>(ob.center.array() - ob.radius, ob.center.array() + ob.radius);
     } else if (type == "mesh") {
       if constexpr (D == 2) {
@@ -441,10 +474,10 @@ template <int D>
 std::array<double, D == 2 ? 1 : 3> parseRotationDeg(const json& j, const std::string& path) {
   std::array<double, D == 2 ? 1 : 3> r{};
   if constexpr (D == 2) {
-    r[0] = getNumber(j, path);
+    r[0] = inRange(getNumber(j, path), path, limits::kRotation);
   } else {
     expectType(j.is_array() && j.size() == 3, j, path, "[x, y, z] Euler angles in degrees");
-    for (size_t a = 0; a < 3; ++a) r[a] = getNumber(j[a], at(path, a));
+    for (size_t a = 0; a < 3; ++a) r[a] = inRange(getNumber(j[a], at(path, a)), at(path, a), limits::kRotation);
   }
   return r;
 }
@@ -526,9 +559,15 @@ std::vector<Body<D>> parseBodies(const json* j, const AABB<D>& domain) {
     if (motion == "kinematic") {
       b.motion = BodyMotion::Kinematic;
       if (member(o, "density")) fail(key(p, "density"), "only a dynamic body has a density");
-      if (const json* m = member(o, "velocity")) b.velocity = getVec<D>(*m, key(p, "velocity"));
-      if (const json* m = member(o, "angular_velocity"))
+      if (const json* m = member(o, "velocity")) {
+        b.velocity = getVec<D>(*m, key(p, "velocity"));
+        normInRange<D>(b.velocity, key(p, "velocity"), limits::kSpeed);
+      }
+      if (const json* m = member(o, "angular_velocity")) {
         b.angularVelocityDeg = parseRotationDeg<D>(*m, key(p, "angular_velocity"));
+        for (size_t a = 0; a < b.angularVelocityDeg.size(); ++a)
+          inRange(std::abs(b.angularVelocityDeg[a]), at(key(p, "angular_velocity"), a), limits::kAngularSpeed);
+      }
       if (const json* m = member(o, "keys")) {
         const std::string kp = key(p, "keys");
         expectArray(*m, kp);
@@ -540,7 +579,7 @@ std::vector<Body<D>> parseBodies(const json* j, const AABB<D>& domain) {
           const json& ko = expectObject((*m)[k], q);
           checkKeys(ko, q, {"time", "position", "rotation"});
           BodyKey<D> key0;
-          key0.time = getNumber(required(ko, q, "time", "s"), key(q, "time"));
+          key0.time = inRange(getNumber(required(ko, q, "time", "s"), key(q, "time")), key(q, "time"), limits::kTime);
           key0.position = getVec<D>(required(ko, q, "position", "m"), key(q, "position"));
           if (const json* r = member(ko, "rotation")) key0.rotationDeg = parseRotationDeg<D>(*r, key(q, "rotation"));
           if (!b.keys.empty() && !(key0.time > b.keys.back().time))
@@ -551,7 +590,7 @@ std::vector<Body<D>> parseBodies(const json* j, const AABB<D>& domain) {
         b.rotationDeg = b.keys.front().rotationDeg;
       }
       if (const json* m = member(o, "period")) {
-        b.period = getNumber(*m, key(p, "period"));
+        b.period = inRange(getNumber(*m, key(p, "period")), key(p, "period"), limits::kTime);
         if (b.keys.empty()) fail(key(p, "period"), "a period repeats keys; this body has none");
         if (!(b.period >= b.keys.back().time) || !(b.period > 0))
           fail(key(p, "period"), fmt(b.period) + " s must be > 0 and at least the last key's time");
@@ -561,9 +600,13 @@ std::vector<Body<D>> parseBodies(const json* j, const AABB<D>& domain) {
       for (const char* k : {"velocity", "angular_velocity", "keys", "period"})
         if (const json* m = member(o, k); m && std::string(k) != "velocity")
           fail(key(p, k), "a dynamic body moves by the liquid's forces; it has no " + std::string(k));
-      if (const json* m = member(o, "velocity")) b.velocity = getVec<D>(*m, key(p, "velocity"));
+      if (const json* m = member(o, "velocity")) {
+        b.velocity = getVec<D>(*m, key(p, "velocity"));
+        normInRange<D>(b.velocity, key(p, "velocity"), limits::kSpeed);
+      }
       b.density = getReal(required(o, p, "density", "kg/m^3"), key(p, "density"));
       if (!(b.density > 0)) fail(key(p, "density"), fmt(b.density) + " kg/m^3 must be > 0");
+      inRange(b.density, key(p, "density"), limits::kBodyDensity);
     } else {
       fail(key(p, "motion"), "unknown motion '" + motion + "'; expected kinematic or dynamic");
     }
@@ -612,7 +655,7 @@ std::vector<Emitter<D>> parseEmitters(const json* j, const std::vector<Phase>& p
     if (const json* m = member(o, "start")) e.start = getNumber(*m, key(p, "start"));
     if (!(e.start >= 0) || e.start > kMaxDuration) fail(key(p, "start"), fmt(e.start) + " s must be in [0, " + fmt(kMaxDuration) + "]");
     if (const json* m = member(o, "end")) {
-      e.end = getNumber(*m, key(p, "end"));
+      e.end = inRange(getNumber(*m, key(p, "end")), key(p, "end"), limits::kTime);
       if (!(e.end > e.start)) fail(key(p, "end"), fmt(e.end) + " s must be after start (" + fmt(e.start) + " s)");
     }
     emitters.push_back(e);
@@ -745,17 +788,18 @@ TransformKey<D> parseTransformKey(const json& j, const std::string& p) {
   const json& o = expectObject(j, p);
   checkKeys(o, p, {"time", "translation", "rotation", "scale", "reflect"});
   TransformKey<D> k;
-  if (const json* m = member(o, "time")) k.time = getNumber(*m, key(p, "time"));
+  if (const json* m = member(o, "time")) k.time = inRange(getNumber(*m, key(p, "time")), key(p, "time"), limits::kTime);
   k.translation = getVecDouble<D>(required(o, p, "translation", "m, where the template region's centre goes"),
                                   key(p, "translation"));
+  for (int d = 0; d < D; ++d) inRange(k.translation[d], at(key(p, "translation"), size_t(d)), limits::kCoordinate);
   if (const json* m = member(o, "rotation")) {
     const std::string rp = key(p, "rotation");
     if constexpr (D == 2) {
       expectType(m->is_number(), *m, rp, "a number (degrees, counter-clockwise)");
-      k.rotationDeg[0] = getNumber(*m, rp);
+      k.rotationDeg[0] = inRange(getNumber(*m, rp), rp, limits::kRotation);
     } else {
       const VecDouble<3> r = getVecDouble<3>(*m, rp);
-      for (int d = 0; d < 3; ++d) k.rotationDeg[size_t(d)] = r[d];
+      for (int d = 0; d < 3; ++d) k.rotationDeg[size_t(d)] = inRange(r[d], at(rp, size_t(d)), limits::kRotation);
     }
   }
   if (const json* m = member(o, "scale")) {
@@ -764,6 +808,7 @@ TransformKey<D> parseTransformKey(const json& j, const std::string& p) {
     if (m->is_number()) {
       const double v = getNumber(*m, sp);
       if (!(v > 0)) fail(sp, fmt(v) + rule);
+      inRange(v, sp, limits::kScale);
       k.scale.setConstant(v);
     } else {
       expectType(m->is_array(), *m, sp,
@@ -772,6 +817,7 @@ TransformKey<D> parseTransformKey(const json& j, const std::string& p) {
       k.scale = getVecDouble<D>(*m, sp);
       for (int d = 0; d < D; ++d)
         if (!(k.scale[d] > 0)) fail(at(sp, size_t(d)), fmt(k.scale[d]) + rule);
+        else inRange(k.scale[d], at(sp, size_t(d)), limits::kScale);
     }
   }
   if (const json* m = member(o, "reflect")) {
@@ -826,14 +872,14 @@ InstanceSpec<D> parseInstance(const json& j, const std::string& p, const std::ve
   if (const json* m = member(o, "transform")) s.transform = parseTransform<D>(*m, key(p, "transform"));
 
   TimeMap& t = s.time;
-  if (const json* m = member(o, "start")) t.start = getNumber(*m, key(p, "start"));
+  if (const json* m = member(o, "start")) t.start = inRange(getNumber(*m, key(p, "start")), key(p, "start"), limits::kTime);
   if (const json* m = member(o, "crop_begin")) {
-    t.cropBegin = getNumber(*m, key(p, "crop_begin"));
+    t.cropBegin = inRange(getNumber(*m, key(p, "crop_begin")), key(p, "crop_begin"), limits::kTime);
     if (t.cropBegin < 0) fail(key(p, "crop_begin"), fmt(t.cropBegin) + " s must be >= 0 (template time)");
   }
   if (const json* m = member(o, "crop_end")) {
     const std::string ep = key(p, "crop_end");
-    t.cropEnd = getNumber(*m, ep);
+    t.cropEnd = inRange(getNumber(*m, ep), ep, limits::kTime);
     if (t.cropEnd < 0) fail(ep, fmt(t.cropEnd) + " s must be >= 0 (omit crop_end to play to the template's end)");
     if (!(t.cropEnd > t.cropBegin))
       fail(ep, fmt(t.cropEnd) + " s must be greater than crop_begin = " + fmt(t.cropBegin) + " s");
@@ -841,6 +887,7 @@ InstanceSpec<D> parseInstance(const json& j, const std::string& p, const std::ve
   if (const json* m = member(o, "speed")) {
     t.speed = getNumber(*m, key(p, "speed"));
     if (!(t.speed > 0)) fail(key(p, "speed"), fmt(t.speed) + " must be > 0 (use reverse to play backwards)");
+    inRange(t.speed, key(p, "speed"), limits::kPlaybackSpeed);
   }
   if (const json* m = member(o, "reverse")) t.reverse = getBool(*m, key(p, "reverse"));
   return s;
@@ -1015,89 +1062,22 @@ void checkBodies(const SimulationSetup<D>& s) {
   }
 }
 
-// ----------------------------------------------- duplicate-key detection ---
-// A parser callback that tracks the key path, so a key written twice in one
-// object (which JSON parsers silently resolve to the last value) is reported
-// where it occurs.
-class DuplicateKeyCheck {
- public:
-  bool operator()(int /*depth*/, json::parse_event_t ev, json& parsed) {
-    switch (ev) {
-      case json::parse_event_t::object_start: push(false); break;
-      case json::parse_event_t::array_start: push(true); break;
-      case json::parse_event_t::key: {
-        Frame& f = stack_.back();
-        f.key = parsed.get<std::string>();
-        if (!f.keys.insert(f.key).second) fail(path(), "duplicate key; each key may appear once per object");
-        break;
-      }
-      case json::parse_event_t::object_end:
-      case json::parse_event_t::array_end:
-        stack_.pop_back();
-        childDone();
-        break;
-      case json::parse_event_t::value: childDone(); break;
-    }
-    return true;
-  }
-
- private:
-  struct Frame {
-    bool array = false;
-    size_t index = 0;
-    std::string key;
-    std::set<std::string> keys;
-  };
-  void push(bool array) {
-    stack_.emplace_back();
-    stack_.back().array = array;
-  }
-  void childDone() {
-    if (!stack_.empty() && stack_.back().array) ++stack_.back().index;
-  }
-  std::string path() const {
-    std::string p;
-    for (const Frame& f : stack_) p = f.array ? at(p, f.index) : key(p, f.key);
-    return p;
-  }
-  std::vector<Frame> stack_;
-};
-
-std::string lineColumn(const std::string& text, size_t offset) {
-  offset = std::min(offset, text.size());
-  size_t line = 1, lineStart = 0;
-  for (size_t i = 0; i < offset; ++i)
-    if (text[i] == '\n') ++line, lineStart = i + 1;
-  return std::to_string(line) + ":" + std::to_string(offset - lineStart + 1);
-}
-
 }  // namespace
 
 // ================================================================ public ===
 
 json parseSceneText(const std::string& text, const std::string& origin) {
+  JsonTextOptions options;
+  options.maxDepth = kMaxSceneDepth;
   try {
-    return json::parse(text, DuplicateKeyCheck());
-  } catch (const json::parse_error& e) {
-    // nlohmann's text is "[json.exception...] parse error at line L, column C: detail";
-    // keep the detail and put the position in the compiler-like prefix.
-    std::string detail = e.what();
-    const size_t col = detail.find("column ");
-    const size_t sep = detail.find(": ", col == std::string::npos ? 0 : col);
-    if (sep != std::string::npos) detail = detail.substr(sep + 2);
-    const size_t offset = e.byte > 0 ? e.byte - 1 : 0;
-    throw SceneError("", origin + ":" + lineColumn(text, offset) + ": malformed JSON: " + detail);
-  } catch (const json::exception& e) {
-    // Number overflow (e.g. 1e999) comes without a position; locate the token.
-    std::string detail = e.what();
-    const size_t close = detail.find("] ");
-    if (close != std::string::npos) detail = detail.substr(close + 2);
-    std::string where = origin;
-    const size_t q1 = detail.find('\''), q2 = detail.rfind('\'');
-    if (q1 != std::string::npos && q2 > q1) {
-      const size_t pos = text.find(detail.substr(q1 + 1, q2 - q1 - 1));
-      if (pos != std::string::npos) where += ":" + lineColumn(text, pos);
-    }
+    return parseJsonText(text, options);
+  } catch (const JsonTextError& e) {
+    // File-level errors name the origin (and line:column when known); a
+    // duplicate key is reported at its key path like any scene error.
+    if (e.kind == JsonTextError::Kind::DuplicateKey) throw SceneError(e.path, e.detail);
+    const std::string where = printable(origin, 300) + (e.where.empty() ? "" : ":" + e.where);
+    std::string detail = e.detail;
+    if (e.kind == JsonTextError::Kind::TooDeep && !e.path.empty()) detail += " (at " + e.path + ")";
     throw SceneError("", where + ": malformed JSON: " + detail);
   }
 }
@@ -1107,12 +1087,17 @@ json loadSceneJson(const std::string& file) {
   std::error_code ec;
   if (!fs::exists(file, ec)) throw SceneError("", "scene file '" + file + "' does not exist");
   if (fs::is_directory(file, ec)) throw SceneError("", "scene file '" + file + "' is a directory");
+  if (const auto size = fs::file_size(file, ec); !ec && size > kMaxSceneFileBytes)
+    throw SceneError("", "scene file '" + file + "' holds " + std::to_string(size) + " bytes, more than the " +
+                             std::to_string(kMaxSceneFileBytes >> 20) + " MB a scene may have");
   std::ifstream in(file, std::ios::binary);
   if (!in) throw SceneError("", "cannot open scene file '" + file + "'");
   std::ostringstream text;
   text << in.rdbuf();
   if (in.bad()) throw SceneError("", "cannot read scene file '" + file + "'");
   json scene = parseSceneText(text.str(), file);
+  if (!scene.is_object())
+    throw SceneError("", printable(file, 300) + ": a scene must be a JSON object, got " + scene.type_name());
   resolveSceneFilePaths(scene, file);
   return scene;
 }
@@ -1182,7 +1167,10 @@ SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
 
   s.gravity = Vec<D>::Zero();
   s.gravity[1] = Real(-9.81);
-  if (const json* m = member(root, "gravity")) s.gravity = getVec<D>(*m, "gravity");
+  if (const json* m = member(root, "gravity")) {
+    s.gravity = getVec<D>(*m, "gravity");
+    normInRange<D>(s.gravity, "gravity", limits::kGravity);
+  }
 
   if (const json* m = member(root, "duration")) {
     s.duration = getNumber(*m, "duration");

@@ -25,9 +25,14 @@ struct SceneError : std::runtime_error {
 // column) this rejects duplicate object keys, which plain JSON parsers
 // resolve silently by keeping the last one. `origin` names the source (a file
 // name) in error messages.
+// Nesting deeper than kMaxSceneDepth is an error (no scene needs more than a
+// handful of levels; deep values would exhaust the stack when copied).
+inline constexpr int kMaxSceneDepth = 64;
+inline constexpr size_t kMaxSceneFileBytes = size_t(64) << 20;
 nlohmann::json parseSceneText(const std::string& text, const std::string& origin = "scene");
 
-// Reads and parses a scene file (see parseSceneText), then resolves the
+// Reads and parses a scene file (see parseSceneText; anything but a JSON
+// object is an error naming the file), then resolves the
 // files it names (resolveSceneFilePaths).
 nlohmann::json loadSceneJson(const std::string& file);
 

@@ -1,6 +1,8 @@
 // The WebSocket wire format: see frame_encoding.h and proto/flowclip.fbs.
 #include "service/frame_encoding.h"
 
+#include "core/text.h"
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -724,7 +726,9 @@ void buildAck(flatbuffers::FlatBufferBuilder& fbb, uint32_t editId, int32_t fram
 
 void buildError(flatbuffers::FlatBufferBuilder& fbb, fb::ErrorCode code, std::string_view message, uint32_t requestId) {
   fbb.Clear();
-  const auto text = fbb.CreateString(message.data(), message.size());
+  // Messages may echo client bytes; flatbuffers strings are UTF-8.
+  const std::string safe = printable(message);
+  const auto text = fbb.CreateString(safe);
   const auto err = fb::CreateError(fbb, code, text, requestId);
   finishEnvelope(fbb, fb::Message::Error, err.Union());
 }
@@ -732,8 +736,9 @@ void buildError(flatbuffers::FlatBufferBuilder& fbb, fb::ErrorCode code, std::st
 void buildStateChange(flatbuffers::FlatBufferBuilder& fbb, const StateChangeInfo& s) {
   fbb.Clear();
   const auto sid = fbb.CreateString(s.sessionId);
-  const auto msg = s.message.empty() ? Offset<flatbuffers::String>() : fbb.CreateString(s.message);
-  const auto json = s.stateJson.empty() ? Offset<flatbuffers::String>() : fbb.CreateString(s.stateJson);
+  const auto msg = s.message.empty() ? Offset<flatbuffers::String>() : fbb.CreateString(printable(s.message));
+  const auto json = s.stateJson.empty() ? Offset<flatbuffers::String>()
+                                        : fbb.CreateString(isValidUtf8(s.stateJson) ? s.stateJson : printable(s.stateJson, SIZE_MAX));
   fb::StateChangeBuilder b(fbb);
   b.add_session_id(sid);
   b.add_status(s.status);

@@ -1,5 +1,6 @@
 #include "service/http_server.h"
 
+#include "core/text.h"
 #include "service/frame_encoding.h"
 
 #include <boost/asio/dispatch.hpp>
@@ -138,18 +139,27 @@ HttpResponse staticFile(const std::string& webDir, const std::string& target) {
     const std::string seg = path.substr(i, j - i);
     if (!seg.empty()) {
       if (seg[0] == '.' || seg.find('\\') != std::string::npos || seg.find('%') != std::string::npos)
-        return errorResponse(400, "invalid path " + target.substr(0, 120));
+        return errorResponse(400, "invalid path " + printable(target, 120));
       file /= seg;
     }
     i = j + 1;
   }
   if (fs::is_directory(file)) file /= "index.html";
   std::ifstream in(file, std::ios::binary);
-  if (!in) return errorResponse(404, "no file " + target.substr(0, 120));
+  if (!in) return errorResponse(404, "no file " + printable(target, 120));
   HttpResponse r;
   r.contentType = mimeType(file.extension().string());
   r.body.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
   return r;
+}
+
+// application/json, or for PATCH (a JSON merge patch, RFC 7396) also
+// application/merge-patch+json; parameters such as charset may follow.
+bool jsonContentType(const std::string& contentType, http::verb method) {
+  std::string type = contentType.substr(0, contentType.find(';'));
+  type.erase(type.find_last_not_of(" \t") + 1);
+  std::transform(type.begin(), type.end(), type.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  return type == "application/json" || (method == http::verb::patch && type == "application/merge-patch+json");
 }
 
 // "/api/sessions/{id}/stream" → id (empty if the path is something else).
@@ -187,9 +197,16 @@ class StreamConnection : public StreamHandle, public std::enable_shared_from_thi
   // More unanswered acks and errors than this means the client does not
   // read: it is disconnected rather than buffered for.
   static constexpr size_t kMaxQueuedMessages = 256;
+  // A client that takes longer than this to accept one message (its socket
+  // buffer full: it stopped reading) is disconnected.
+  static constexpr std::chrono::seconds kWriteStall{20};
+  static constexpr std::chrono::seconds kIdleTimeout{60};
+  // A close handshake the peer does not complete within this is cut.
+  static constexpr std::chrono::seconds kCloseGrace{5};
 
   StreamConnection(tcp::socket socket, HttpServer::Impl& server, std::shared_ptr<Session> session)
-      : ws_(std::move(socket)), server_(server), session_(std::move(session)), timer_(ws_.get_executor()) {}
+      : ws_(std::move(socket)), server_(server), session_(std::move(session)), timer_(ws_.get_executor()),
+        stallTimer_(ws_.get_executor()) {}
 
   ~StreamConnection() override {
     // Normally released already; a connection dropped with the event loop
@@ -204,7 +221,11 @@ class StreamConnection : public StreamHandle, public std::enable_shared_from_thi
   void releaseAtShutdown() override { release(); }
 
   void start(http::request<http::string_body> req, std::string protocol) {
-    ws_.set_option(websocket::stream_base::timeout::suggested(beast::role_type::server));
+    // A peer that vanished answers no ping: dropped after kIdleTimeout.
+    websocket::stream_base::timeout timeouts = websocket::stream_base::timeout::suggested(beast::role_type::server);
+    timeouts.idle_timeout = kIdleTimeout;
+    timeouts.keep_alive_pings = true;
+    ws_.set_option(timeouts);
     ws_.set_option(websocket::stream_base::decorator([protocol](websocket::response_type& res) {
       res.set(http::field::server, "flowclip/" FLOWCLIP_VERSION);
       if (!protocol.empty()) res.set(http::field::sec_websocket_protocol, protocol);
@@ -260,7 +281,14 @@ class StreamConnection : public StreamHandle, public std::enable_shared_from_thi
                  "text messages are not understood: send binary flatbuffers (proto/flowclip.fbs, Envelope)", 0);
     } else if (session_) {
       const auto* data = static_cast<const uint8_t*>(in_.data().data());
-      handle(wire::parseClientMessage(data, in_.size()));
+      // Nothing a client sends may escape into the event loop.
+      try {
+        handle(wire::parseClientMessage(data, in_.size()));
+      } catch (const std::exception& err) {
+        queueError(wire::fb::ErrorCode::Internal, std::string("internal error: ") + err.what(), 0);
+      } catch (...) {
+        queueError(wire::fb::ErrorCode::Internal, "internal error", 0);
+      }
     }
     in_.consume(in_.size());
     if (!closed_) read();
@@ -274,6 +302,8 @@ class StreamConnection : public StreamHandle, public std::enable_shared_from_thi
         Edit edit = Edit::fromJson(parseJsonLimited(e->json));
         const EditTicket t = session_->submit(std::move(edit));
         editIds_[t.id] = e->editId;
+      } catch (const SessionOverloaded& err) {
+        queueError(wire::fb::ErrorCode::Overloaded, err.what(), e->editId);
       } catch (const std::exception& err) {
         queueError(wire::fb::ErrorCode::InvalidEdit, err.what(), e->editId);
       }
@@ -407,8 +437,11 @@ class StreamConnection : public StreamHandle, public std::enable_shared_from_thi
 
   void write(net::const_buffer buffer) {
     writing_ = true;
+    armStallTimer(kWriteStall);
     ws_.async_write(buffer, [self = shared_from_this()](beast::error_code ec, size_t) {
       self->writing_ = false;
+      ++self->stallSeq_;
+      self->stallTimer_.cancel();
       self->inFlight_.reset();
       if (ec) {
         self->release();
@@ -421,8 +454,38 @@ class StreamConnection : public StreamHandle, public std::enable_shared_from_thi
   void closeWith(const std::string& reason) {
     if (closed_) return;
     release();
-    ws_.async_close(websocket::close_reason(websocket::close_code::going_away, reason),
-                    [self = shared_from_this()](beast::error_code) {});
+    // A close frame cannot be queued behind a write the peer does not take.
+    if (writing_) {
+      cut();
+      return;
+    }
+    writing_ = true;
+    armStallTimer(kCloseGrace);
+    ws_.async_close(websocket::close_reason(websocket::close_code::going_away, printable(reason, 120)),
+                    [self = shared_from_this()](beast::error_code) {
+                      self->writing_ = false;
+                      ++self->stallSeq_;
+                      self->stallTimer_.cancel();
+                    });
+  }
+
+  // Fires `after` from now unless the write or close in progress ends first.
+  void armStallTimer(std::chrono::seconds after) {
+    const uint64_t seq = ++stallSeq_;
+    stallTimer_.expires_after(after);
+    stallTimer_.async_wait([weak = weak_from_this(), seq](beast::error_code ec) {
+      auto self = weak.lock();
+      if (ec || !self || self->stallSeq_ != seq || !self->writing_) return;
+      self->release();
+      self->cut();
+    });
+  }
+
+  // Closes the socket without a handshake: pending operations end with an error.
+  void cut() {
+    beast::error_code ignored;
+    beast::get_lowest_layer(ws_).socket().shutdown(tcp::socket::shutdown_both, ignored);
+    beast::get_lowest_layer(ws_).socket().close(ignored);
   }
 
   // Lets go of the session (its memory is freed once every holder has).
@@ -446,6 +509,8 @@ class StreamConnection : public StreamHandle, public std::enable_shared_from_thi
   HttpServer::Impl& server_;
   std::shared_ptr<Session> session_;
   net::steady_timer timer_;
+  net::steady_timer stallTimer_;  // armStallTimer
+  uint64_t stallSeq_ = 0;
   beast::flat_buffer in_;
   flatbuffers::FlatBufferBuilder frameBuffer_{1 << 16};
   flatbuffers::FlatBufferBuilder scratch_{1024};
@@ -508,11 +573,32 @@ class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
       upgrade(std::move(req), path);
       return;
     }
+    // The health check answers at once, even with every worker busy.
+    if (path == "/api/health" && (req.method() == http::verb::get || req.method() == http::verb::head)) {
+      HttpResponse answer;
+      try {
+        answer = respond(req, target, path);
+      } catch (const std::exception& e) {
+        answer = errorResponse(500, std::string("internal error: ") + e.what());
+      }
+      StringResponse res = makeResponse(answer, req.version(), req.keep_alive());
+      if (req.method() == http::verb::head) res.body().clear();
+      send(std::move(res));
+      return;
+    }
     // REST handlers may wait (edits, exports): run them off the I/O threads,
     // with no deadline (send() sets one for the answer).
     stream_.expires_never();
     net::post(server_.workers, [self = shared_from_this(), req = std::move(req), target, path]() mutable {
-      StringResponse res = makeResponse(self->respond(req, target, path), req.version(), req.keep_alive());
+      HttpResponse answer;
+      try {
+        answer = self->respond(req, target, path);
+      } catch (const std::exception& e) {
+        answer = errorResponse(500, std::string("internal error: ") + e.what());
+      } catch (...) {
+        answer = errorResponse(500, "internal error");
+      }
+      StringResponse res = makeResponse(answer, req.version(), req.keep_alive());
       if (req.method() == http::verb::head) res.body().clear();
       net::post(self->stream_.get_executor(), [self, res = std::move(res)]() mutable { self->send(std::move(res)); });
     });
@@ -525,20 +611,19 @@ class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
         return errorResponse(405, "only GET is served outside /api");
       return staticFile(server_.options.webDir, path);
     }
-    if (!server_.hostAllowed(std::string(req[http::field::host])))
-      return errorResponse(403, "Host " + std::string(req[http::field::host]).substr(0, 80) +
-                                    " is not this server's loopback address");
     if (!server_.authorized(std::string(req[http::field::authorization])))
       return errorResponse(401, "this server requires a token: send \"Authorization: Bearer <token>\"");
+    if (!server_.hostAllowed(std::string(req[http::field::host])))
+      return errorResponse(403, "Host " + printable(std::string(req[http::field::host]), 80) + " is not this server's loopback address");
     // A cross-site page may send simple requests without asking: refuse
     // foreign origins, and bodies that are not declared JSON (a form or
     // text/plain post cannot set that type without a preflight).
     if (!server_.originAllowed(std::string(req[http::field::origin]), std::string(req[http::field::host])))
-      return errorResponse(403, "Origin " + std::string(req[http::field::origin]).substr(0, 80) +
+      return errorResponse(403, "Origin " + printable(std::string(req[http::field::origin]), 80) +
                                     " is not allowed (same origin or --allow-origin)");
-    if (!req.body().empty() &&
-        std::string(req[http::field::content_type]).rfind("application/json", 0) != 0)
-      return errorResponse(415, "request bodies must be JSON, sent with Content-Type: application/json");
+    if (!req.body().empty() && !jsonContentType(std::string(req[http::field::content_type]), req.method()))
+      return errorResponse(415, "request bodies must be JSON, sent with Content-Type: application/json "
+                                "(PATCH also takes application/merge-patch+json)");
     HttpRequest r;
     r.method = std::string(req.method_string());
     r.path = path;
@@ -569,20 +654,20 @@ class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
       return;
     }
     if (!server_.hostAllowed(std::string(req[http::field::host]))) {
-      send(makeResponse(errorResponse(403, "Host " + std::string(req[http::field::host]).substr(0, 80) +
+      send(makeResponse(errorResponse(403, "Host " + printable(std::string(req[http::field::host]), 80) +
                                                " is not this server's loopback address"),
                         version, false));
       return;
     }
     if (!server_.originAllowed(std::string(req[http::field::origin]), std::string(req[http::field::host]))) {
-      send(makeResponse(errorResponse(403, "WebSocket origin " + std::string(req[http::field::origin]) +
+      send(makeResponse(errorResponse(403, "WebSocket origin " + printable(std::string(req[http::field::origin]), 80) +
                                                " is not allowed (same origin or --allow-origin)"),
                         version, false));
       return;
     }
     auto session = server_.hub.session(id);
     if (!session) {
-      send(makeResponse(errorResponse(404, "no session \"" + id.substr(0, 80) + "\""), version, false));
+      send(makeResponse(errorResponse(404, "no session \"" + printable(id, 80) + "\""), version, false));
       return;
     }
     stream_.expires_never();

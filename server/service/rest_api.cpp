@@ -1,5 +1,7 @@
 #include "service/rest_api.h"
 
+#include "core/text.h"
+#include "io/json_text.h"
 #include "io/scene.h"
 #include "io/staged_files.h"
 #include "io/stats_json.h"
@@ -7,6 +9,7 @@
 #include "service/frame_encoding.h"
 #include "control/instance.h"
 #include "sph/pipeline.h"
+#include "sph/limits.h"
 #include "sph/settings.h"
 
 #include <algorithm>
@@ -16,6 +19,7 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <thread>
 #include <unistd.h>
 
 namespace fc::service {
@@ -46,12 +50,19 @@ const char* errorCode(int status) {
   }
 }
 
-HttpResponse errorResponse(int status, const std::string& message, const std::string& path) {
-  json e = {{"status", status}, {"code", errorCode(status)}, {"message", message}};
-  if (!path.empty()) e["path"] = path;
+// Messages echo client bytes (paths, names, headers): made printable here,
+// so that no error can fail to serialise.
+HttpResponse errorResponse(int status, const std::string& message, const std::string& path) noexcept {
   HttpResponse r;
   r.status = status;
-  r.body = json{{"error", e}}.dump();
+  try {
+    json e = {{"status", status}, {"code", errorCode(status)}, {"message", printable(message)}};
+    if (!path.empty()) e["path"] = printable(path, 300);
+    r.body = json{{"error", e}}.dump(-1, ' ', false, json::error_handler_t::replace);
+  } catch (...) {
+    r.body = R"({"error":{"status":500,"code":"internal_error","message":"the error could not be described"}})";
+    r.status = 500;
+  }
   return r;
 }
 
@@ -149,7 +160,8 @@ std::string getString(const json& body, const char* key, bool required, const st
   return body[key].get<std::string>();
 }
 
-int64_t getInt(const json& body, const char* key, bool required, int64_t fallback, int64_t min, int64_t max) {
+int64_t getInt(const json& body, const char* key, bool required, int64_t fallback, int64_t min, int64_t max,
+               const char* why = nullptr) {
   if (!body.contains(key)) {
     if (required) throw ApiError(400, std::string("\"") + key + "\" is required", key);
     return fallback;
@@ -160,12 +172,13 @@ int64_t getInt(const json& body, const char* key, bool required, int64_t fallbac
   const int64_t x = v.get<int64_t>();
   if (x < min || x > max)
     throw ApiError(400, std::string("\"") + key + "\" must be in [" + std::to_string(min) + ", " + std::to_string(max) +
-                            "], got " + std::to_string(x),
+                            "], got " + std::to_string(x) + (why ? std::string(" (") + why + ")" : ""),
                    key);
   return x;
 }
 
-double getNumber(const json& body, const char* key, bool required, double fallback, double min, double max) {
+double getNumber(const json& body, const char* key, bool required, double fallback, double min, double max,
+                 const char* why = nullptr) {
   if (!body.contains(key)) {
     if (required) throw ApiError(400, std::string("\"") + key + "\" is required", key);
     return fallback;
@@ -175,7 +188,8 @@ double getNumber(const json& body, const char* key, bool required, double fallba
   const double x = v.get<double>();
   if (!std::isfinite(x) || x < min || x > max) {
     char buf[160];
-    std::snprintf(buf, sizeof buf, "\"%s\" must be in [%g, %g], got %g", key, min, max, x);
+    std::snprintf(buf, sizeof buf, "\"%s\" must be in [%g, %g], got %g%s%s%s", key, min, max, x, why ? " (" : "",
+                  why ? why : "", why ? ")" : "");
     throw ApiError(400, buf, key);
   }
   return x;
@@ -314,17 +328,19 @@ wire::StateChangeInfo stateChangeInfo(const json& state, uint32_t requestId) {
 }
 
 json parseJsonLimited(const std::string& text) {
-  // Parsing is iterative but copying and destroying a json value recurse:
-  // a body nested a million deep would overflow the stack.
-  const auto limit = [](int depth, json::parse_event_t, json&) {
-    if (depth > kMaxJsonDepth)
-      throw ApiError(400, "JSON nested deeper than " + std::to_string(kMaxJsonDepth) + " levels");
-    return true;
-  };
+  JsonTextOptions options;
+  options.maxDepth = kMaxJsonDepth;
   try {
-    return json::parse(text, limit);
-  } catch (const json::parse_error& e) {
-    throw ApiError(400, std::string("malformed JSON: ") + e.what());
+    return parseJsonText(text, options);
+  } catch (const JsonTextError& e) {
+    switch (e.kind) {
+      case JsonTextError::Kind::Syntax:
+        throw ApiError(400, "malformed JSON" + (e.where.empty() ? "" : " at " + e.where) + ": " + e.detail, e.path);
+      case JsonTextError::Kind::TooDeep:
+        throw ApiError(400, e.detail + (e.path.empty() ? "" : " (at " + e.path + ")"), e.path);
+      default:
+        throw ApiError(400, e.detail, e.path);
+    }
   }
 }
 
@@ -338,7 +354,9 @@ double currentRssMb() {
 // ---- the hub -------------------------------------------------------------------
 
 ServiceHub::ServiceHub(ServiceOptions options)
-    : options_(std::move(options)), database_(options_.templatesDir), started_(std::chrono::steady_clock::now()) {}
+    : options_(std::move(options)), database_(options_.templatesDir), started_(std::chrono::steady_clock::now()) {
+  if (options_.maxThreads <= 0) options_.maxThreads = std::max(1, int(std::thread::hardware_concurrency()));
+}
 
 ServiceHub::~ServiceHub() {
   std::map<std::string, std::shared_ptr<Session>> sessions;
@@ -406,6 +424,10 @@ HttpResponse ServiceHub::handle(const HttpRequest& req) {
       return errorResponse(e.status, e.what(), e.path);
     } catch (const SceneError& e) {
       return errorResponse(422, e.what(), e.path);
+    } catch (const SessionOverloaded& e) {
+      HttpResponse r = errorResponse(503, e.what());
+      r.headers.emplace_back("Retry-After", "1");
+      return r;
     } catch (const SessionError& e) {
       return errorResponse(409, e.what());
     } catch (const DatabaseError& e) {
@@ -511,6 +533,13 @@ json registryJson(const R& registry) {
   return out;
 }
 
+json limitsJson() {
+  json list = json::array();
+  for (const PhysicalRange& r : physicalRanges())
+    list.push_back({{"name", r.name}, {"unit", r.unit}, {"min", r.min}, {"max", r.max}, {"help", r.help}});
+  return list;
+}
+
 template <int D>
 json parametersJson() {
   registerBuiltinSolversAndEffects();
@@ -519,7 +548,8 @@ json parametersJson() {
           {"control", specsJson(controlSettingsSpecs())},
           {"settings", specsJson(simulationSettingsSpecs())},
           {"solvers", registryJson(PressureSolverRegistry<D>::instance())},
-          {"effects", registryJson(EffectRegistry<D>::instance())}};
+          {"effects", registryJson(EffectRegistry<D>::instance())},
+          {"limits", limitsJson()}};
 }
 
 }  // namespace
@@ -588,6 +618,18 @@ HttpResponse ServiceHub::getTemplate(const HttpRequest&, const Params& p) {
 HttpResponse ServiceHub::deleteTemplate(const HttpRequest&, const Params& p) {
   checkName(p[0], "template");
   if (!database_.contains(p[0])) throw ApiError(404, "no template \"" + p[0] + "\" in " + database_.directory(), "name");
+  // A session's scene that instances it could not be reset or saved and re-opened.
+  std::vector<std::shared_ptr<Session>> all;
+  {
+    std::lock_guard lk(mutex_);
+    for (auto& [id, s] : sessions_) all.push_back(s);
+  }
+  for (const auto& s : all)
+    for (const json& inst : instancesOf(s->sceneJson()))
+      if (inst.value("template", "") == p[0])
+        throw ApiError(409, "template \"" + p[0] + "\" is in use by session " + s->id() + " (instance \"" +
+                                inst.value("name", "") + "\"); remove the instance or delete the session first",
+                       "name");
   database_.remove(p[0]);
   {
     std::lock_guard<std::mutex> lock(previewMutex_);
@@ -691,8 +733,11 @@ HttpResponse ServiceHub::recordTemplate(const HttpRequest& req, const Params& p)
                      key);
     std::vector<double> out;
     for (const json& x : v) {
-      if (!x.is_number() || !std::isfinite(x.get<double>()))
-        throw ApiError(400, std::string("\"") + key + "\" must hold finite numbers", key);
+      if (!x.is_number() || !limits::kCoordinate.contains(x.get<double>()))
+        throw ApiError(400, std::string("\"") + key + "\" must hold numbers in [" +
+                                std::to_string(int64_t(limits::kCoordinate.min)) + ", " +
+                                std::to_string(int64_t(limits::kCoordinate.max)) + "] m",
+                       key);
       out.push_back(x.get<double>());
     }
     return out;
@@ -789,12 +834,19 @@ HttpResponse ServiceHub::createSession(const HttpRequest& req, const Params&) {
   }
   std::string name = getString(body, "name", false);
   if (!name.empty()) checkName(name, "session");
+  // The server's limits are ceilings: a request may lower them, never raise them.
   SessionOptions so;
+  const double capMb = double(options_.historyCapBytes) / (1024.0 * 1024.0);
   so.historyCapBytes = body.contains("history_cap_mb")
-                           ? size_t(getNumber(body, "history_cap_mb", false, 0, 1e-3, 1e6) * 1024 * 1024)
+                           ? size_t(getNumber(body, "history_cap_mb", false, 0, 1e-3, capMb,
+                                              "the server's --history-cap-mb is the ceiling") *
+                                    1024 * 1024)
                            : options_.historyCapBytes;
   so.playbackSpeed = getNumber(body, "playback_speed", false, 0, 0, 1e6);
-  so.threads = int(getInt(body, "threads", false, 0, 0, 1024));
+  so.threads = int(getInt(body, "threads", false, 0, 0, options_.maxThreads,
+                          "the server's --max-threads is the ceiling; 0: all of them"));
+  if (so.threads == 0) so.threads = options_.maxThreads;
+  so.frameTimeout = options_.frameTimeout;
 
   std::string id;
   {

@@ -51,7 +51,7 @@ struct ApiError : std::runtime_error {
   int status;
   std::string path;
 };
-HttpResponse errorResponse(int status, const std::string& message, const std::string& path = {});
+HttpResponse errorResponse(int status, const std::string& message, const std::string& path = {}) noexcept;
 const char* errorCode(int status);  // "bad_request", "not_found", ...
 
 struct ServiceOptions {
@@ -62,10 +62,15 @@ struct ServiceOptions {
   // accuracy` chose from its Pareto front, with their measured figures.
   std::string presetsFile = "bench/accuracy/presets.json";
   int maxSessions = 8;
-  size_t historyCapBytes = size_t(256) << 20;  // per session, unless the create request says otherwise
+  size_t historyCapBytes = size_t(256) << 20;  // per session; a create request may ask for less, never more
+  int maxThreads = 0;                          // per session's step; a request may ask for fewer (0: the CPUs)
+  // The watchdog's limit on one frame's wall time: a session whose frame
+  // runs longer goes to its error state (SessionOptions::frameTimeout).
+  std::chrono::milliseconds frameTimeout{120000};
   // How long an edit request waits for the session to apply it before
-  // answering 202 (pending).
-  std::chrono::milliseconds editWait{10000};
+  // answering 202 (pending); short, so that a slow frame never holds the
+  // REST workers.
+  std::chrono::milliseconds editWait{3000};
 };
 
 class ServiceHub {

@@ -9,6 +9,7 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <condition_variable>
 #include <deque>
@@ -187,6 +188,7 @@ class SessionImpl final : public Session {
   }
 
   ~SessionImpl() override {
+    cancel_ = true;  // the frame in progress stops at its next substep
     {
       std::lock_guard lk(mutex_);
       stop_ = true;
@@ -252,6 +254,7 @@ class SessionImpl final : public Session {
   }
 
   void reset() override {
+    cancel_ = true;  // the frame in progress is discarded by the reset anyway
     {
       std::lock_guard lk(mutex_);
       Op op;
@@ -301,8 +304,8 @@ class SessionImpl final : public Session {
       // A flood of edits would starve the frames (edits go first at each
       // boundary) and grow the queue without bound.
       if (pendingEdits_ >= kMaxPendingEdits)
-        throw SessionError("the session already has " + std::to_string(kMaxPendingEdits) +
-                           " edits waiting to be applied; wait for their results");
+        throw SessionOverloaded("the session already has " + std::to_string(kMaxPendingEdits) +
+                                " edits waiting to be applied; wait for their results");
       Op op;
       op.id = t.id = ++lastEditId_;
       op.edit = std::move(edit);
@@ -786,6 +789,7 @@ class SessionImpl final : public Session {
 
   // Called with mutex_ released; returns with it held.
   void computeFrame(std::unique_lock<std::mutex>& lk) {
+    sim_->setFrameLimits({Clock::now() + options_.frameTimeout, &cancel_});
     FrameStats fs = sim_->advanceFrame();
     fs.frame += frameBase_;
     fs.time += timeBase_;
@@ -797,15 +801,16 @@ class SessionImpl final : public Session {
     lk.lock();
     computing_ = false;
     bool frameChanged = false, stateChanged = false;
-    if (!fs.finite) {
+    if (fs.cancelled) {
+      // Stopped for a reset or for closing: the reset rebuilds the state.
+      stepsLeft_ = 0;
+      stateChanged = true;
+    } else if (!fs.finite) {
       // Never published: the last good frame stays the newest.
       status_ = SessionStatus::Error;
       stepsLeft_ = 0;
       errorFrame_ = fs.frame;
-      char t[32];
-      std::snprintf(t, sizeof t, "%.6g", fs.time);
-      errorMessage_ = "non-finite position or velocity at frame " + std::to_string(fs.frame) + " (t = " + t +
-                      " s); the simulation is paused";
+      errorMessage_ = failureText(fs) + "; the simulation is paused (reset to go on)";
       stateChanged = true;
     } else {
       live_ = snap;
@@ -832,6 +837,7 @@ class SessionImpl final : public Session {
   }
 
   void doReset() {
+    cancel_ = false;
     std::string failure;
     try {
       buildSimulation();
@@ -1215,6 +1221,7 @@ class SessionImpl final : public Session {
   std::condition_variable cv_;               // wakes the session's thread
   mutable std::condition_variable idleCv_;   // wakes waitIdle / waitForFrame
   bool stop_ = false;
+  std::atomic<bool> cancel_{false};  // stops the frame in progress (Simulation::FrameLimits)
   SessionStatus status_ = SessionStatus::Paused;
   int stepsLeft_ = 0;
   double speed_ = 0;

@@ -183,6 +183,9 @@ struct SessionOptions {
   size_t historyCapBytes = size_t(512) << 20;  // replay history; oldest frames dropped beyond it
   double playbackSpeed = 0;                     // frames per wall second while playing; 0: as fast as possible
   int threads = 0;                              // OpenMP threads of this session's step (0: the default)
+  // The watchdog: a frame running longer puts the session in its error
+  // state (the substep limit is the scene's settings.max_substeps_per_frame).
+  std::chrono::milliseconds frameTimeout{120000};
 };
 
 struct SessionListener {
@@ -194,6 +197,10 @@ struct SessionListener {
 // Transport that cannot run (play or step in the error state, step(0)).
 struct SessionError : std::runtime_error {
   using std::runtime_error::runtime_error;
+};
+// The edit queue is full (kMaxPendingEdits): try again once results arrive.
+struct SessionOverloaded : SessionError {
+  using SessionError::SessionError;
 };
 
 class Session {
@@ -224,7 +231,7 @@ class Session {
 
   // Edits: queued, validated and applied by the session's thread at the next
   // frame boundary, in order. A rejected edit changes nothing. At most
-  // kMaxPendingEdits wait at once; submit throws SessionError beyond.
+  // kMaxPendingEdits wait at once; submit throws SessionOverloaded beyond.
   static constexpr size_t kMaxPendingEdits = 256;
   virtual EditTicket submit(Edit edit) = 0;
   // The result of an edit, once known (the last 1024 are kept).

@@ -24,6 +24,10 @@ inline const ParamSpecs& simulationSettingsSpecs() {
        "this, once more for every further such substep (down to 1/64 of the step); 1: never shrink"},
       {"step_recovery", "", 1, 4, 1.1,
        "per substep whose solves all converged, a shrunk time step grows back by this factor, up to the full step"},
+      {"max_substeps_per_frame", "", 10, 1e7, 10000,
+       "a frame that needs more substeps stops with an error instead of running on (a collapsed time step means "
+       "the simulation has become unstable)",
+       ParamType::Integer},
   };
   return specs;
 }

@@ -7,6 +7,8 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
+#include <limits>
 #include <numbers>
 #include <stdexcept>
 
@@ -376,11 +378,18 @@ template <int D>
 Real Simulation<D>::cflTimeStep() const {
   Real vmax2 = 0;
   const Real h = lastDt_;
-#pragma omp parallel reduction(max : vmax2)
+  int nonFinite = 0;
+  constexpr Real inf = std::numeric_limits<Real>::infinity();
+#pragma omp parallel reduction(max : vmax2) reduction(+ : nonFinite)
   {
     const auto [first, last] = threadParticles();
-    for (long i = first; i < last; ++i) vmax2 = std::max(vmax2, (fluid.v[i] + h * fluid.a[i]).squaredNorm());
+    for (long i = first; i < last; ++i) {
+      const Real s = (fluid.v[i] + h * fluid.a[i]).squaredNorm();
+      vmax2 = std::max(vmax2, s);
+      nonFinite += s < inf ? 0 : 1;  // NaN too: max() would drop it
+    }
   }
+  nonFiniteSpeed_ = nonFinite > 0;
   const Real cfl = Real(setup_.settings.get("cfl_factor"));
   const Real vmax = std::sqrt(vmax2);
   Real dtMax = Real(setup_.settings.get("dt_max"));
@@ -577,8 +586,28 @@ FrameStats Simulation<D>::advanceFrame() {
   fs.minDt = 1e30;
   for (Effect<D>* e : frameStages_) e->beginFrame(*this, fs);
   const long n = long(fluid.size());
+  const int maxSubsteps = int(setup_.settings.get("max_substeps_per_frame"));
+  auto stop = [&](std::string why) {
+    fs.finite = false;
+    fs.failure = std::move(why);
+    fs.frame = frame_ + 1;
+    fs.time = time_;
+    fs.particles = fluid.size();
+    fs.wallMs = msSince(t0);
+    return fs;
+  };
 
   while (time_ < frameEnd - 1e-9) {
+    if (frameLimits_.cancel && frameLimits_.cancel->load(std::memory_order_relaxed)) {
+      fs.cancelled = true;
+      return stop("the frame was cancelled");
+    }
+    if (fs.substeps >= maxSubsteps)
+      return stop("the frame needed more than " + std::to_string(maxSubsteps) +
+                  " substeps (settings.max_substeps_per_frame; the time step fell to " + std::to_string(lastDt_) +
+                  " s): the simulation has become unstable");
+    if (Clock::now() > frameLimits_.deadline)
+      return stop("the frame ran past the watchdog's time limit after " + std::to_string(fs.substeps) + " substeps");
     auto lap = Clock::now();
     auto took = [&lap]() {
       const auto now = Clock::now();
@@ -615,6 +644,8 @@ FrameStats Simulation<D>::advanceFrame() {
 
     // Fit the substeps exactly into the frame, without a tiny last step.
     Real dt = cflTimeStep();
+    if (nonFiniteSpeed_)
+      return stop("non-finite velocity or acceleration");
     fs.stepScale = std::min(fs.stepScale, double(stepScale_));
     const double remaining = frameEnd - time_;
     if (remaining <= dt) dt = Real(remaining);
@@ -694,6 +725,7 @@ FrameStats Simulation<D>::advanceFrame() {
     finite = finite && fluid.x[i].allFinite() && fluid.v[i].allFinite() && std::isfinite(fluid.density[i]);
   }
   fs.finite = finite && (!bodies_ || bodies_->finite());
+  if (!fs.finite) fs.failure = "non-finite position or velocity";
   fs.escapedParticles = outside;
   fs.temporaryParticles = temporary;
   fs.maxSpeed = std::sqrt(vmax2);
@@ -709,6 +741,12 @@ FrameStats Simulation<D>::advanceFrame() {
   if (bodies_) bodies_->reportFrame(fs);
   fs.wallMs = msSince(t0);
   return fs;
+}
+
+std::string failureText(const FrameStats& s) {
+  char t[48];
+  std::snprintf(t, sizeof t, " (t = %.6g s): ", s.time);
+  return "frame " + std::to_string(s.frame) + t + s.failure;
 }
 
 FC_INSTANTIATE_DIMS(Simulation)

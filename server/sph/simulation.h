@@ -8,6 +8,8 @@
 #include "sph/rigid_bodies.h"
 #include "sph/setup.h"
 #include <array>
+#include <atomic>
+#include <chrono>
 #include <memory>
 #include <string>
 #include <utility>
@@ -69,7 +71,13 @@ struct FrameStats {
   double nonPressureMs = 0;      //   gravity and effects,
   double pressureMs = 0;         //   the density (pressure) solve
   double avgNeighbors = 0;
-  bool finite = true;            // every position and velocity finite
+  bool finite = true;            // every position and velocity finite, and the frame completed
+  // Why the frame is not valid ("" when finite): a non-finite value, or the
+  // watchdog (Simulation::FrameLimits, settings.max_substeps_per_frame)
+  // stopped it part-way at `time`. Such a frame is never published.
+  // failureText() puts frame and time in front.
+  std::string failure;
+  bool cancelled = false;        // stopped by FrameLimits::cancel (not a simulation failure)
   // Control (zero without instances; counts as of the frame's end):
   size_t temporaryParticles = 0; // liquid particles of kind Temporary (included in `particles`)
   size_t controlParticles = 0;   // Σ over active instances
@@ -84,6 +92,9 @@ struct FrameStats {
   std::vector<InstanceFrameStats> instances;
   std::vector<BodyFrameStats> bodies;  // empty without bodies
 };
+
+// "frame N (t = T s): <failure>".
+std::string failureText(const FrameStats& stats);
 
 // A particle to insert (temporary particles).
 template <int D>
@@ -102,6 +113,15 @@ class Simulation {
   ~Simulation();
 
   FrameStats advanceFrame();
+
+  // The watchdog of advanceFrame: checked before every substep. A frame
+  // past its deadline, or cancelled, stops there with `failure` set and
+  // `finite` false; the state is then mid-frame (rebuild before going on).
+  struct FrameLimits {
+    std::chrono::steady_clock::time_point deadline = std::chrono::steady_clock::time_point::max();
+    const std::atomic<bool>* cancel = nullptr;
+  };
+  void setFrameLimits(const FrameLimits& limits) { frameLimits_ = limits; }
 
   // A stage built outside sph/ (control), appended to the effects.
   void addEffect(std::unique_ptr<Effect<D>> effect, const std::string& name);
@@ -200,6 +220,7 @@ class Simulation {
   void addStages(Effect<D>* eff);
 
   SimulationSetup<D> setup_;
+  FrameLimits frameLimits_;
   Real radius_;
   Real latticeVolume_ = 0;  // volume per particle of the initial lattice
   Vec<D> gravity_;
@@ -212,6 +233,7 @@ class Simulation {
   bool numberDensity_ = false;
   Real contrastStep_ = 1;  // number density: time step scale, see cflTimeStep
   Real stepScale_ = 1;     // shrinks after unconverged solves, see cflTimeStep
+  mutable bool nonFiniteSpeed_ = false;  // cflTimeStep met a non-finite speed
   int relaxationPasses_ = 0;
   uint32_t nextId_ = 0;
   std::vector<std::string> stageNames_;

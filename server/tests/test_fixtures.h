@@ -7,9 +7,11 @@
 
 #include <nlohmann/json.hpp>
 
+#include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <string>
+#include <thread>
 #include <vector>
 
 namespace fc::test {
@@ -50,6 +52,18 @@ void writeSmallTemplate(const std::string& dir, const std::string& name, int fra
   }
   std::filesystem::create_directories(dir);
   writeTemplate<D>((std::filesystem::path(dir) / (name + ".h5")).string(), t);
+}
+
+// Polls `done` until it holds or `timeout` passes (keep timeouts generous:
+// tests must pass on a loaded machine).
+template <class F>
+bool waitFor(F done, std::chrono::milliseconds timeout) {
+  const auto until = std::chrono::steady_clock::now() + timeout;
+  while (!done()) {
+    if (std::chrono::steady_clock::now() > until) return false;
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  return true;
 }
 
 // 100 particles (a 10 × 10 block at r = 0.02 m) in the corner of a 1 m 2D

@@ -1,6 +1,7 @@
 // Scene-file parsing: every invalid input is a SceneError naming the key
 // path; every shipped scene parses and survives a save/load round trip.
 #include "io/scene.h"
+#include "sph/limits.h"
 #include "sph/pipeline.h"
 #include "sph/sampling.h"
 #include "sph/settings.h"
@@ -751,6 +752,9 @@ TEST(SceneDocs, EveryDeclaredParameterIsDocumented) {
           << owner << "." << s.name << " is not documented in scenes/README.md";
   };
   check("settings", simulationSettingsSpecs());
+  for (const PhysicalRange& r : physicalRanges())
+    EXPECT_NE(doc.find("| `" + std::string(r.name) + "` |"), std::string::npos)
+        << "physical range " << r.name << " is not documented in scenes/README.md";
   for (const auto& name : PressureSolverRegistry<2>::instance().names())
     check(name, PressureSolverRegistry<2>::instance().find(name)->params);
   for (const auto& name : EffectRegistry<2>::instance().names())

@@ -609,11 +609,10 @@ TEST(SessionParallel, TwoSessionsRunIndependently) {
 
 TEST(SessionErrors, NonFiniteFramePausesWithErrorOtherSessionContinues) {
   Fixture fx;
-  // Gravity near the float limit with 0.1 s substeps: velocities overflow
-  // within a few substeps.
+  // A frame of 1 s at substeps of at most 1 ms against a limit of 20
+  // substeps: the watchdog stops frame 1 (a runaway simulation's symptom).
   json blowup = smallTankScene("blowup");
-  blowup["gravity"] = {0, -3e38};
-  blowup["settings"] = {{"frame_rate", 1}, {"dt_min", 0.1}, {"dt_max", 0.1}};
+  blowup["settings"] = {{"frame_rate", 1}, {"dt_max", 0.001}, {"max_substeps_per_frame", 20}};
   std::atomic<bool> nonFinitePublished = false;
   auto bad = createSession("bad", "", blowup, fx.db);
   auto good = createSession("good", "", smallTankScene(), fx.db);
@@ -630,7 +629,8 @@ TEST(SessionErrors, NonFiniteFramePausesWithErrorOtherSessionContinues) {
   ASSERT_TRUE(st.contains("error"));
   const int errorFrame = st["error"]["frame"];
   EXPECT_GE(errorFrame, 1);
-  EXPECT_NE(st["error"]["message"].get<std::string>().find("non-finite"), std::string::npos);
+  EXPECT_NE(st["error"]["message"].get<std::string>().find("more than 20 substeps"), std::string::npos)
+      << st["error"]["message"];
   // The broken frame was never published nor recorded.
   EXPECT_FALSE(nonFinitePublished);
   EXPECT_EQ(bad->currentFrame(), errorFrame - 1);
@@ -648,6 +648,60 @@ TEST(SessionErrors, NonFiniteFramePausesWithErrorOtherSessionContinues) {
   ASSERT_TRUE(bad->waitIdle(kWait));
   EXPECT_EQ(bad->status(), SessionStatus::Paused);
   EXPECT_FALSE(bad->state().contains("error"));
+}
+
+// 400 particles at 1 µs substeps for a 1 s frame: a million substeps, a
+// frame that would run for minutes.
+json endlessFrameScene(const std::string& name) {
+  json j = smallTankScene(name);
+  j["fluid_blocks"] = json::array({{{"min", {0, 0}}, {"max", {0.8, 0.8}}}});
+  j["settings"] = {{"frame_rate", 1}, {"dt_min", 1e-6}, {"dt_max", 1e-6}, {"max_substeps_per_frame", 1e7}};
+  return j;
+}
+
+TEST(SessionWatchdog, AFrameRunningPastTheTimeLimitPutsTheSessionInErrorAndReleasesIt) {
+  Fixture fx;
+  SessionOptions o;
+  o.threads = 1;
+  o.frameTimeout = 200ms;
+  auto s = createSession("slow", "", endlessFrameScene("slow"), fx.db, o);
+  s->step(1);
+  // Generous: the watchdog ends the frame after 0.2 s of wall time.
+  ASSERT_TRUE(s->waitIdle(60s));
+  const json st = s->state();
+  ASSERT_EQ(st["status"], "error") << st.dump();
+  EXPECT_NE(st["error"]["message"].get<std::string>().find("watchdog"), std::string::npos) << st["error"]["message"];
+  EXPECT_EQ(st["frame"], 0);
+  EXPECT_EQ(st["history"]["last"], 0);
+  // Edits are still answered and reset recovers.
+  const EditResult r = resultOf(s->submit(Edit::fromJson(json{{"type", "remove_instance"}, {"name", "none"}})));
+  EXPECT_FALSE(r.accepted);
+  s->reset();
+  ASSERT_TRUE(s->waitIdle(60s));
+  EXPECT_EQ(s->status(), SessionStatus::Paused);
+}
+
+TEST(SessionWatchdog, DeletingOrResettingASessionMidFrameStopsTheFrame) {
+  Fixture fx;
+  SessionOptions o;
+  o.threads = 1;
+  o.frameTimeout = std::chrono::hours(1);
+  // Reset: the frame in progress is abandoned, the session is back at frame 0.
+  auto r = createSession("r", "", endlessFrameScene("r"), fx.db, o);
+  r->play();
+  ASSERT_TRUE(fc::test::waitFor([&] { return r->state().value("computing", false); }, 60s));
+  r->reset();
+  ASSERT_TRUE(r->waitIdle(60s)) << "the reset waited for the whole frame";
+  EXPECT_EQ(r->status(), SessionStatus::Paused);
+  EXPECT_EQ(r->currentFrame(), 0);
+  EXPECT_FALSE(r->state().contains("error"));
+  // Destruction: returns once the next substep sees the cancellation (were
+  // it to wait for the frame, this test would run into ctest's timeout).
+  auto d = createSession("d", "", endlessFrameScene("d"), fx.db, o);
+  d->play();
+  ASSERT_TRUE(fc::test::waitFor([&] { return d->state().value("computing", false); }, 60s));
+  d.reset();
+  SUCCEED();
 }
 
 TEST(SessionLifetime, DestructionDuringPlayIsPrompt) {
