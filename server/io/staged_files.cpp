@@ -111,7 +111,10 @@ bool processAlive(long pid, const std::string& token) {
 // DIR/.NAME<suffix> for DIR/NAME.
 std::string hiddenSibling(const std::string& path, const std::string& suffix) {
   const fs::path p(path);
-  return (p.parent_path() / ("." + p.filename().string() + suffix)).string();
+  std::string name = ".";  // appended, not "." + ...: GCC 12 warns falsely (-Wrestrict) on that
+  name += p.filename().string();
+  name += suffix;
+  return (p.parent_path() / name).string();
 }
 
 std::string dirOf(const std::string& path) {
@@ -338,6 +341,10 @@ void StagedFiles::stage(const std::string& staged, const std::string& final) {
 }
 
 void StagedFiles::commit() {
+  if (entries_.empty()) {
+    done_ = true;
+    return;
+  }
   crashPoint();  // staged files written
   for (Entry& e : entries_) {
     const int fd = ::open(e.staged.c_str(), O_RDONLY | O_CLOEXEC);

@@ -220,13 +220,17 @@ TEST(StagedFiles, KilledAtRandomInstantsLeavesAllOldOrAllNew) {
   const std::vector<std::string> names = {"a.h5", "a.xdmf", "b.h5"};
   setFiles(dir, {{"a.h5", "0"}, {"a.xdmf", "0"}, {"b.h5", "0"}});
   std::mt19937 rng(12345);
-  int changed = 0;
+  int changed = 0, interrupted = 0;
   std::string last = "0";
   for (int run = 0; run < 20; ++run) {
+    int published[2];
+    ASSERT_EQ(::pipe(published), 0);
     std::fflush(nullptr);
     const pid_t pid = ::fork();
     if (pid == 0) {
-      // Generation after generation, each a set of three equal files of 64 KB.
+      ::alarm(20);
+      // Generation after generation, each a set of three equal files of 64 KB;
+      // a byte down the pipe after each.
       for (int g = 0;; ++g) {
         const std::string text = std::to_string(::getpid()) + ":" + std::to_string(g) + std::string(65536, '.');
         Files set;
@@ -236,15 +240,24 @@ TEST(StagedFiles, KilledAtRandomInstantsLeavesAllOldOrAllNew) {
         } catch (...) {
           ::_exit(3);
         }
+        const char c = 1;
+        if (::write(published[1], &c, 1) != 1) ::_exit(4);
       }
     }
-    std::this_thread::sleep_for(std::chrono::microseconds(std::uniform_int_distribution<int>(200, 20000)(rng)));
+    ::close(published[1]);
+    // Killed after its first publish (however slow the disk), at a random
+    // instant of a later one.
+    char c = 0;
+    ASSERT_EQ(::read(published[0], &c, 1), 1) << "the publishing child failed";
+    ::close(published[0]);
+    std::this_thread::sleep_for(std::chrono::microseconds(std::uniform_int_distribution<int>(0, 5000)(rng)));
     ::kill(pid, SIGKILL);
     int status = 0;
     ::waitpid(pid, &status, 0);
     ASSERT_TRUE(WIFSIGNALED(status)) << "the publishing child failed: status " << status;
     const PublishRecovery r = recoverPublishing(dir);
     EXPECT_TRUE(r.errors.empty()) << r.errors.front();
+    interrupted += !r.removed.empty();
     const Files now = filesIn(dir);
     ASSERT_EQ(now.size(), 3u) << "run " << run;
     for (const auto& n : names) ASSERT_EQ(now.count(n), 1u) << n;
@@ -253,7 +266,8 @@ TEST(StagedFiles, KilledAtRandomInstantsLeavesAllOldOrAllNew) {
     changed += now.at("a.h5") != last;
     last = now.at("a.h5");
   }
-  EXPECT_GT(changed, 0);  // the children did publish
+  EXPECT_EQ(changed, 20);     // every child published
+  EXPECT_GT(interrupted, 0);  // ... and was killed in the middle of a publish
 }
 
 TEST(StagedFiles, RecoveryLeavesFilesOfLiveProcessesAlone) {
