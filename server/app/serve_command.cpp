@@ -2,6 +2,7 @@
 // files) on one port. See service/http_server.h and README "The simulation
 // service".
 #include "app/commands.h"
+#include "io/staged_files.h"
 #include "service/http_server.h"
 #include "service/rest_api.h"
 
@@ -56,6 +57,12 @@ int serve(const ServeOptions& o) {
   net.allowOrigins = o.allowOrigins;
   net.maxBodyBytes = size_t(o.maxBodyMb * 1024 * 1024);
   net.ioThreads = o.ioThreads;
+  // Sets of files a killed process left half-published go back to their old files; its temporary files go.
+  for (const std::string* dir : {&o.templates, &o.scenes, &o.exports}) {
+    const PublishRecovery r = recoverPublishing(*dir);
+    for (const std::string& f : r.rolledBack) std::fprintf(stderr, "flowclip serve: %s: interrupted publish undone\n", f.c_str());
+    for (const std::string& e : r.errors) std::fprintf(stderr, "warning: %s\n", e.c_str());
+  }
   // The hub outlives the server: streams release their sessions first.
   service::ServiceHub hub(so);
   std::unique_ptr<service::HttpServer> server;
