@@ -26,11 +26,10 @@ def heavy_frames_scene(name="heavy"):
 
 
 def blowup_scene(name="blowup"):
-    """server/tests/test_session.cpp's trick: gravity near the float limit with 0.1 s
-    substeps overflows the velocities within a few substeps (non-finite frame 1)."""
+    """A runaway simulation as the watchdog sees one: 1 s frames at substeps of at most 1 ms
+    against a limit of 20 substeps per frame, so frame 1 is stopped (the session's error state)."""
     scene = small_scene(name)
-    scene["gravity"] = [0, -3e38]
-    scene["settings"] = {"frame_rate": 1, "dt_min": 0.1, "dt_max": 0.1}
+    scene["settings"] = {"frame_rate": 1, "dt_max": 0.001, "max_substeps_per_frame": 20}
     return scene
 
 
