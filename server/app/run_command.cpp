@@ -1,6 +1,7 @@
 // `flowclip run SCENE.json`: simulate a scene headless, with a progress line,
 // optional HDF5 export of every frame and a JSON stats file.
 #include "app/commands.h"
+#include "io/staged_files.h"
 #include "io/frame_export.h"
 #include "io/instance_binding.h"
 #include "io/scene.h"
@@ -254,23 +255,8 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
 }  // namespace
 
 void writeJsonAtomically(const std::string& path, const nlohmann::json& j) {
-  const std::string tmp = path + ".tmp-" + std::to_string(getpid());
-  {
-    std::ofstream f(tmp);
-    if (!f) throw std::runtime_error("cannot write '" + path + "'");
-    f << j.dump(1) << '\n';
-    f.close();
-    if (!f) {
-      std::remove(tmp.c_str());
-      throw std::runtime_error("cannot write '" + path + "'");
-    }
-  }
-  std::error_code ec;
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) {
-    std::remove(tmp.c_str());
-    throw std::runtime_error("cannot write '" + path + "': " + ec.message());
-  }
+  // Hidden staging name and fsync (io/staged_files.h): a crash leaves the old file or the new one.
+  publishFile(path, j.dump(1, ' ', false, nlohmann::json::error_handler_t::replace) + "\n", true);
 }
 
 void addRunCommand(CLI::App& app) {

@@ -1117,10 +1117,16 @@ HttpResponse ServiceHub::exportFrames(const HttpRequest& req, const Params& p) {
   const bool force = getBool(body, "force", false);
   const fs::path h5 = fs::path(options_.exportsDir) / (name + ".h5");
   std::lock_guard lk(fileMutex_);
-  if (!force && (fs::exists(h5) || fs::exists(fs::path(options_.exportsDir) / (name + ".xdmf"))))
-    throw ApiError(409, "export \"" + name + "\" already exists in " + options_.exportsDir +
-                            " (send \"force\": true to replace it)",
-                   "name");
+  if (!force) {
+    const fs::path xdmf = fs::path(options_.exportsDir) / (name + ".xdmf");
+    const bool haveH5 = fs::exists(h5), haveXdmf = fs::exists(xdmf);
+    if (haveH5 || haveXdmf)
+      throw ApiError(409, "export \"" + name + "\" already exists in " + options_.exportsDir + " (" +
+                              (haveH5 && haveXdmf ? name + ".h5 and " + name + ".xdmf"
+                                                  : (haveH5 ? name + ".h5" : name + ".xdmf") + " alone") +
+                              "; send \"force\": true to replace it)",
+                     "name");
+  }
   std::error_code ec;
   fs::create_directories(options_.exportsDir, ec);
   HistoryExport e;
