@@ -4,7 +4,8 @@ behaved, some that stall (never read) and some that vanish (drop the connection 
 REST edits and polls throughout. Samples the server's RSS, descriptors and health latency, and
 writes a report (markdown + JSON: machine, date, command, figures) with a verdict:
 
-  flat RSS     the second half's RSS grows by less than --rss-growth-pct (history caps filled early)
+  flat RSS     once every session's history has filled its cap, RSS over the second half of the
+               rest of the run grows by less than --rss-growth-pct
   no error     no session in its error state, no unexpected error message, no 5xx answer
   no stall     every well-behaved reader got a frame at least every --stall-s seconds
   bounded fds  descriptors at the end within a margin of those at the start of the load
@@ -224,10 +225,12 @@ def main() -> int:
             except Exception as e:  # noqa: BLE001
                 stats.error(f"health: {e!r}")
                 health, health_ms = {}, float("nan")
-            frames = [api.session(sid)["frame"] for sid, _ in sids]
+            states = [api.session(sid) for sid, _ in sids]
+            frames = [st["frame"] for st in states]
             samples.append({"t_s": round(elapsed, 2), "rss_mb": round(rss_mb(pid), 1), "fds": fds(pid),
                             "health_ms": round(health_ms, 1), "sessions": health.get("sessions"),
-                            "frames": sum(frames)})
+                            "frames": sum(frames),
+                            "caps_full": all(st["history"]["dropped"] > 0 for st in states)})
             if elapsed >= next_report:
                 print(f"soak: {elapsed:6.0f}/{args.seconds:.0f} s  RSS {samples[-1]['rss_mb']:.0f} MB  "
                       f"fds {samples[-1]['fds']}  frames {sum(frames)}  errors {len(stats.errors)}", flush=True)
@@ -246,10 +249,19 @@ def main() -> int:
         fds_after = fds(pid)
     returncode = server.returncode
 
-    half = [s for s in samples if s["t_s"] >= args.seconds / 2]
-    rss_half_start = statistics.median([s["rss_mb"] for s in half[: max(1, len(half) // 10)]])
-    rss_half_end = statistics.median([s["rss_mb"] for s in half[-max(1, len(half) // 10):]])
-    growth = 100 * (rss_half_end - rss_half_start) / rss_half_start
+    # Memory is judged once every session's history has reached its cap (frames dropped): over
+    # the second half of that steady phase, so that the allocator has settled.
+    full = [k for k, s in enumerate(samples) if s["caps_full"]]
+    steady_from = samples[full[0]]["t_s"] if full else None
+    steady = samples[full[0]:] if full else []
+    half = steady[len(steady) // 2:]
+    if len(half) >= 2:
+        rss_half_start = statistics.median([s["rss_mb"] for s in half[: max(1, len(half) // 10)]])
+        rss_half_end = statistics.median([s["rss_mb"] for s in half[-max(1, len(half) // 10):]])
+        growth = 100 * (rss_half_end - rss_half_start) / rss_half_start
+    else:
+        growth = float("inf")  # the caps never filled: run longer
+    steady_growth = (100 * (steady[-1]["rss_mb"] - steady[0]["rss_mb"]) / steady[0]["rss_mb"]) if steady else None
     errors_in_sessions = [s["id"] for s in final_states if s["status"] == "error"]
     health_ms = [s["health_ms"] for s in samples if s["health_ms"] == s["health_ms"]]
     verdict = {
@@ -264,7 +276,10 @@ def main() -> int:
         "max_reader_gap_s": round(stats.max_gap_s, 2), "rest_calls": stats.rest_calls, "rest_5xx": stats.rest_5xx,
         "stalled_connections": stats.stalled_connections, "vanished_connections": stats.vanished_connections,
         "rss_mb_min": min(s["rss_mb"] for s in samples), "rss_mb_max": max(s["rss_mb"] for s in samples),
-        "rss_second_half_growth_pct": round(growth, 2),
+        "history_caps_full_at_s": steady_from,
+        "rss_mb_when_caps_full": steady[0]["rss_mb"] if steady else None,
+        "rss_steady_growth_pct": round(steady_growth, 2) if steady_growth is not None else None,
+        "rss_steady_second_half_growth_pct": round(growth, 2),
         "health_ms_median": round(statistics.median(health_ms), 1), "health_ms_max": round(max(health_ms), 1),
         "fds_idle": fds_idle, "fds_max": max(s["fds"] for s in samples), "fds_after_delete": fds_after,
         "server_exit_status": returncode, "errors": stats.errors, "sessions_in_error": errors_in_sessions,
