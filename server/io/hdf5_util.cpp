@@ -3,7 +3,9 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <cerrno>
+#include <string>
 #include <system_error>
 
 namespace fc::hdf5 {
@@ -115,6 +117,44 @@ hid_t createDataset(hid_t loc, const char* name, hid_t fileType, hsize_t rows, i
   if (H5Tget_size(fileType) > 1 && checked(H5Pset_shuffle(dcpl.get())) < 0) return -1;
   if (checked(H5Pset_deflate(dcpl.get(), deflateLevel)) < 0) return -1;
   return checked(H5Dcreate2(loc, name, fileType, space.get(), H5P_DEFAULT, dcpl.get(), H5P_DEFAULT));
+}
+
+namespace {
+
+// File image callbacks that hand HDF5 the caller's bytes instead of copies
+// (udata is the caller's vector). HDF5 only ever "copies" the image onto
+// itself; any other copy, and any growth, is refused: the file is read-only.
+void* imageMalloc(size_t size, H5FD_file_image_op_t, void* udata) {
+  auto* bytes = static_cast<std::vector<unsigned char>*>(udata);
+  return size == bytes->size() ? bytes->data() : nullptr;
+}
+void* imageMemcpy(void* dest, const void* src, size_t, H5FD_file_image_op_t, void*) {
+  return dest == src ? dest : nullptr;
+}
+void* imageRealloc(void*, size_t, H5FD_file_image_op_t, void*) { return nullptr; }
+herr_t imageFree(void*, H5FD_file_image_op_t, void*) { return 0; }
+void* udataCopy(void* udata) { return udata; }
+herr_t udataFree(void*) { return 0; }
+
+}  // namespace
+
+hid_t openImage(const std::vector<unsigned char>& bytes) {
+  if (bytes.empty()) return -1;
+  auto* udata = const_cast<std::vector<unsigned char>*>(&bytes);
+  H5FD_file_image_callbacks_t callbacks = {imageMalloc, imageMemcpy, imageRealloc, imageFree,
+                                           udataCopy,   udataFree,   udata};
+  Handle fapl(checked(H5Pcreate(H5P_FILE_ACCESS)), H5Pclose);
+  if (!fapl.ok() || checked(H5Pset_fapl_core(fapl.get(), 1 << 16, false)) < 0 ||
+      checked(H5Pset_fclose_degree(fapl.get(), H5F_CLOSE_STRONG)) < 0 ||
+      checked(H5Pset_file_image_callbacks(fapl.get(), &callbacks)) < 0 ||
+      checked(H5Pset_file_image(fapl.get(), udata->data(), bytes.size())) < 0)
+    return -1;
+  // The core driver refuses an image whose name exists as a file, and takes
+  // two open files of the same name for one: a unique name under a regular
+  // file (/dev/null), which no path can reach, satisfies both.
+  static std::atomic<unsigned long> counter{0};
+  const std::string name = "/dev/null/flowclip-image-" + std::to_string(counter++);
+  return checked(H5Fopen(name.c_str(), H5F_ACC_RDONLY, fapl.get()));
 }
 
 void syncPath(const std::string& path, bool directory) {

@@ -26,6 +26,12 @@ class Handle {
   Handle& operator=(const Handle&) = delete;
   Handle& operator=(Handle&&) = delete;
   hid_t get() const { return id_; }
+  // Gives up ownership (to close it explicitly and check the result).
+  hid_t release() {
+    const hid_t id = id_;
+    id_ = -1;
+    return id;
+  }
   bool ok() const { return id_ >= 0; }
 
  private:
@@ -86,6 +92,13 @@ bool writeStrings(hid_t loc, const char* name, const std::vector<std::string>& v
 // `deflateLevel`. Returns the dataset (close with H5Dclose) or -1.
 hid_t createDataset(hid_t loc, const char* name, hid_t fileType, hsize_t rows, int cols, hsize_t chunkRows,
                     unsigned deflateLevel);
+
+// Opens the HDF5 file whose bytes are `bytes`, read-only, with the core
+// driver and without copying them: HDF5 reads exactly these bytes (checked
+// beforehand by the caller) and never the disk. `bytes` must stay alive and
+// unchanged until the file and every object opened in it are closed. Returns
+// the file (close with H5Fclose) or -1 (failure through checked()).
+hid_t openImage(const std::vector<unsigned char>& bytes);
 
 // fsync()s a file (or, with `directory`, a directory, to make a rename in it
 // durable). Throws std::system_error with errno on failure. Not HDF5-specific;

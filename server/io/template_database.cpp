@@ -44,8 +44,9 @@ namespace {
 TemplateEntry readEntry(const std::string& name, const std::string& path) {
   TemplateEntry e;
   e.name = name;
-  const TemplateHeader h = readTemplateHeader(path);
+  // One call, not two: every reader loads and checksums the whole file.
   const TemplateFileStats s = templateFileStats(path);
+  const TemplateHeader& h = s.header;
   e.dimension = h.dimension;
   e.frames = s.frames;
   e.frameRate = h.frameRate;

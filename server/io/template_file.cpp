@@ -5,12 +5,17 @@
 
 #include <hdf5.h>
 
+#include <fcntl.h>
+#include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
+#include <zlib.h>
 
 #include <algorithm>
 #include <array>
 #include <atomic>
 #include <cerrno>
+#include <charconv>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -18,6 +23,7 @@
 #include <limits>
 #include <numeric>
 #include <regex>
+#include <string_view>
 #include <system_error>
 
 namespace fc {
@@ -35,6 +41,7 @@ using hdf5::writeScalar;
 using hdf5::writeString;
 
 constexpr const char* kFormat = "flowclip-template";
+const std::regex kNamePattern("[A-Za-z0-9_-]{1,64}");
 // Rows per chunk of the particle datasets (at most; fewer for small files).
 constexpr hsize_t kParticleChunkRows = 65536;
 constexpr hsize_t kFrameChunkRows = 4096;
@@ -98,29 +105,139 @@ uint64_t morton(const std::array<uint16_t, D>& g) {
 bool finite(double v) { return std::isfinite(v); }
 
 // ---------------------------------------------------------------------------
+// The checksum block: the file's first 512 bytes are an HDF5 user block
+// (HDF5 skips it) holding, as text, the CRC-32 and length of the rest.
+
+constexpr size_t kChecksumBlockSize = 512;  // HDF5's smallest user block
+constexpr std::string_view kChecksumMagic = "FLOWCLIP TEMPLATE\n";
+constexpr unsigned char kHdf5Signature[8] = {0x89, 'H', 'D', 'F', '\r', '\n', 0x1a, '\n'};
+
+uint32_t crc32Of(uint32_t crc, const unsigned char* p, size_t n) { return uint32_t(crc32_z(crc, p, n)); }
+
+std::string checksumBlock(uint32_t crc, uint64_t length) {
+  char text[96];
+  std::snprintf(text, sizeof text, "crc32 %08x\nlength %llu\n", unsigned(crc), static_cast<unsigned long long>(length));
+  std::string block = std::string(kChecksumMagic) + text;
+  block.resize(kChecksumBlockSize, '\0');
+  return block;
+}
+
+// The CRC and length of a block exactly as checksumBlock writes it.
+bool parseChecksumBlock(const unsigned char* p, uint32_t* crc, uint64_t* length) {
+  const std::string_view block(reinterpret_cast<const char*>(p), kChecksumBlockSize);
+  constexpr std::string_view kCrc = "crc32 ", kLength = "\nlength ";
+  size_t at = kChecksumMagic.size();
+  if (block.substr(at, kCrc.size()) != kCrc) return false;
+  at += kCrc.size();
+  const char* end = block.data() + block.size();
+  auto r = std::from_chars(block.data() + at, std::min(block.data() + at + 8, end), *crc, 16);
+  if (r.ec != std::errc() || r.ptr != block.data() + at + 8) return false;
+  at += 8;
+  if (block.substr(at, kLength.size()) != kLength) return false;
+  at += kLength.size();
+  r = std::from_chars(block.data() + at, end, *length);
+  return r.ec == std::errc() && block == checksumBlock(*crc, *length);
+}
+
+// Writes the checksum block over the (zero) user block of the closed HDF5
+// file `path`. Returns what went wrong, empty on success.
+std::string stampChecksum(const std::string& path) {
+  const int fd = ::open(path.c_str(), O_RDWR | O_CLOEXEC);
+  if (fd < 0) return std::strerror(errno);
+  std::vector<unsigned char> buf(size_t(1) << 20);
+  uint32_t crc = crc32Of(0, nullptr, 0);
+  uint64_t length = 0;
+  std::string error;
+  for (;;) {
+    const ssize_t got = ::pread(fd, buf.data(), buf.size(), off_t(kChecksumBlockSize + length));
+    if (got < 0 && errno == EINTR) continue;
+    if (got < 0) error = std::strerror(errno);
+    if (got <= 0) break;
+    crc = crc32Of(crc, buf.data(), size_t(got));
+    length += uint64_t(got);
+  }
+  const std::string block = checksumBlock(crc, length);
+  for (size_t done = 0; error.empty() && done < block.size();) {
+    const ssize_t put = ::pwrite(fd, block.data() + done, block.size() - done, off_t(done));
+    if (put < 0 && errno == EINTR) continue;
+    if (put <= 0) error = put < 0 ? std::strerror(errno) : "short write";
+    else done += size_t(put);
+  }
+  if (::close(fd) != 0 && error.empty()) error = std::strerror(errno);
+  return error;
+}
+
+uint16_t le16(const unsigned char* p) { return uint16_t(p[0] | p[1] << 8); }
+uint64_t le64(const unsigned char* p) {
+  uint64_t v = 0;
+  for (int i = 7; i >= 0; --i) v = v << 8 | p[i];
+  return v;
+}
+
+// Well-formed UTF-8 (no overlong forms, surrogates or code points above
+// U+10FFFF): strings go into JSON and error messages.
+bool validUtf8(std::string_view s) {
+  for (size_t i = 0; i < s.size();) {
+    const auto c = uint8_t(s[i]);
+    size_t n = 0;
+    uint32_t cp = 0, min = 0;
+    if (c < 0x80) n = 0, cp = c;
+    else if ((c & 0xE0) == 0xC0) n = 1, cp = c & 0x1Fu, min = 0x80;
+    else if ((c & 0xF0) == 0xE0) n = 2, cp = c & 0x0Fu, min = 0x800;
+    else if ((c & 0xF8) == 0xF0) n = 3, cp = c & 0x07u, min = 0x10000;
+    else return false;
+    if (n > s.size() - i - 1) return false;
+    for (size_t k = 1; k <= n; ++k) {
+      const auto d = uint8_t(s[i + k]);
+      if ((d & 0xC0) != 0x80) return false;
+      cp = cp << 6 | (d & 0x3Fu);
+    }
+    if ((n > 0 && cp < min) || cp > 0x10FFFF || (cp >= 0xD800 && cp <= 0xDFFF)) return false;
+    i += n + 1;
+  }
+  return true;
+}
+
+// A (valid UTF-8) string from the file for an error message, quoted: its
+// first 64 bytes, cut at a character boundary.
+std::string excerpt(const std::string& s) {
+  if (s.size() <= 64) return "'" + s + "'";
+  size_t cut = 64;
+  while (cut > 0 && (uint8_t(s[cut]) & 0xC0) == 0x80) --cut;
+  return "'" + s.substr(0, cut) + "...'";
+}
+
+// ---------------------------------------------------------------------------
 // Reading.
+//
+// The file is read whole into memory and checked before HDF5 parses any of
+// it, then HDF5 reads exactly those bytes (hdf5::openImage). HDF5 1.10
+// verifies the checksums of its own metadata (the 1.10 object format has
+// them) but not of the global heap that holds variable-length strings, nor
+// of raw data; damaged heap bytes make it read and copy out of bounds.
+// Files with a checksum block are verified whole; older files without one
+// get their global heap checked the way HDF5 walks it.
+
+// Compressed datasets hold at most this many bytes per stored byte (zlib's
+// deflate tops out at 1032:1): a larger shape is damage, not data.
+constexpr uint64_t kMaxDeflateRatio = 1100;
+// Bytes of one chunk (HDF5 allocates a chunk per read; writeTemplate's are
+// at most 65536 rows of 24 bytes).
+constexpr uint64_t kMaxChunkBytes = uint64_t(64) << 20;
 
 class Reader {
  public:
-  static hid_t open(const std::string& path) {
-    std::error_code ec;
-    const auto st = fs::status(path, ec);
-    if (!fs::exists(st)) fail(path, "does not exist");
-    if (!fs::is_regular_file(st)) fail(path, "is not a regular file");
-    if (H5Fis_hdf5(path.c_str()) <= 0)
-      fail(path, "is not an HDF5 file (no HDF5 signature: wrong kind of file, or corrupt)");
-    Handle fapl(checked(H5Pcreate(H5P_FILE_ACCESS)), H5Pclose);
-    if (!fapl.ok() || checked(H5Pset_fclose_degree(fapl.get(), H5F_CLOSE_STRONG)) < 0)
-      failHdf5(path, "cannot set up the file access properties");
-    const hid_t f = checked(H5Fopen(path.c_str(), H5F_ACC_RDONLY, fapl.get()));
-    if (f < 0) failHdf5(path, "cannot be opened as HDF5 (truncated or corrupt?)");
-    return f;
-  }
-  explicit Reader(const std::string& path) : path_(path), file_(open(path), H5Fclose) {}
+  explicit Reader(const std::string& path) : path_(path), image_(readImage(path)), file_(open(), H5Fclose) {}
   hid_t file() const { return file_.get(); }
   const std::string& path() const { return path_; }
+  uint64_t fileSize() const { return image_.size(); }
+  bool checksummed() const { return checksummed_; }
 
-  bool hasAttr(const char* name) const { return H5Aexists(file(), name) > 0; }
+  bool hasAttr(const char* name) const {
+    const htri_t exists = checked(H5Aexists(file(), name));
+    if (exists < 0) failHdf5(path_, std::string("cannot look up the '") + name + "' attribute (damaged?)");
+    return exists > 0;
+  }
 
   Handle openAttr(const char* name) const {
     if (!hasAttr(name)) fail(path_, std::string("has no '") + name + "' attribute");
@@ -129,49 +246,71 @@ class Reader {
     return a;
   }
 
-  // Number of elements of an attribute's dataspace (1 for scalars).
+  // Number of elements of an attribute's dataspace (1 for scalars, 0 for
+  // null dataspaces), or -1.
   hssize_t attrSize(hid_t attr) const {
     Handle space(checked(H5Aget_space(attr)), H5Sclose);
-    return space.ok() ? checked(H5Sget_simple_extent_npoints(space.get())) : -1;
+    if (!space.ok()) return -1;
+    switch (H5Sget_simple_extent_type(space.get())) {
+      case H5S_NULL: return 0;
+      case H5S_SCALAR: return 1;
+      case H5S_SIMPLE: return checked(H5Sget_simple_extent_npoints(space.get()));
+      default: return -1;
+    }
   }
 
   std::string string(const char* name) const {
     Handle a = openAttr(name);
-    Handle type(H5Aget_type(a.get()), H5Tclose);
+    Handle type(checked(H5Aget_type(a.get())), H5Tclose);
+    const std::string what = std::string("attribute '") + name + "'";
     if (!type.ok() || H5Tget_class(type.get()) != H5T_STRING || attrSize(a.get()) != 1)
-      fail(path_, std::string("attribute '") + name + "' is not a string");
-    if (H5Tis_variable_str(type.get()) > 0) {
+      fail(path_, what + " is not a string");
+    const H5T_cset_t cset = H5Tget_cset(type.get());
+    if (cset != H5T_CSET_ASCII && cset != H5T_CSET_UTF8) fail(path_, what + " is not a string");
+    const htri_t variable = H5Tis_variable_str(type.get());
+    std::string s;
+    if (variable > 0) {
+      // A scalar variable-length value is a 16-byte reference into the
+      // global heap (length, collection address, index).
+      if (H5Aget_storage_size(a.get()) != 16) fail(path_, "is damaged: " + what + " has the wrong storage size");
       // Read with the attribute's own type: HDF5 1.10 does not convert
       // between character sets (ASCII and UTF-8 strings both occur).
       Handle mem(checked(H5Tcopy(type.get())), H5Tclose);
       char* p = nullptr;
       if (!mem.ok() || checked(H5Aread(a.get(), mem.get(), &p)) < 0)
         failHdf5(path_, std::string("cannot read the '") + name + "' attribute");
-      std::string s = p ? p : "";
+      s = p ? p : "";
       Handle space(H5Aget_space(a.get()), H5Sclose);
       H5Dvlen_reclaim(mem.get(), space.get(), H5P_DEFAULT, &p);
-      return s;
+    } else if (variable == 0) {
+      const size_t n = H5Tget_size(type.get());
+      if (n == 0 || n > image_.size()) fail(path_, "is damaged: " + what + " has an impossible size");
+      Handle mem(checked(H5Tcopy(H5T_C_S1)), H5Tclose);
+      if (!mem.ok() || checked(H5Tset_size(mem.get(), n + 1)) < 0) failHdf5(path_, "cannot set up a string type");
+      std::vector<char> buf(n + 1, '\0');
+      if (checked(H5Aread(a.get(), mem.get(), buf.data())) < 0)
+        failHdf5(path_, std::string("cannot read the '") + name + "' attribute");
+      s = buf.data();
+    } else {
+      fail(path_, what + " is not a string");
     }
-    const size_t n = H5Tget_size(type.get());
-    std::string s(n, '\0');
-    Handle mem(checked(H5Tcopy(H5T_C_S1)), H5Tclose);
-    if (!mem.ok() || checked(H5Tset_size(mem.get(), n + 1)) < 0) failHdf5(path_, "cannot set up a string type");
-    std::vector<char> buf(n + 1, '\0');
-    if (checked(H5Aread(a.get(), mem.get(), buf.data())) < 0)
-      failHdf5(path_, std::string("cannot read the '") + name + "' attribute");
-    return std::string(buf.data());
+    if (!validUtf8(s)) fail(path_, what + " is not valid UTF-8");
+    return s;
   }
 
-  std::vector<double> doubles(const char* name, hssize_t expected) const {
+  std::vector<double> doubles(const char* name, hssize_t expected, hssize_t atMost = 0) const {
     Handle a = openAttr(name);
-    Handle type(H5Aget_type(a.get()), H5Tclose);
-    const H5T_class_t cls = type.ok() ? H5Tget_class(type.get()) : H5T_NO_CLASS;
-    if (cls != H5T_FLOAT && cls != H5T_INTEGER) fail(path_, std::string("attribute '") + name + "' is not numeric");
+    Handle type(checked(H5Aget_type(a.get())), H5Tclose);
+    if (!type.ok() || !plainNumber(type.get(), false))
+      fail(path_, std::string("attribute '") + name + "' is not numeric");
     const hssize_t n = attrSize(a.get());
+    if (n < 0) failHdf5(path_, std::string("cannot read the '") + name + "' attribute");
     if (expected >= 0 && n != expected)
       fail(path_, std::string("attribute '") + name + "' has " + std::to_string(n) + " values, expected " +
                       std::to_string(expected));
-    if (n < 0) failHdf5(path_, std::string("cannot read the '") + name + "' attribute");
+    if (expected < 0 && n > atMost)
+      fail(path_, std::string("attribute '") + name + "' has " + std::to_string(n) + " values, at most " +
+                      std::to_string(atMost) + " allowed");
     std::vector<double> v(static_cast<size_t>(n));
     if (n > 0 && checked(H5Aread(a.get(), H5T_NATIVE_DOUBLE, v.data())) < 0)
       failHdf5(path_, std::string("cannot read the '") + name + "' attribute");
@@ -183,8 +322,8 @@ class Reader {
 
   int64_t integer(const char* name) const {
     Handle a = openAttr(name);
-    Handle type(H5Aget_type(a.get()), H5Tclose);
-    if (!type.ok() || H5Tget_class(type.get()) != H5T_INTEGER || attrSize(a.get()) != 1)
+    Handle type(checked(H5Aget_type(a.get())), H5Tclose);
+    if (!type.ok() || !plainNumber(type.get(), true) || attrSize(a.get()) != 1)
       fail(path_, std::string("attribute '") + name + "' is not an integer");
     int64_t v = 0;
     if (checked(H5Aread(a.get(), H5T_NATIVE_INT64, &v)) < 0)
@@ -192,25 +331,56 @@ class Reader {
     return v;
   }
 
-  // Opens a dataset and checks its element type and shape: `cols` 0 means
-  // one-dimensional, otherwise [rows, cols]. Returns rows.
+  // Opens a dataset and checks, before anything of it is read, its element
+  // type, shape (`cols` 0: one-dimensional, else [rows, cols]), storage
+  // (chunked, with checksummed chunk index, known filters) and that its
+  // size fits what the file can hold. Returns rows.
   Handle openDataset(const char* name, H5T_class_t cls, size_t size, int sign, int cols, hsize_t* rows) const {
-    if (H5Lexists(file(), "/frames", H5P_DEFAULT) <= 0 || H5Lexists(file(), "/particles", H5P_DEFAULT) <= 0 ||
-        H5Lexists(file(), name, H5P_DEFAULT) <= 0)
-      fail(path_, std::string("has no dataset ") + name);
+    requireObject("/frames");
+    requireObject("/particles");
+    if (!requireObject(name)) fail(path_, std::string("has no dataset ") + name);
     Handle ds(checked(H5Dopen2(file(), name, H5P_DEFAULT)), H5Dclose);
     if (!ds.ok()) failHdf5(path_, std::string("cannot open dataset ") + name);
-    Handle type(H5Dget_type(ds.get()), H5Tclose);
+    Handle type(checked(H5Dget_type(ds.get())), H5Tclose);
     const bool typeOk = type.ok() && H5Tget_class(type.get()) == cls && H5Tget_size(type.get()) == size &&
+                        plainNumber(type.get(), cls == H5T_INTEGER) &&
                         (cls != H5T_INTEGER || int(H5Tget_sign(type.get())) == sign);
     if (!typeOk) fail(path_, std::string("dataset ") + name + " has the wrong element type");
-    Handle space(H5Dget_space(ds.get()), H5Sclose);
-    const int rank = space.ok() ? H5Sget_simple_extent_ndims(space.get()) : -1;
+    Handle space(checked(H5Dget_space(ds.get())), H5Sclose);
+    const int rank = space.ok() && H5Sget_simple_extent_type(space.get()) == H5S_SIMPLE
+                         ? H5Sget_simple_extent_ndims(space.get())
+                         : -1;
     hsize_t dims[2] = {0, 0};
     if (rank != (cols > 0 ? 2 : 1) || H5Sget_simple_extent_dims(space.get(), dims, nullptr) < 0 ||
         (cols > 0 && dims[1] != hsize_t(cols)))
       fail(path_, std::string("dataset ") + name + " has the wrong shape" +
                       (cols > 0 ? " (expected [N, " + std::to_string(cols) + "])" : " (expected one-dimensional)"));
+    const uint64_t rowBytes = uint64_t(size) * uint64_t(std::max(cols, 1));
+
+    Handle dcpl(checked(H5Dget_create_plist(ds.get())), H5Pclose);
+    hsize_t chunk[2] = {0, 0};
+    H5D_chunk_index_t index = H5D_CHUNK_IDX_BTREE;
+    if (!dcpl.ok() || H5Pget_layout(dcpl.get()) != H5D_CHUNKED || H5Pget_chunk(dcpl.get(), 2, chunk) != rank ||
+        chunk[0] == 0 || (cols > 0 && chunk[1] != hsize_t(cols)) || chunk[0] > kMaxChunkBytes / rowBytes)
+      fail(path_, std::string("dataset ") + name + " is not stored in chunks as templates are");
+    // The HDF5 1.8 chunk index (a version-1 B-tree) has no checksums.
+    if (checked(H5Dget_chunk_index_type(ds.get(), &index)) < 0 || index == H5D_CHUNK_IDX_BTREE)
+      fail(path_, std::string("dataset ") + name + " uses an HDF5 1.8 chunk index, which templates do not use");
+    uint64_t maxBytes = fileSize();
+    const int filters = H5Pget_nfilters(dcpl.get());
+    if (filters < 0) failHdf5(path_, std::string("cannot read the filters of dataset ") + name);
+    for (int i = 0; i < filters; ++i) {
+      unsigned flags = 0;
+      size_t nValues = 0;
+      const H5Z_filter_t id = H5Pget_filter2(dcpl.get(), unsigned(i), &flags, &nValues, nullptr, 0, nullptr, nullptr);
+      if (id == H5Z_FILTER_DEFLATE) maxBytes = fileSize() * kMaxDeflateRatio;
+      else if (id != H5Z_FILTER_SHUFFLE && id != H5Z_FILTER_FLETCHER32)
+        fail(path_, std::string("dataset ") + name + " uses HDF5 filter " + std::to_string(id) +
+                        ", which templates do not use");
+    }
+    if (dims[0] > maxBytes / rowBytes)
+      fail(path_, "is damaged: dataset " + std::string(name) + " claims " + std::to_string(dims[0]) +
+                      " rows, more than a file of " + std::to_string(fileSize()) + " bytes can hold");
     *rows = dims[0];
     return ds;
   }
@@ -248,8 +418,174 @@ class Reader {
   }
 
  private:
+  static std::vector<unsigned char> readImage(const std::string& path) {
+    std::error_code ec;
+    const auto st = fs::status(path, ec);
+    if (!fs::exists(st)) fail(path, "does not exist");
+    if (!fs::is_regular_file(st)) fail(path, "is not a regular file");
+    const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd < 0) fail(path, std::string("cannot be opened: ") + std::strerror(errno));
+    struct Closer {
+      int fd;
+      ~Closer() { ::close(fd); }
+    } closer{fd};
+    struct stat sb {};
+    if (::fstat(fd, &sb) != 0) fail(path, std::string("cannot be read: ") + std::strerror(errno));
+    if (!S_ISREG(sb.st_mode)) fail(path, "is not a regular file");
+    std::vector<unsigned char> bytes;
+    try {
+      bytes.resize(size_t(sb.st_size));
+    } catch (const std::exception&) {
+      fail(path, "is too large to load (" + std::to_string(sb.st_size) + " bytes)");
+    }
+    for (size_t done = 0; done < bytes.size();) {
+      const ssize_t got = ::pread(fd, bytes.data() + done, bytes.size() - done, off_t(done));
+      if (got < 0 && errno == EINTR) continue;
+      if (got < 0) fail(path, std::string("cannot be read: ") + std::strerror(errno));
+      if (got == 0) fail(path, "became shorter while it was read");
+      done += size_t(got);
+    }
+    return bytes;
+  }
+
+  // Checks the bytes (checksum block, superblock, global heap) and opens
+  // them with HDF5.
+  hid_t open() {
+    const unsigned char* p = image_.data();
+    const size_t n = image_.size();
+    auto hdf5At = [&](size_t at) { return n >= at + 8 && std::memcmp(p + at, kHdf5Signature, 8) == 0; };
+    const std::string_view head(reinterpret_cast<const char*>(p), std::min(n, kChecksumMagic.size()));
+    if (head == kChecksumMagic) {
+      uint32_t crc = 0;
+      uint64_t length = 0;
+      if (n < kChecksumBlockSize || !parseChecksumBlock(p, &crc, &length))
+        fail(path_, "is damaged: its checksum block (the first 512 bytes) is unreadable");
+      if (length != n - kChecksumBlockSize)
+        fail(path_, "is truncated or damaged: its checksum block covers " + std::to_string(length) +
+                        " bytes after it, the file has " + std::to_string(n - kChecksumBlockSize));
+      const uint32_t actual = crc32Of(crc32Of(0, nullptr, 0), p + kChecksumBlockSize, length);
+      if (actual != crc) {
+        char text[96];
+        std::snprintf(text, sizeof text, "(CRC-32 %08x, the checksum block says %08x)", unsigned(actual), unsigned(crc));
+        fail(path_, std::string("is damaged: its content does not match its checksum ") + text);
+      }
+      checksummed_ = true;
+      base_ = kChecksumBlockSize;
+      if (!hdf5At(base_)) fail(path_, "is damaged: no HDF5 signature after its checksum block");
+    } else if (!hdf5At(0)) {
+      if (hdf5At(kChecksumBlockSize)) fail(path_, "is damaged: its checksum block (the first 512 bytes) is unreadable");
+      fail(path_, "is not an HDF5 file (no HDF5 signature: wrong kind of file, or corrupt)");
+    }
+    checkSuperblock();
+    if (!checksummed_) checkGlobalHeaps();
+    const hid_t f = hdf5::openImage(image_);
+    if (f < 0) failHdf5(path_, "cannot be opened as HDF5 (truncated or corrupt?)");
+    return f;
+  }
+
+  // The superblock of the HDF5 1.10 format that writeTemplate writes
+  // (version 2 or 3: checksummed; 8-byte addresses and lengths), with the
+  // root group's object header where it points.
+  void checkSuperblock() const {
+    const unsigned char* h = image_.data() + base_;
+    const size_t n = image_.size() - base_;
+    if (n < 48) fail(path_, "is truncated: its HDF5 superblock is cut off");
+    if (h[8] != 2 && h[8] != 3)
+      fail(path_, "is HDF5 but not a FlowClip template, or is damaged (HDF5 superblock version " +
+                      std::to_string(h[8]) + "; templates use the HDF5 1.10 format, versions 2 and 3)");
+    if (h[9] != 8 || h[10] != 8)
+      fail(path_, "is HDF5 but not a FlowClip template, or is damaged (" + std::to_string(h[9]) +
+                      "-byte HDF5 addresses, " + std::to_string(h[10]) + "-byte lengths; templates use 8 and 8)");
+    if (!objectHeaderAt(le64(h + 36))) fail(path_, "is damaged: its root group has no HDF5 1.10 object header");
+  }
+
+  // A version-2 object header (signature OHDR, checksummed) at the HDF5
+  // address `addr`: HDF5 1.10 verifies those before parsing them.
+  bool objectHeaderAt(uint64_t addr) const {
+    const size_t n = image_.size() - base_;
+    return addr < n && n - addr >= 4 && std::memcmp(image_.data() + base_ + addr, "OHDR", 4) == 0;
+  }
+
+  // True if `name` (absolute, each component checked) is a hard link to an
+  // object with a version-2 object header; false if it does not exist.
+  bool requireObject(const std::string& name) const {
+    for (size_t slash = name.find('/', 1);; slash = name.find('/', slash + 1)) {
+      const std::string part = name.substr(0, slash);
+      const htri_t exists = checked(H5Lexists(file(), part.c_str(), H5P_DEFAULT));
+      if (exists < 0) failHdf5(path_, "cannot look up " + part + " (damaged?)");
+      if (exists == 0) return false;
+      H5L_info_t info{};
+      if (checked(H5Lget_info(file(), part.c_str(), &info, H5P_DEFAULT)) < 0 || info.type != H5L_TYPE_HARD)
+        fail(path_, part + " is not an object of the file");
+      if (!objectHeaderAt(info.u.address))
+        fail(path_, "is damaged: " + part + " has no HDF5 1.10 object header");
+      if (slash == std::string::npos) return true;
+    }
+  }
+
+  // HDF5 1.10 walks a global heap collection (where variable-length strings
+  // live) without a checksum and trusts its sizes and indices. Checks every
+  // collection as HDF5 walks it, plus what writeTemplate's always satisfy:
+  // objects 1, 2, 3... in order, each a string (no NUL byte), zero padding,
+  // free space last.
+  void checkGlobalHeaps() const {
+    const unsigned char* h = image_.data() + base_;
+    const size_t n = image_.size() - base_;
+    static constexpr unsigned char kSignature[5] = {'G', 'C', 'O', 'L', 1};
+    for (size_t pos = 0; pos < n;) {
+      const void* hit = ::memmem(h + pos, n - pos, kSignature, sizeof kSignature);
+      if (!hit) break;
+      pos = size_t(static_cast<const unsigned char*>(hit) - h);
+      const unsigned char* c = h + pos;
+      auto bad = [&](const std::string& what) {
+        fail(path_, "is damaged: the global heap (string storage) at byte " + std::to_string(base_ + pos) + " " + what);
+      };
+      if (n - pos < 16) bad("is cut off");
+      const uint64_t size = le64(c + 8);
+      if (size < 4096 || size > n - pos) bad("has an impossible size (" + std::to_string(size) + " bytes)");
+      uint64_t at = 16;
+      for (unsigned next = 1; size - at >= 16; ++next) {
+        const unsigned index = le16(c + at);
+        const uint64_t objectSize = le64(c + at + 8);
+        if (index == 0) {  // the free space: the rest of the collection
+          if (objectSize != size - at) bad("has free space of the wrong size");
+          break;
+        }
+        if (index != next) bad("has object " + std::to_string(index) + " where " + std::to_string(next) + " belongs");
+        const uint64_t room = size - at - 16;
+        if (objectSize > room || (objectSize + 7) / 8 * 8 > room)
+          bad("has object " + std::to_string(index) + " larger than the heap");
+        const unsigned char* data = c + at + 16;
+        const uint64_t padded = (objectSize + 7) / 8 * 8;
+        if (std::memchr(data, 0, objectSize)) bad("has object " + std::to_string(index) + " with a NUL byte");
+        for (uint64_t k = objectSize; k < padded; ++k)
+          if (data[k] != 0) bad("has object " + std::to_string(index) + " with non-zero padding");
+        at += 16 + padded;
+      }
+      pos += 1;
+    }
+  }
+
+  // A plain integer (any size, all bits used) or IEEE float type: what
+  // templates store and HDF5 converts without surprises.
+  static bool plainNumber(hid_t type, bool integerOnly) {
+    const H5T_class_t cls = H5Tget_class(type);
+    if (cls == H5T_INTEGER) {
+      const size_t size = H5Tget_size(type);
+      return (size == 1 || size == 2 || size == 4 || size == 8) && H5Tget_precision(type) == 8 * size &&
+             H5Tget_offset(type) == 0;
+    }
+    if (cls != H5T_FLOAT || integerOnly) return false;
+    for (hid_t t : {H5T_IEEE_F32LE, H5T_IEEE_F32BE, H5T_IEEE_F64LE, H5T_IEEE_F64BE})
+      if (H5Tequal(type, t) > 0) return true;
+    return false;
+  }
+
   std::string path_;
-  Handle file_;
+  std::vector<unsigned char> image_;  // the whole file; HDF5 reads it in place
+  bool checksummed_ = false;
+  size_t base_ = 0;  // where the HDF5 file starts in image_ (after the checksum block)
+  Handle file_;      // declared last: closed before image_ goes
 };
 
 TemplateHeader readHeader(const Reader& r) {
@@ -257,7 +593,7 @@ TemplateHeader readHeader(const Reader& r) {
   if (!r.hasAttr("format")) fail(path, "is HDF5 but not a FlowClip template (no 'format' attribute)");
   const std::string format = r.string("format");
   if (format != kFormat)
-    fail(path, "is HDF5 but not a FlowClip template (format is '" + format + "', expected '" + kFormat + "')");
+    fail(path, "is HDF5 but not a FlowClip template (format is " + excerpt(format) + ", expected '" + kFormat + "')");
   const int64_t version = r.integer("format_version");
   if (version != kTemplateFormatVersion)
     fail(path, "has format_version " + std::to_string(version) + "; this program reads format_version " +
@@ -267,6 +603,7 @@ TemplateHeader readHeader(const Reader& r) {
   if (dim != 2 && dim != 3) fail(path, "has dimension " + std::to_string(dim) + " (must be 2 or 3)");
   h.dimension = int(dim);
   h.name = r.string("name");
+  if (!std::regex_match(h.name, kNamePattern)) fail(path, "has the name " + excerpt(h.name) + ", not [A-Za-z0-9_-]{1,64}");
   h.frameRate = r.number("frame_rate");
   h.particleRadius = r.number("particle_radius");
   h.supportRadius = r.number("support_radius");
@@ -294,8 +631,7 @@ template <int D>
 void writeTemplate(const std::string& path, const Template<D>& tpl) {
   const TemplateHeader& h = tpl.header;
   auto invalid = [&](const std::string& what) { fail(path, "cannot write: " + what); };
-  static const std::regex kName("[A-Za-z0-9_-]{1,64}");
-  if (!std::regex_match(h.name, kName)) invalid("template name '" + h.name + "' is not [A-Za-z0-9_-]{1,64}");
+  if (!std::regex_match(h.name, kNamePattern)) invalid("template name '" + h.name + "' is not [A-Za-z0-9_-]{1,64}");
   if (h.dimension != D)
     invalid("header dimension " + std::to_string(h.dimension) + " does not match the template's " + std::to_string(D));
   if (h.regionMin.size() != size_t(D) || h.regionMax.size() != size_t(D))
@@ -433,8 +769,12 @@ void writeTemplate(const std::string& path, const Template<D>& tpl) {
         checked(H5Pset_fclose_degree(fapl.get(), H5F_CLOSE_STRONG)) < 0 ||
         checked(H5Pset_libver_bounds(fapl.get(), H5F_LIBVER_V110, H5F_LIBVER_V110)) < 0)
       abandon("cannot set up the file access properties", true);
+    // Room for the checksum block, written once HDF5 has closed the file.
+    Handle fcpl(checked(H5Pcreate(H5P_FILE_CREATE)), H5Pclose);
+    if (!fcpl.ok() || checked(H5Pset_userblock(fcpl.get(), kChecksumBlockSize)) < 0)
+      abandon("cannot set up the file creation properties", true);
     // EXCL: never truncate a file we did not create.
-    Handle file(checked(H5Fcreate(tmp.c_str(), H5F_ACC_EXCL, H5P_DEFAULT, fapl.get())), H5Fclose);
+    Handle file(checked(H5Fcreate(tmp.c_str(), H5F_ACC_EXCL, fcpl.get(), fapl.get())), H5Fclose);
     if (!file.ok()) abandon("cannot create the temporary file '" + tmp + "'", true);
     created = true;
     const hid_t fid = file.get();
@@ -476,8 +816,11 @@ void writeTemplate(const std::string& path, const Template<D>& tpl) {
          writeDataset(fid, "/particles/phase", H5T_STD_U8LE, H5T_NATIVE_UINT8, N, 0, kParticleChunkRows,
                       phase.data());
     if (!ok) abandon("cannot write the particle datasets", true);
-    if (checked(H5Fflush(fid, H5F_SCOPE_LOCAL)) < 0) abandon("cannot write the temporary file '" + tmp + "'", true);
-  }  // H5Fclose (strong: no object left open)
+    if (checked(H5Fflush(fid, H5F_SCOPE_LOCAL)) < 0 || checked(H5Fclose(file.release())) < 0)
+      abandon("cannot write the temporary file '" + tmp + "'", true);
+  }
+  if (const std::string error = stampChecksum(tmp); !error.empty())
+    abandon("cannot write the checksum of '" + tmp + "': " + error, false);
   try {
     syncPath(tmp, false);
   } catch (const std::system_error& e) {
@@ -561,7 +904,7 @@ Template<D> readTemplate(const std::string& path) {
   std::vector<double> massTable, mass;
   std::vector<uint8_t> massIdx;
   if (massIndexed) {
-    massTable = r.doubles("mass_table", -1);
+    massTable = r.doubles("mass_table", -1, 256);
     if (massTable.empty() && N > 0) fail(path, "attribute 'mass_table' is empty");
     Handle ds = r.openDataset("/particles/mass_index", H5T_INTEGER, 1, H5T_SGN_NONE, 0, &rows);
     checkRows("/particles/mass_index", rows);
@@ -600,8 +943,8 @@ Template<D> readTemplate(const std::string& path) {
 TemplateFileStats templateFileStats(const std::string& path) {
   hdf5::Quiet quiet;
   Reader r(path);
-  readHeader(r);
   TemplateFileStats s;
+  s.header = readHeader(r);
   s.frames = size_t(r.integer("frame_count"));
   const hsize_t N = r.particleRows();
   const auto off = r.offsets(s.frames, N);
@@ -611,9 +954,8 @@ TemplateFileStats templateFileStats(const std::string& path) {
     s.maxParticles = std::max(s.maxParticles, n);
   }
   s.avgParticles = s.frames ? double(N) / double(s.frames) : 0.0;
-  std::error_code ec;
-  s.bytesOnDisk = fs::file_size(path, ec);
-  if (ec) fail(path, "cannot get the file size: " + ec.message());
+  s.bytesOnDisk = r.fileSize();
+  s.checksummed = r.checksummed();
   s.bytesPerParticleFrame = N ? double(s.bytesOnDisk) / double(N) : 0.0;
   return s;
 }

@@ -15,7 +15,8 @@
 //   /particles/mass_index   uint8  [N]    index into mass_table (or
 //   /particles/mass         float64 [N]   when more than 256 distinct masses)
 //   /particles/phase        uint8  [N]
-// Chunked, byte-shuffled (multi-byte types) and deflate-compressed.
+// Chunked, byte-shuffled (multi-byte types) and deflate-compressed. The first
+// 512 bytes (an HDF5 user block) hold the CRC-32 and length of the rest.
 //
 // Precision (what readTemplate returns versus what writeTemplate was given):
 //   positions   |error| <= 0.01 * particle_radius per axis (uint16 encoding),
@@ -51,8 +52,11 @@ void writeTemplate(const std::string& path, const Template<D>& tpl);
 
 // Reads and validates the whole file. Throws TemplateError if the file is
 // missing, not HDF5, not a template, of another format_version, of another
-// dimension than D, or inconsistent (offsets, dataset shapes and types,
-// non-finite values, mass indices out of the table).
+// dimension than D, damaged (checksum, HDF5 structures: checked before HDF5
+// parses them, so that no damage can crash it) or inconsistent (offsets,
+// dataset shapes and types, non-finite values, mass indices out of the
+// table). Files without a checksum block (written before it existed) still
+// read.
 template <int D>
 Template<D> readTemplate(const std::string& path);
 
@@ -60,14 +64,17 @@ Template<D> readTemplate(const std::string& path);
 TemplateHeader readTemplateHeader(const std::string& path);
 
 struct TemplateFileStats {
+  TemplateHeader header;             // as readTemplateHeader gives it
   size_t frames = 0;
   size_t minParticles = 0, maxParticles = 0;  // per frame (0 without frames)
   double avgParticles = 0;
   uint64_t bytesOnDisk = 0;
   double bytesPerParticleFrame = 0;  // bytesOnDisk / total particle-frames (0 if none)
+  bool checksummed = false;          // the file has a checksum block (verified); older files have none
 };
 
-// Reads the header and the frame-offset index only.
+// Reads the header and the frame-offset index only (one pass over the file:
+// callers that want both need not call readTemplateHeader as well).
 TemplateFileStats templateFileStats(const std::string& path);
 
 }  // namespace fc

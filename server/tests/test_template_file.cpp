@@ -9,6 +9,7 @@
 #include <type_traits>
 #include <hdf5.h>
 #include <nlohmann/json.hpp>
+#include <zlib.h>
 
 #include <unistd.h>
 
@@ -166,6 +167,22 @@ void expectFramesMatch(const Template<D>& in, const Template<D>& out, double pos
 
 // --- raw HDF5 edits used to build bad files --------------------------------
 
+// Rewrites the checksum block (templates/README.md: the first 512 bytes,
+// CRC-32 and length of the rest) after an edit through HDF5, so that the
+// reader gets past it to the check under test.
+void restampChecksum(const std::string& path) {
+  std::string data = readFile(path);
+  ASSERT_GT(data.size(), 512u);
+  ASSERT_EQ(data.compare(0, 18, "FLOWCLIP TEMPLATE\n"), 0) << path;
+  const uLong crc = crc32_z(0, reinterpret_cast<const Bytef*>(data.data() + 512), data.size() - 512);
+  char text[96];
+  std::snprintf(text, sizeof text, "FLOWCLIP TEMPLATE\ncrc32 %08lx\nlength %zu\n", crc, data.size() - 512);
+  std::string block(text);
+  block.resize(512, '\0');
+  data.replace(0, 512, block);
+  std::ofstream(path, std::ios::binary | std::ios::trunc).write(data.data(), std::streamsize(data.size()));
+}
+
 std::string stringAttr(const std::string& path, const char* name) {
   hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
   hid_t a = H5Aopen(f, name, H5P_DEFAULT);
@@ -193,6 +210,7 @@ void setAttr(const std::string& path, const char* name, hid_t type, T value) {
   H5Aclose(a);
   H5Sclose(s);
   H5Fclose(f);
+  restampChecksum(path);
 }
 
 void deleteAttr(const std::string& path, const char* name) {
@@ -200,6 +218,7 @@ void deleteAttr(const std::string& path, const char* name) {
   ASSERT_GE(f, 0);
   ASSERT_GE(H5Adelete(f, name), 0);
   H5Fclose(f);
+  restampChecksum(path);
 }
 
 // Overwrites element `index` of a one-dimensional dataset.
@@ -218,6 +237,7 @@ void setElement(const std::string& path, const char* dataset, hid_t memType, hsi
   H5Sclose(fs);
   H5Dclose(d);
   H5Fclose(f);
+  restampChecksum(path);
 }
 
 // Expects readTemplate<D> (and, if `header`, readTemplateHeader) to throw a
@@ -439,7 +459,7 @@ TEST_F(TemplateFileBad, TruncatedFile) {
   for (double frac : {0.5, 0.9}) {
     const std::string p = dir.file("cut" + std::to_string(int(frac * 100)) + ".h5");
     std::ofstream(p, std::ios::binary).write(data.data(), std::streamsize(data.size() * frac));
-    expectBad<3>(p, "truncated or corrupt");
+    expectBad<3>(p, "is truncated or damaged");
   }
 }
 
@@ -464,7 +484,17 @@ TEST_F(TemplateFileBad, Hdf5ButNotATemplate) {
   hid_t g = H5Gcreate2(f, "particles", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
   H5Gclose(g);
   H5Fclose(f);
-  expectBad<3>(p, "not a FlowClip template (no 'format' attribute)");
+  expectBad<3>(p, "is HDF5 but not a FlowClip template, or is damaged (HDF5 superblock version 0");
+
+  // The HDF5 1.10 format, as templates use, without the attribute.
+  const std::string p110 = dir.file("other110.h5");
+  hid_t fapl = H5Pcreate(H5P_FILE_ACCESS);
+  H5Pset_libver_bounds(fapl, H5F_LIBVER_V110, H5F_LIBVER_V110);
+  f = H5Fcreate(p110.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, fapl);
+  H5Pclose(fapl);
+  ASSERT_GE(f, 0);
+  H5Fclose(f);
+  expectBad<3>(p110, "not a FlowClip template (no 'format' attribute)");
 
   const std::string q = copy("frames.h5");  // another flowclip format
   hid_t fq = H5Fopen(q.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
@@ -476,6 +506,7 @@ TEST_F(TemplateFileBad, Hdf5ButNotATemplate) {
   const char* v = "flowclip-frames";
   H5Awrite(a, t, &v);
   H5Aclose(a), H5Sclose(s), H5Tclose(t), H5Fclose(fq);
+  restampChecksum(q);
   expectBad<3>(q, "format is 'flowclip-frames'");
 }
 
@@ -538,6 +569,7 @@ TEST_F(TemplateFileBad, NonFiniteValues) {
     ASSERT_GE(H5Dwrite(d, H5T_NATIVE_FLOAT, ms, fs, H5P_DEFAULT, &nan), 0);
     H5Sclose(ms), H5Sclose(fs), H5Dclose(d), H5Fclose(f);
   }
+  restampChecksum(fp);
   expectBad<3>(fp, "/particles/position row 3 is not finite", false);
 }
 
@@ -550,7 +582,101 @@ TEST_F(TemplateFileBad, MissingDatasetAndBadMassIndex) {
   hid_t f = H5Fopen(v.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
   H5Ldelete(f, "/particles/velocity", H5P_DEFAULT);
   H5Fclose(f);
+  restampChecksum(v);
   expectBad<3>(v, "has no dataset /particles/velocity", false);
+}
+
+// Replaces /particles/phase by a dataset of the same rows made with `dcpl`.
+void replacePhase(const std::string& path, hid_t dcpl) {
+  hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  hid_t d = H5Dopen2(f, "/particles/phase", H5P_DEFAULT);
+  hid_t old = H5Dget_space(d);
+  hsize_t rows = 0;
+  H5Sget_simple_extent_dims(old, &rows, nullptr);
+  H5Sclose(old);
+  std::vector<uint8_t> phase(rows);
+  H5Dread(d, H5T_NATIVE_UINT8, H5S_ALL, H5S_ALL, H5P_DEFAULT, phase.data());
+  H5Dclose(d);
+  H5Ldelete(f, "/particles/phase", H5P_DEFAULT);
+  hid_t space = H5Screate_simple(1, &rows, nullptr);
+  d = H5Dcreate2(f, "/particles/phase", H5T_STD_U8LE, space, H5P_DEFAULT, dcpl, H5P_DEFAULT);
+  ASSERT_GE(d, 0);
+  ASSERT_GE(H5Dwrite(d, H5T_NATIVE_UINT8, H5S_ALL, H5S_ALL, H5P_DEFAULT, phase.data()), 0);
+  H5Dclose(d);
+  H5Sclose(space);
+  H5Fclose(f);
+  restampChecksum(path);
+}
+
+void setString(const std::string& path, const char* name, const std::string& value) {
+  hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+  ASSERT_GE(f, 0);
+  H5Adelete(f, name);
+  hid_t t = H5Tcopy(H5T_C_S1);
+  H5Tset_size(t, H5T_VARIABLE);
+  H5Tset_cset(t, H5T_CSET_UTF8);
+  hid_t s = H5Screate(H5S_SCALAR);
+  hid_t a = H5Acreate2(f, name, t, s, H5P_DEFAULT, H5P_DEFAULT);
+  const char* v = value.c_str();
+  ASSERT_GE(H5Awrite(a, t, &v), 0);
+  H5Aclose(a), H5Sclose(s), H5Tclose(t), H5Fclose(f);
+  restampChecksum(path);
+}
+
+// A shape larger than the file can hold is refused before anything is read
+// (reading it would allocate a terabyte).
+TEST_F(TemplateFileBad, ImpossibleDatasetShape) {
+  const std::string p = copy("huge.h5");
+  hid_t f = H5Fopen(p.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+  hid_t d = H5Dopen2(f, "/particles/phase", H5P_DEFAULT);
+  const hsize_t rows = hsize_t(1) << 40;
+  ASSERT_GE(H5Dset_extent(d, &rows), 0);
+  H5Dclose(d), H5Fclose(f);
+  restampChecksum(p);
+  expectBad<3>(p, "dataset /particles/phase claims 1099511627776 rows, more than a file of", false);
+  EXPECT_THROW(templateFileStats(p), TemplateError);
+  EXPECT_EQ(readTemplateHeader(p).dimension, 3);
+}
+
+TEST_F(TemplateFileBad, StorageTemplatesDoNotUse) {
+  // A filter templates do not use (HDF5's scale-offset, whose decoder
+  // trusts its parameters).
+  const std::string so = copy("scaleoffset.h5");
+  hid_t dcpl = H5Pcreate(H5P_DATASET_CREATE);
+  const hsize_t chunk = 16;
+  H5Pset_chunk(dcpl, 1, &chunk);
+  H5Pset_scaleoffset(dcpl, H5Z_SO_INT, H5Z_SO_INT_MINBITS_DEFAULT);
+  replacePhase(so, dcpl);
+  H5Pclose(dcpl);
+  expectBad<3>(so, "dataset /particles/phase uses HDF5 filter 6, which templates do not use", false);
+
+  // Contiguous storage.
+  const std::string contiguous = copy("contiguous.h5");
+  replacePhase(contiguous, H5P_DEFAULT);
+  expectBad<3>(contiguous, "dataset /particles/phase is not stored in chunks as templates are", false);
+
+  // An object header of the HDF5 1.8 format (no signature, no checksum)
+  // where the superblock points to the root group's.
+  const std::string old = copy("hdf5_18.h5");
+  std::string data = readFile(old);
+  ASSERT_EQ(data.compare(512 + 48, 4, "OHDR"), 0);
+  data[512 + 48] = 'X';
+  std::ofstream(old, std::ios::binary | std::ios::trunc).write(data.data(), std::streamsize(data.size()));
+  restampChecksum(old);
+  expectBad<3>(old, "is damaged: its root group has no HDF5 1.10 object header");
+}
+
+TEST_F(TemplateFileBad, StringsThatAreNotNamesOrText) {
+  const std::string utf8 = copy("utf8.h5");
+  setString(utf8, "created_by", "flowclip \xff\xfe");
+  expectBad<3>(utf8, "attribute 'created_by' is not valid UTF-8");
+  const std::string name = copy("name.h5");
+  setString(name, "name", "../escape");
+  expectBad<3>(name, "has the name '../escape', not [A-Za-z0-9_-]{1,64}");
+  const std::string format = copy("format.h5");
+  setString(format, "format", std::string(100, 'x'));
+  expectBad<3>(format, "format is '" + std::string(64, 'x') + "...'");
 }
 
 // --- sample for tests/test_template_h5py.py -------------------------------------
