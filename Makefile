@@ -8,7 +8,8 @@ CMAKE_FLAGS ?=
 PORT ?= 8080
 ABS_BUILD_DIR = $(abspath $(BUILD_DIR))
 
-.PHONY: all setup build web templates run run-headless test test-web test-web-only bench bench-accuracy bench-web clean
+.PHONY: all setup build web templates run run-headless test test-web test-web-only bench bench-accuracy bench-web clean \
+  fuzz fuzz-build fuzz-regress test-fuzz asan-build test-asan bench-soak
 
 # 2D templates are recorded when missing (seconds); larger ones on demand:
 # build/flowclip record templates/recipes/letters3d.json
@@ -78,5 +79,50 @@ BENCH_WEB_ARGS ?=
 bench-web: build templates web
 	@cd web && FLOWCLIP_BUILD_DIR=$(ABS_BUILD_DIR) node scripts/bench-browser.mjs $(BENCH_WEB_ARGS)
 
+# Fuzzing and sanitizers (docs/fuzzing.md). The libFuzzer targets of
+# server/fuzz/ are built with clang, ASan and UBSan in $(FUZZ_BUILD_DIR);
+# `make fuzz` runs each for FUZZ_SECONDS (new inputs go to
+# $(FUZZ_BUILD_DIR)/fuzz-corpus, crashes to $(FUZZ_BUILD_DIR)/fuzz-artifacts).
+# `make test` replays every corpus (the regress-* inputs of known bugs
+# included), fuzzes each target for FUZZ_TEST_SECONDS, and runs the pytest
+# suite once against flowclip built with ASan + UBSan ($(ASAN_BUILD_DIR), GCC).
+FUZZ_BUILD_DIR ?= build-fuzz
+ASAN_BUILD_DIR ?= build-asan
+FUZZ_SECONDS ?= 600
+FUZZ_TEST_SECONDS ?= 30
+FUZZ_JOBS ?= 2
+
+$(FUZZ_BUILD_DIR)/build.ninja:
+	@CC=clang CXX=clang++ cmake -S server -B $(FUZZ_BUILD_DIR) -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DFLOWCLIP_FUZZ=ON $(CMAKE_FLAGS) >/dev/null
+
+fuzz-build: setup $(FUZZ_BUILD_DIR)/build.ninja
+	@cmake --build $(FUZZ_BUILD_DIR) --target fuzzers -j $(JOBS)
+
+fuzz: fuzz-build
+	@FUZZ_JOBS=$(FUZZ_JOBS) server/fuzz/run.sh fuzz $(FUZZ_BUILD_DIR) $(FUZZ_SECONDS)
+
+fuzz-regress: fuzz-build
+	@server/fuzz/run.sh regress $(FUZZ_BUILD_DIR)
+
+test-fuzz: fuzz-build
+	@server/fuzz/run.sh regress $(FUZZ_BUILD_DIR)
+	@FUZZ_JOBS=$(FUZZ_JOBS) server/fuzz/run.sh fuzz $(FUZZ_BUILD_DIR) $(FUZZ_TEST_SECONDS)
+
+$(ASAN_BUILD_DIR)/build.ninja:
+	@cmake -S server -B $(ASAN_BUILD_DIR) -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DFLOWCLIP_SANITIZE=ON $(CMAKE_FLAGS) >/dev/null
+
+asan-build: setup $(ASAN_BUILD_DIR)/build.ninja
+	@cmake --build $(ASAN_BUILD_DIR) --target flowclip -j $(JOBS)
+
+# The pytest suite against the sanitized flowclip; any sanitizer report of
+# any flowclip process fails it (server/fuzz/pytest_sanitized.sh).
+test-asan: asan-build templates
+	server/fuzz/pytest_sanitized.sh $(ASAN_BUILD_DIR) $(BUILD_DIR)/venv/bin/python
+
+# The soak benchmark (docs/robustness.md): 8 sessions x 8 clients for 10
+# minutes, report in bench/soak/.
+bench-soak: build templates
+	$(BUILD_DIR)/venv/bin/python tools/soak.py --out bench/soak
+
 clean:
-	rm -rf $(BUILD_DIR)
+	rm -rf $(BUILD_DIR) $(FUZZ_BUILD_DIR) $(ASAN_BUILD_DIR)
