@@ -83,9 +83,10 @@ bench-web: build templates web
 # server/fuzz/ are built with clang, ASan and UBSan in $(FUZZ_BUILD_DIR);
 # `make fuzz` runs each for FUZZ_SECONDS (new inputs go to
 # $(FUZZ_BUILD_DIR)/fuzz-corpus, crashes to $(FUZZ_BUILD_DIR)/fuzz-artifacts).
-# `make test` replays every corpus (the regress-* inputs of known bugs
-# included), fuzzes each target for FUZZ_TEST_SECONDS, and runs the pytest
-# suite once against flowclip built with ASan + UBSan ($(ASAN_BUILD_DIR), GCC).
+# `make test-fuzz` replays every corpus (the regress-* inputs of known bugs
+# included) and fuzzes each target for FUZZ_TEST_SECONDS; `make test-asan`
+# runs the pytest suite once against flowclip built with ASan + UBSan
+# ($(ASAN_BUILD_DIR), clang). Neither is in `make test` until timed on CI.
 FUZZ_BUILD_DIR ?= build-fuzz
 ASAN_BUILD_DIR ?= build-asan
 FUZZ_SECONDS ?= 600
@@ -109,7 +110,7 @@ test-fuzz: fuzz-build
 	@FUZZ_JOBS=$(FUZZ_JOBS) server/fuzz/run.sh fuzz $(FUZZ_BUILD_DIR) $(FUZZ_TEST_SECONDS)
 
 $(ASAN_BUILD_DIR)/build.ninja:
-	@cmake -S server -B $(ASAN_BUILD_DIR) -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DFLOWCLIP_SANITIZE=ON $(CMAKE_FLAGS) >/dev/null
+	@CC=clang CXX=clang++ cmake -S server -B $(ASAN_BUILD_DIR) -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DFLOWCLIP_SANITIZE=ON $(CMAKE_FLAGS) >/dev/null
 
 asan-build: setup $(ASAN_BUILD_DIR)/build.ninja
 	@cmake --build $(ASAN_BUILD_DIR) --target flowclip -j $(JOBS)
