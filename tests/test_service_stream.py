@@ -4,6 +4,7 @@ Subscribe.max_frame_rate limits what a client is sent."""
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 
@@ -40,6 +41,9 @@ class FrameCounter(threading.Thread):
         self.stream.close()
 
 
+# Under AddressSanitizer (make test-asan) freed memory waits in ASan's quarantine
+# (256 MB) and every frame is a fresh mapping, so RSS says nothing about queued frames.
+@pytest.mark.skipif(bool(os.environ.get("FLOWCLIP_SANITIZED")), reason="RSS bound meaningless under ASan")
 def test_a_client_that_stops_reading_costs_no_server_memory(server, client):
     heavy = client.create_session(heavy_frames_scene(), threads=1, history_cap_mb=CAP_MB, playback_speed=0)
     light = client.create_session(small_scene("light"), threads=1, history_cap_mb=CAP_MB, playback_speed=30)

@@ -20,6 +20,8 @@ mkdir -p "$logs"
 supp="$(pwd)/server/fuzz/sanitizers"
 
 export FLOWCLIP_BIN="$build/flowclip"
+# Tests that measure memory (RSS) skip themselves under the sanitizers.
+export FLOWCLIP_SANITIZED=1
 # `flowclip bench accuracy` plots with the venv beside the binary (BUILD/venv):
 # the test venv's.
 venv=$(cd "$(dirname "$python")/.." && pwd)

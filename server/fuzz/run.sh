@@ -38,6 +38,8 @@ logs="$build/fuzz-logs"
 mkdir -p "$logs"
 export ASAN_OPTIONS="${ASAN_OPTIONS:-}${ASAN_OPTIONS:+:}abort_on_error=0:handle_abort=1"
 export UBSAN_OPTIONS="${UBSAN_OPTIONS:-print_stacktrace=1}"
+# Leaks inside third-party libraries, each with its reason.
+export LSAN_OPTIONS="${LSAN_OPTIONS:-suppressions=$(pwd)/server/fuzz/sanitizers/lsan-fuzz.supp:print_suppressions=0}"
 
 # The first stack frame inside server/ (not the harness): "function file:line".
 crash_site() {
