@@ -439,9 +439,7 @@ class StreamConnection : public StreamHandle, public std::enable_shared_from_thi
     writing_ = true;
     armStallTimer(kWriteStall);
     ws_.async_write(buffer, [self = shared_from_this()](beast::error_code ec, size_t) {
-      self->writing_ = false;
-      ++self->stallSeq_;
-      self->stallTimer_.cancel();
+      self->endWrite();
       self->inFlight_.reset();
       if (ec) {
         self->release();
@@ -462,11 +460,14 @@ class StreamConnection : public StreamHandle, public std::enable_shared_from_thi
     writing_ = true;
     armStallTimer(kCloseGrace);
     ws_.async_close(websocket::close_reason(websocket::close_code::going_away, printable(reason, 120)),
-                    [self = shared_from_this()](beast::error_code) {
-                      self->writing_ = false;
-                      ++self->stallSeq_;
-                      self->stallTimer_.cancel();
-                    });
+                    [self = shared_from_this()](beast::error_code) { self->endWrite(); });
+  }
+
+  // A write or close completed: its stall timer no longer applies.
+  void endWrite() {
+    writing_ = false;
+    ++stallSeq_;
+    stallTimer_.cancel();
   }
 
   // Fires `after` from now unless the write or close in progress ends first.
@@ -575,33 +576,32 @@ class HttpConnection : public std::enable_shared_from_this<HttpConnection> {
     }
     // The health check answers at once, even with every worker busy.
     if (path == "/api/health" && (req.method() == http::verb::get || req.method() == http::verb::head)) {
-      HttpResponse answer;
-      try {
-        answer = respond(req, target, path);
-      } catch (const std::exception& e) {
-        answer = errorResponse(500, std::string("internal error: ") + e.what());
-      }
-      StringResponse res = makeResponse(answer, req.version(), req.keep_alive());
-      if (req.method() == http::verb::head) res.body().clear();
-      send(std::move(res));
+      send(answer(req, target, path));
       return;
     }
     // REST handlers may wait (edits, exports): run them off the I/O threads,
     // with no deadline (send() sets one for the answer).
     stream_.expires_never();
     net::post(server_.workers, [self = shared_from_this(), req = std::move(req), target, path]() mutable {
-      HttpResponse answer;
-      try {
-        answer = self->respond(req, target, path);
-      } catch (const std::exception& e) {
-        answer = errorResponse(500, std::string("internal error: ") + e.what());
-      } catch (...) {
-        answer = errorResponse(500, "internal error");
-      }
-      StringResponse res = makeResponse(answer, req.version(), req.keep_alive());
-      if (req.method() == http::verb::head) res.body().clear();
+      StringResponse res = self->answer(req, target, path);
       net::post(self->stream_.get_executor(), [self, res = std::move(res)]() mutable { self->send(std::move(res)); });
     });
+  }
+
+  // respond() as the wire answer; nothing it throws escapes the calling thread.
+  StringResponse answer(const http::request<http::string_body>& req, const std::string& target,
+                        const std::string& path) {
+    HttpResponse r;
+    try {
+      r = respond(req, target, path);
+    } catch (const std::exception& e) {
+      r = errorResponse(500, std::string("internal error: ") + e.what());
+    } catch (...) {
+      r = errorResponse(500, "internal error");
+    }
+    StringResponse res = makeResponse(r, req.version(), req.keep_alive());
+    if (req.method() == http::verb::head) res.body().clear();
+    return res;
   }
 
   HttpResponse respond(const http::request<http::string_body>& req, const std::string& target, const std::string& path) {

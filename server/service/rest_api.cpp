@@ -464,6 +464,13 @@ std::shared_ptr<Session> ServiceHub::requireSession(const std::string& id) const
   return s;
 }
 
+std::vector<std::shared_ptr<Session>> ServiceHub::allSessions() const {
+  std::vector<std::shared_ptr<Session>> all;
+  std::lock_guard lk(mutex_);
+  for (const auto& [id, s] : sessions_) all.push_back(s);
+  return all;
+}
+
 size_t ServiceHub::sessionCount() const {
   std::lock_guard lk(mutex_);
   return sessions_.size();
@@ -619,12 +626,7 @@ HttpResponse ServiceHub::deleteTemplate(const HttpRequest&, const Params& p) {
   checkName(p[0], "template");
   if (!database_.contains(p[0])) throw ApiError(404, "no template \"" + p[0] + "\" in " + database_.directory(), "name");
   // A session's scene that instances it could not be reset or saved and re-opened.
-  std::vector<std::shared_ptr<Session>> all;
-  {
-    std::lock_guard lk(mutex_);
-    for (auto& [id, s] : sessions_) all.push_back(s);
-  }
-  for (const auto& s : all)
+  for (const auto& s : allSessions())
     for (const json& inst : instancesOf(s->sceneJson()))
       if (inst.value("template", "") == p[0])
         throw ApiError(409, "template \"" + p[0] + "\" is in use by session " + s->id() + " (instance \"" +
@@ -804,13 +806,8 @@ HttpResponse ServiceHub::saveScene(const HttpRequest& req, const Params&) {
 // ---- sessions -----------------------------------------------------------------------
 
 HttpResponse ServiceHub::listSessions(const HttpRequest&, const Params&) {
-  std::vector<std::shared_ptr<Session>> all;
-  {
-    std::lock_guard lk(mutex_);
-    for (auto& [id, s] : sessions_) all.push_back(s);
-  }
   json list = json::array();
-  for (auto& s : all) list.push_back(s->state());
+  for (auto& s : allSessions()) list.push_back(s->state());
   return jsonResponse({{"sessions", list}});
 }
 

@@ -135,6 +135,8 @@ class ServiceHub {
   HttpResponse getExport(const HttpRequest&, const Params&);
 
   std::shared_ptr<Session> requireSession(const std::string& id) const;
+  // The live sessions, taken under the lock (their methods are then called without it).
+  std::vector<std::shared_ptr<Session>> allSessions() const;
   // Submits an edit and waits (options_.editWait) for its result: 200/201
   // with {"edit"} (plus "instance" for instance edits), 202 while pending,
   // 422 when rejected.

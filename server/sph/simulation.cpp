@@ -375,7 +375,7 @@ void Simulation<D>::computeDensitiesWith() {
 }
 
 template <int D>
-Real Simulation<D>::cflTimeStep() const {
+std::optional<Real> Simulation<D>::cflTimeStep() const {
   Real vmax2 = 0;
   const Real h = lastDt_;
   int nonFinite = 0;
@@ -389,7 +389,7 @@ Real Simulation<D>::cflTimeStep() const {
       nonFinite += s < inf ? 0 : 1;  // NaN too: max() would drop it
     }
   }
-  nonFiniteSpeed_ = nonFinite > 0;
+  if (nonFinite > 0) return std::nullopt;
   const Real cfl = Real(setup_.settings.get("cfl_factor"));
   const Real vmax = std::sqrt(vmax2);
   Real dtMax = Real(setup_.settings.get("dt_max"));
@@ -643,9 +643,9 @@ FrameStats Simulation<D>::advanceFrame() {
     fs.nonPressureMs += took();
 
     // Fit the substeps exactly into the frame, without a tiny last step.
-    Real dt = cflTimeStep();
-    if (nonFiniteSpeed_)
-      return stop("non-finite velocity or acceleration");
+    const std::optional<Real> step = cflTimeStep();
+    if (!step) return stop("non-finite velocity or acceleration");
+    Real dt = *step;
     fs.stepScale = std::min(fs.stepScale, double(stepScale_));
     const double remaining = frameEnd - time_;
     if (remaining <= dt) dt = Real(remaining);

@@ -11,6 +11,7 @@
 #include <atomic>
 #include <chrono>
 #include <memory>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -212,7 +213,8 @@ class Simulation {
   void splitWork();
   template <bool NumberDensity>
   void computeDensitiesWith();
-  Real cflTimeStep() const;
+  // The substep's time step; nullopt when a particle's speed is not finite.
+  std::optional<Real> cflTimeStep() const;
   void updateStepScale(bool converged);
   void relaxInitialState();
   void reorderParticles();
@@ -233,7 +235,6 @@ class Simulation {
   bool numberDensity_ = false;
   Real contrastStep_ = 1;  // number density: time step scale, see cflTimeStep
   Real stepScale_ = 1;     // shrinks after unconverged solves, see cflTimeStep
-  mutable bool nonFiniteSpeed_ = false;  // cflTimeStep met a non-finite speed
   int relaxationPasses_ = 0;
   uint32_t nextId_ = 0;
   std::vector<std::string> stageNames_;
