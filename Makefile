@@ -48,6 +48,8 @@ test: build templates web
 	cd $(BUILD_DIR) && ctest --output-on-failure -j 1
 	$(BUILD_DIR)/venv/bin/python -m pytest -q tests
 	@$(MAKE) --no-print-directory test-web-only
+	@$(MAKE) --no-print-directory test-fuzz
+	@$(MAKE) --no-print-directory test-asan
 
 # The editor's Playwright tests (headless Debian Chromium against a real
 # server); the last line is "N passed, N failed" from the JSON report.
@@ -86,7 +88,7 @@ bench-web: build templates web
 # `make test-fuzz` replays every corpus (the regress-* inputs of known bugs
 # included) and fuzzes each target for FUZZ_TEST_SECONDS; `make test-asan`
 # runs the pytest suite once against flowclip built with ASan + UBSan
-# ($(ASAN_BUILD_DIR), clang). Neither is in `make test` until timed on CI.
+# ($(ASAN_BUILD_DIR), clang). `make test` runs both after the main suite.
 FUZZ_BUILD_DIR ?= build-fuzz
 ASAN_BUILD_DIR ?= build-asan
 FUZZ_SECONDS ?= 600
