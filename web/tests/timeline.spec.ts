@@ -400,15 +400,23 @@ test('timeline: scrubbing the ruler shows a recorded frame (seek), the playhead 
   await expect(playhead).toHaveAttribute('data-value', '21');
   await expect(page.getByTestId('timeline-simulated')).toHaveAttribute('data-last', '21');
 
-  // Back to a recorded frame, then a click past the history: the newest
-  // frame, which the server shows live again (seeking the newest frame is live).
+  // Back to a recorded frame, then a click past the history: the playhead
+  // goes there (frame 90) without a seek; the server still shows frame 4.
   await page.mouse.click(xOf(4 / SCENE_FPS), y);
   await expect(playhead).toHaveAttribute('data-live', 'false');
   await expect(playhead).toHaveAttribute('data-value', '4');
+  await expect(frame).toHaveAttribute('data-value', '4');
   await page.mouse.click(xOf(1.5), y);
+  await expect(playhead).toHaveAttribute('data-value', '90');
+  await expect(playhead).toHaveAttribute('data-recorded', 'false');
+  await expect(page.getByTestId('viewport-note')).toHaveAttribute('data-value', '90');
+  expect((await getJson(request, `${serverUrl()}/api/sessions/${sid}`)).shown).toEqual({ live: false, frame: 4 });
+  // Live: the newest frame again.
+  await page.getByTestId('live').click();
   await expect.poll(async () => (await getJson(request, `${serverUrl()}/api/sessions/${sid}`)).shown).toEqual({ live: true, frame: 21 });
   await expect(playhead).toHaveAttribute('data-live', 'true');
   await expect(playhead).toHaveAttribute('data-value', '21');
   await expect(frame).toHaveAttribute('data-value', '21');
+  await expect(page.getByTestId('viewport-note')).toBeHidden();
   await expectNoErrors(page, errors);
 });

@@ -21,7 +21,7 @@ export class SetInstanceTransformCommand extends Command {
   private oldValue: TransformKey[] | undefined;
 
   /**
-   * `drag`: an id unique to one gizmo drag; its commands all merge, however
+   * `drag`: an id unique to one drag (gizmo, key); its commands all merge, however
    * slow the drag. `options.name` / `options.merge = false`: a distinct entry
    * (adding or removing a key never merges with a move).
    */
@@ -30,7 +30,7 @@ export class SetInstanceTransformCommand extends Command {
     private readonly instance: string,
     edit: TrackEdit,
     oldValue?: TransformKey[],
-    drag?: number,
+    drag?: number | string,
     options: { name?: string; merge?: boolean } = {},
   ) {
     super();
@@ -63,7 +63,14 @@ export class SetInstanceTransformCommand extends Command {
 
   private async apply(transform: TransformKey[]) {
     const sid = this.editor.sessionFor(this.sid);
-    const res = await this.editor.api.patchInstance(sid, this.instance, { transform });
-    this.editor.instanceUpdated(await this.editor.settleInstanceEdit(sid, this.instance, res), sid);
+    const current = this.editor.instances.get(this.instance);
+    // The viewport shows the new track while the server answers.
+    const token = current ? this.editor.setPreview({ ...current, transform: structuredClone(transform) }) : 0;
+    try {
+      const res = await this.editor.api.patchInstance(sid, this.instance, { transform });
+      this.editor.instanceUpdated(await this.editor.settleInstanceEdit(sid, this.instance, res), sid);
+    } finally {
+      if (current) this.editor.clearPreview(this.instance, token);
+    }
   }
 }

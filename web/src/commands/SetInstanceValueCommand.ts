@@ -39,7 +39,13 @@ export class SetInstanceValueCommand extends Command {
 
   private async apply(value: unknown) {
     const sid = this.editor.sessionFor(this.sid);
-    const res = await this.editor.api.patchInstance(sid, this.instance, { [this.key]: value });
-    this.editor.instanceUpdated(await this.editor.settleInstanceEdit(sid, this.instance, res), sid);
+    const patch: Record<string, unknown> = { [this.key]: value };
+    const token = this.editor.previewPatch(this.instance, patch);
+    try {
+      const res = await this.editor.api.patchInstance(sid, this.instance, patch);
+      this.editor.instanceUpdated(await this.editor.settleInstanceEdit(sid, this.instance, res), sid);
+    } finally {
+      this.editor.clearPreview(this.instance, token);
+    }
   }
 }

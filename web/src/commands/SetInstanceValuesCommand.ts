@@ -58,7 +58,13 @@ export class SetInstanceValuesCommand extends Command {
 
   private async apply(values: InstanceValues) {
     const sid = this.editor.sessionFor(this.sid);
-    const res = await this.editor.api.patchInstance(sid, this.instance, values);
-    this.editor.instanceUpdated(await this.editor.settleInstanceEdit(sid, this.instance, res), sid);
+    const patch: Record<string, unknown> = values;
+    const token = this.editor.previewPatch(this.instance, patch);
+    try {
+      const res = await this.editor.api.patchInstance(sid, this.instance, patch);
+      this.editor.instanceUpdated(await this.editor.settleInstanceEdit(sid, this.instance, res), sid);
+    } finally {
+      this.editor.clearPreview(this.instance, token);
+    }
   }
 }

@@ -9,7 +9,7 @@ import { Stream, type ConnectionStatus, type StreamState } from '../net/Stream';
 import { Layer } from '@wire';
 import type {
   EditJson, InstanceEditResponse, InstanceJson, ParametersJson, PresetsJson, SceneJson, SceneSummary, SessionState, SessionStatusName,
-  SettingsPatch, TemplateInfo, TransportName,
+  SettingsPatch, TemplateInfo, TransportArgs, TransportName,
 } from '../net/types';
 import { AddInstanceCommand } from '../commands/AddInstanceCommand';
 import type { Command } from './Command';
@@ -25,6 +25,27 @@ export interface SessionInfo {
   owned: boolean;
 }
 
+/** Frame ranges (inclusive) of the recorded frames against the current scene. */
+export interface CacheView {
+  /** Recorded and consistent with the scene. */
+  valid: [number, number][];
+  /** Recorded before an edit that changed them: viewable until re-simulated. */
+  stale: [number, number][];
+  /** A re-simulation in progress: restored at `from`, running to `to`, now at `frame`. */
+  simulating: { from: number; to: number; frame: number } | null;
+  checkpoints: number[];
+  /** The server reported it (false: derived from the replay history's range). */
+  reported: boolean;
+}
+
+/** The play range (frames, inclusive): playback stops at `end` or loops back to `start`. */
+export interface PlayRange {
+  start: number;
+  /** null: the scene's end frame. */
+  end: number | null;
+  loop: boolean;
+}
+
 /** What the transport shows: from REST answers and StateChange messages, newest wins. */
 export interface SessionView {
   status: SessionStatusName;
@@ -36,6 +57,9 @@ export interface SessionView {
   historyFirst: number;
   historyLast: number;
   errorMessage: string;
+  cache: CacheView;
+  /** Where playback stops by default: the scene's duration × frame rate. */
+  endFrame: number;
 }
 
 /** What the viewport shows: liquid (client side only) and the stream's optional layers (Layer flags). */
@@ -87,6 +111,20 @@ export class Editor {
     serverMemory: new Signal<number>(),
     /** Something for the user to read (errors are never only logged). */
     message: new Signal<UserMessage>(),
+    /** Another scene or session is being opened (the message area clears). */
+    sceneOpening: new Signal<void>(),
+    /** Instances shown with values not yet confirmed by the server (a drag, an edit in flight). */
+    previewChanged: new Signal<void>(),
+    /** Instances that steer no liquid when they start, with the reason (name → text). */
+    issuesChanged: new Signal<ReadonlyMap<string, string>>(),
+    autoKeyChanged: new Signal<boolean>(),
+    playRangeChanged: new Signal<PlayRange>(),
+    /** Client-side playback (looping over recorded frames) started or stopped; seeks began or ended. */
+    playbackChanged: new Signal<void>(),
+    /** Ctrl+S: the toolbar saves under its name field. */
+    saveRequested: new Signal<void>(),
+    /** F: the viewport frames the selection. */
+    frameSelectionRequested: new Signal<void>(),
   };
 
   scenes: SceneSummary[] = [];
@@ -114,6 +152,36 @@ export class Editor {
   private readonly reservedNames = new Set<string>();
   /** Bumped by each openScene / attachSession: a slower earlier one gives up. */
   private openSeq = 0;
+
+  /**
+   * The playhead, a frame in [0, end frame]: the decoded frame, the frame a
+   * seek is bringing, or (offRecord) a frame nothing is recorded at, where the
+   * viewport draws the instances from the client's own track evaluation.
+   */
+  playheadFrame = 0;
+  offRecord = false;
+  /** The newest frame simulated live (the history reaches it even if a REST answer says less). */
+  private newestLiveFrame = 0;
+  private frameArrived = false;
+  /** Seeks: one in flight, the latest wanted frame next. */
+  private seekWanted: number | null = null;
+  seeking = false;
+  private seekDone: Promise<void> = Promise.resolve();
+  /** Auto-key: edits key the transform at the playhead; off: an animated track moves as a whole. */
+  autoKey = false;
+  playRange: PlayRange = { start: 0, end: null, loop: false };
+  /** Client-side playback of recorded frames (loop). */
+  private loopTimer: ReturnType<typeof setInterval> | null = null;
+  private loopOrigin = { at: 0, frame: 0 };
+  /** The frame the current play was asked to stop at (the server's `until`, or the client's when it has none). */
+  private playUntil: number | null = null;
+  /** The server knows `until`, cache and end_frame (its state says end_frame). */
+  supportsUntil = false;
+  /** Instances shown with unconfirmed values, by name (token: who set it). */
+  private readonly previews = new Map<string, { token: number; instance: InstanceJson }>();
+  private previewTokens = 0;
+  /** Instances that steer no liquid when they start: name → reason. */
+  readonly issues = new Map<string, string>();
 
   constructor(api = new Api('', tokenFromPage())) {
     this.api = api;
@@ -177,6 +245,7 @@ export class Editor {
   /** Creates a session of scene `name` and streams it (the previous session, if ours, is deleted). */
   async openScene(name: string): Promise<SessionInfo | null> {
     const seq = ++this.openSeq;
+    this.signals.sceneOpening.dispatch();
     let state: SessionState;
     try {
       state = await this.api.createSession(name);
@@ -196,6 +265,7 @@ export class Editor {
   /** Streams an existing session (not deleted when the editor leaves it). */
   async attachSession(id: string): Promise<SessionInfo | null> {
     const seq = ++this.openSeq;
+    this.signals.sceneOpening.dispatch();
     let state: SessionState;
     try {
       state = await this.api.getSession(id);
@@ -220,6 +290,7 @@ export class Editor {
     this.select(null);
     this.history.clear();
     this.view = emptyView();
+    this.resetPlayback();
     this.signals.sessionChanged.dispatch(null);
     if (s.owned) {
       try {
@@ -250,7 +321,9 @@ export class Editor {
     const info: SessionInfo = { id: state.id, scene, dimension: state.dimension, sceneJson, owned };
     this.session = info;
     this.history.clear();
+    this.resetPlayback();
     this.shownFrame = state.shown.frame;
+    this.playheadFrame = state.shown.frame;
     this.setInstances(instances);
     this.applyState(state);
     this.signals.sessionChanged.dispatch(info);
@@ -312,10 +385,8 @@ export class Editor {
     });
     this.stream = stream;
     stream.frame.add((f) => {
-      if (f.frame !== this.shownFrame && this.stream === stream) {
-        this.shownFrame = f.frame;
-        this.signals.playheadChanged.dispatch(this.playheadTime());
-      }
+      if (this.stream !== stream) return;
+      this.onFrame(f);
       this.signals.frameDecoded.dispatch(f);
     });
     stream.state.add((s) => this.applyStreamState(s));
@@ -357,11 +428,20 @@ export class Editor {
 
   // ---------------------------------------------------------- transport ---
 
-  async transport(command: TransportName, args: { frames?: number; frame?: number; speed?: number } = {}) {
+  async transport(command: TransportName, args: TransportArgs = {}) {
     const s = this.session;
     if (!s) {
       this.message('warning', 'open a scene first');
       return;
+    }
+    if (command !== 'speed') {
+      // Any transport command takes over from client-side playback and an off-record playhead.
+      this.stopLoop();
+      if (command !== 'play') this.playUntil = null;
+      if (this.offRecord) {
+        this.offRecord = false;
+        this.signals.playheadChanged.dispatch(this.playheadTime());
+      }
     }
     // The stream's StateChange messages are newer than a REST answer that
     // arrives after them: the answer is applied only if none came meanwhile.
@@ -424,9 +504,9 @@ export class Editor {
     return sid;
   }
 
-  /** Scene time of the frame shown (frame n ends at n / frame_rate): the playhead. */
+  /** Scene time of the playhead (frame n ends at n / frame_rate). */
   playheadTime(): number {
-    return this.shownFrame / this.frameRate();
+    return this.playheadFrame / this.frameRate();
   }
 
   frameRate(): number {
@@ -476,9 +556,10 @@ export class Editor {
       return Promise.resolve();
     }
     const name = this.uniqueInstanceName(template);
-    const translation = position.slice(0, s.dimension).map((v) => Math.round(v * 1e4) / 1e4);
+    const { translation, scale } = fitInDomain(t, s.sceneJson?.domain, position, s.dimension);
     const start = Math.round(this.playheadTime() * 1e4) / 1e4;
-    return this.execute(new AddInstanceCommand(this, { name, template, start, transform: [{ time: start, translation }] }));
+    const key = scale < 1 ? { time: start, translation, scale: new Array<number>(s.dimension).fill(scale) } : { time: start, translation };
+    return this.execute(new AddInstanceCommand(this, { name, template, start, transform: [key] }));
   }
 
   /** PATCHes the scene settings and re-reads the session's scene (the inspector shows it). */
@@ -531,15 +612,340 @@ export class Editor {
   /** The server's answer to an instance edit. */
   instanceUpdated(instance: InstanceJson, sid?: string) {
     if (sid !== undefined && sid !== this.session?.id) return; // an answer for a session since closed
+    const old = this.instances.get(instance.name);
     this.instances.set(instance.name, instance);
+    // Where it starts or what it holds changed: unknown until frames at its start say again.
+    if (old && JSON.stringify(old) !== JSON.stringify(instance)) this.setIssue(instance.name, null);
     this.signals.instancesChanged.dispatch(this.instances);
   }
 
   instanceRemoved(name: string, sid?: string) {
     if (sid !== undefined && sid !== this.session?.id) return;
     this.instances.delete(name);
+    this.setIssue(name, null);
     this.signals.instancesChanged.dispatch(this.instances);
     if (this.selected === name) this.select(null);
+  }
+
+  // ------------------------------------------------------------ preview ---
+
+  /**
+   * Shows `instance` (values not yet confirmed by the server) in place of the
+   * document's until cleared; returns a token for clearPreview (a newer
+   * preview of the same instance is not cleared by an older one's owner).
+   */
+  setPreview(instance: InstanceJson): number {
+    const token = ++this.previewTokens;
+    this.previews.set(instance.name, { token, instance });
+    this.signals.previewChanged.dispatch();
+    return token;
+  }
+
+  /** Previews a merge patch of an instance (null removes a key); 0 when there is no such instance. */
+  previewPatch(name: string, patch: Record<string, unknown>): number {
+    const current = this.instances.get(name);
+    if (!current) return 0;
+    const next: InstanceJson = { ...current };
+    for (const [k, v] of Object.entries(patch)) {
+      if (v === null) delete next[k];
+      else next[k] = structuredClone(v);
+    }
+    return this.setPreview(next);
+  }
+
+  clearPreview(name: string, token: number) {
+    if (this.previews.get(name)?.token !== token) return;
+    this.previews.delete(name);
+    this.signals.previewChanged.dispatch();
+  }
+
+  /** The instance as the viewport shows it: its preview, else the document's. */
+  displayInstance(name: string): InstanceJson | undefined {
+    return this.previews.get(name)?.instance ?? this.instances.get(name);
+  }
+
+  // ------------------------------------------------------------- issues ---
+
+  private setIssue(name: string, reason: string | null) {
+    const had = this.issues.get(name) ?? null;
+    if (had === reason) return;
+    if (reason === null) this.issues.delete(name);
+    else this.issues.set(name, reason);
+    this.signals.issuesChanged.dispatch(this.issues);
+  }
+
+  /**
+   * An instance steers no liquid if, in the first frames it is active, its
+   * box holds none of its phase: control reached no particle and the
+   * occupancy overlap is zero.
+   */
+  private checkIssues(f: FrameInfo) {
+    const fr = this.frameRate();
+    const window = Math.max(3, Math.round(0.1 * fr));
+    for (let k = 0; k < f.instanceCount; k++) {
+      const rec = f.instances[k]!;
+      if (!rec.active) continue;
+      const inst = this.instances.get(rec.name);
+      if (!inst) continue;
+      const startFrame = Math.round((inst.start ?? 0) * fr);
+      const since = f.frame - startFrame;
+      if (since < 0 || since > window) continue;
+      const none = rec.controlled === 0 && rec.fidelity <= 0;
+      const phase = inst.phase ?? this.session?.sceneJson?.phases?.[0]?.name ?? 'its phase';
+      this.setIssue(rec.name, none
+        ? `steers no liquid: when it starts (${(inst.start ?? 0).toFixed(3)} s) its box holds no ${phase} liquid. ` +
+          'Move it over the liquid, or start it when liquid is there'
+        : null);
+    }
+  }
+
+  // ----------------------------------------------------------- playhead ---
+
+  /** The frames recorded on the server (valid or stale), as one range. */
+  recordedRange(): [number, number] {
+    return [this.view.historyFirst, Math.max(this.view.historyLast, this.newestLiveFrame)];
+  }
+
+  isRecorded(frame: number): boolean {
+    const [a, b] = this.recordedRange();
+    return frame >= a && frame <= b;
+  }
+
+  /** The last frame the playhead can go to: the scene's end frame, or the newest recorded frame if later. */
+  lastFrame(): number {
+    return Math.max(this.view.endFrame, this.recordedRange()[1]);
+  }
+
+  /** The play range with its end resolved and both ends within [0, lastFrame()]. */
+  rangeFrames(): { start: number; end: number } {
+    const last = this.lastFrame();
+    const end = Math.min(last, Math.max(1, this.playRange.end ?? this.view.endFrame));
+    const start = Math.min(Math.max(0, this.playRange.start), end - 1);
+    return { start: Math.max(0, start), end };
+  }
+
+  setPlayRange(change: Partial<PlayRange>) {
+    Object.assign(this.playRange, change);
+    if (this.playRange.end !== null && this.playRange.end === this.view.endFrame) this.playRange.end = null;
+    this.signals.playRangeChanged.dispatch(this.playRange);
+  }
+
+  setAutoKey(on: boolean) {
+    if (on === this.autoKey) return;
+    this.autoKey = on;
+    this.signals.autoKeyChanged.dispatch(on);
+  }
+
+  /**
+   * Moves the playhead (the user's: scrubbing, keys, Home). A recorded frame
+   * is shown by a seek (one in flight, the latest wins); any other frame in
+   * [0, lastFrame()] is shown without the server: the viewport draws the
+   * instances there from the tracks.
+   */
+  setPlayhead(frame: number) {
+    this.stopLoop();
+    this.movePlayhead(frame);
+  }
+
+  private movePlayhead(frame: number) {
+    if (!this.session) return;
+    frame = Math.min(this.lastFrame(), Math.max(0, Math.round(frame)));
+    if (this.isRecorded(frame)) {
+      this.offRecord = false;
+      this.seekWanted = frame;
+      if (!this.seeking) this.seekDone = this.pumpSeeks();
+    } else {
+      this.offRecord = true;
+      this.seekWanted = null;
+    }
+    if (frame !== this.playheadFrame || this.offRecord) {
+      this.playheadFrame = frame;
+      this.signals.playheadChanged.dispatch(this.playheadTime());
+    }
+  }
+
+  private async pumpSeeks() {
+    this.seeking = true;
+    this.signals.playbackChanged.dispatch();
+    let sent: number | null = null;
+    while (this.seekWanted !== null) {
+      const frame = this.seekWanted;
+      this.seekWanted = null;
+      if (frame === sent) continue;
+      const v = this.view;
+      if (sent === null && !v.live && v.shownFrame === frame && this.frameArrived && this.shownFrame === frame) continue; // already shown
+      sent = frame;
+      await this.seekNow(frame);
+    }
+    this.seeking = false;
+    // The last seek's frame is on its way; a refused seek leaves the playhead on the frame the viewport shows.
+    if (!this.offRecord) {
+      const shown = sent !== null && this.view.shownFrame === sent ? sent : this.frameArrived ? this.shownFrame : this.playheadFrame;
+      if (shown !== this.playheadFrame) {
+        this.playheadFrame = shown;
+        this.signals.playheadChanged.dispatch(this.playheadTime());
+      }
+    }
+    this.signals.playbackChanged.dispatch();
+  }
+
+  /** A seek's REST request (not transport(): it must not stop client-side playback). */
+  private async seekNow(frame: number) {
+    const s = this.session;
+    if (!s) return;
+    const seq = this.streamStates;
+    try {
+      const state = await this.api.transport(s.id, 'seek', { frame });
+      if (this.streamStates === seq) this.applyState(state);
+    } catch (e) {
+      this.reportError(e, 'seek');
+    }
+  }
+
+  /** Resolves when no seek is in flight. */
+  seekIdle(): Promise<void> {
+    return this.seekDone;
+  }
+
+  /** The next (+1) or previous (−1) transform key of the selected instance (of every instance when none is selected). */
+  jumpToKey(direction: 1 | -1) {
+    const fr = this.frameRate();
+    const chosen = this.selected ? [this.instances.get(this.selected)] : [...this.instances.values()];
+    const frames = new Set<number>();
+    for (const inst of chosen) for (const k of inst?.transform ?? []) frames.add(Math.round((k.time ?? 0) * fr));
+    const sorted = [...frames].filter((f) => f >= 0 && f <= this.lastFrame()).sort((a, b) => a - b);
+    const at = this.playheadFrame;
+    const target = direction > 0 ? sorted.find((f) => f > at) : [...sorted].reverse().find((f) => f < at);
+    if (target === undefined) {
+      this.message('info', `no ${direction > 0 ? 'next' : 'previous'} key${this.selected ? ` of ${this.selected}` : ''}`);
+      return;
+    }
+    this.setPlayhead(target);
+  }
+
+  // ----------------------------------------------------------- playback ---
+
+  /** Playing: the server simulates or replays, or the client loops over recorded frames. */
+  isPlaying(): boolean {
+    return this.view.status === 'playing' || this.view.status === 'stepping' || this.loopTimer !== null;
+  }
+
+  get looping(): boolean {
+    return this.loopTimer !== null;
+  }
+
+  /**
+   * Plays from the playhead to the play range's end (from its start when the
+   * playhead is outside it), where playback stops, or loops: over recorded
+   * frames the client seeks them at the scene's frame rate; what is not
+   * recorded yet is simulated first (the server stops at the end).
+   */
+  async play() {
+    if (!this.session) {
+      this.message('warning', 'open a scene first');
+      return;
+    }
+    const { start, end } = this.rangeFrames();
+    if (this.playheadFrame >= end || this.playheadFrame < start) {
+      this.setPlayhead(start);
+      await this.seekIdle();
+    }
+    const [, last] = this.recordedRange();
+    if (this.playRange.loop && end <= last && this.isRecorded(start)) {
+      this.startLoop();
+      return;
+    }
+    if (this.supportsUntil) {
+      this.playUntil = end;
+      await this.transport('play', { until: end });
+      return;
+    }
+    // A server without `until`: step exactly the frames up to the end (a replayed range is played by the loop).
+    const frames = end - this.view.frame;
+    if (frames <= 0) {
+      this.setPlayhead(end);
+      return;
+    }
+    await this.transport('step', { frames });
+    this.playUntil = end;
+  }
+
+  async pause() {
+    const wasLooping = this.loopTimer !== null;
+    this.stopLoop();
+    this.playUntil = null;
+    const v = this.view;
+    if (v.status === 'playing' || v.status === 'stepping') await this.transport('pause');
+    else if (wasLooping) this.signals.sessionView.dispatch(this.view);
+  }
+
+  togglePlay(): Promise<void> {
+    return this.isPlaying() ? this.pause() : this.play();
+  }
+
+  private startLoop() {
+    this.stopLoop();
+    const fr = this.frameRate();
+    this.loopOrigin = { at: performance.now(), frame: this.playheadFrame };
+    // Real time: a slow seek skips frames rather than slowing the loop down.
+    this.loopTimer = setInterval(() => {
+      if (this.seeking) return;
+      const { start, end } = this.rangeFrames();
+      const length = end - start + 1;
+      const elapsed = Math.floor(((performance.now() - this.loopOrigin.at) / 1000) * fr);
+      const frame = start + ((this.loopOrigin.frame - start + elapsed) % length + length) % length;
+      if (frame !== this.playheadFrame) this.movePlayhead(frame);
+    }, 1000 / fr);
+    this.signals.playbackChanged.dispatch();
+    this.signals.sessionView.dispatch(this.view);
+  }
+
+  private stopLoop() {
+    if (this.loopTimer === null) return;
+    clearInterval(this.loopTimer);
+    this.loopTimer = null;
+    this.signals.playbackChanged.dispatch();
+    this.signals.sessionView.dispatch(this.view);
+  }
+
+  /** A new session: playhead at its start, no client playback, no previews or issues. */
+  private resetPlayback() {
+    this.stopLoop();
+    this.playheadFrame = 0;
+    this.offRecord = false;
+    this.newestLiveFrame = 0;
+    this.frameArrived = false;
+    this.seekWanted = null;
+    this.playUntil = null;
+    this.playRange = { start: 0, end: null, loop: this.playRange.loop };
+    this.previews.clear();
+    if (this.issues.size) {
+      this.issues.clear();
+      this.signals.issuesChanged.dispatch(this.issues);
+    }
+  }
+
+  private onFrame(f: FrameInfo) {
+    this.shownFrame = f.frame;
+    this.frameArrived = true;
+    const running = this.view.status === 'playing' || this.view.status === 'stepping';
+    if (this.view.live || running) this.newestLiveFrame = Math.max(this.newestLiveFrame, f.frame);
+    // Simulating has reached an off-record playhead: follow the frames again.
+    if (this.offRecord && running && f.frame >= this.playheadFrame) this.offRecord = false;
+    // While seeks are in flight the playhead shows the frame asked for (pumpSeeks settles it).
+    if (!this.offRecord && !this.seeking && f.frame !== this.playheadFrame) {
+      this.playheadFrame = f.frame;
+      this.signals.playheadChanged.dispatch(this.playheadTime());
+    }
+    this.checkIssues(f);
+  }
+
+  /** The server stopped at the play's end (`until`, or the steps to it): a looping range plays on from its start. */
+  private statusChanged(before: SessionStatusName, after: SessionStatusName) {
+    if ((before !== 'playing' && before !== 'stepping') || after !== 'paused') return;
+    const until = this.playUntil;
+    this.playUntil = null;
+    if (until !== null && this.playRange.loop && this.view.frame >= until) void this.play();
   }
 
   // ------------------------------------------------------------ history ---
@@ -574,6 +980,9 @@ export class Editor {
   // -------------------------------------------------------------- state ---
 
   private applyState(s: SessionState) {
+    const before = this.view.status;
+    this.supportsUntil = typeof s.end_frame === 'number';
+    const historyFirst = s.history.first ?? 0, historyLast = s.history.last ?? 0;
     this.view = {
       status: s.status,
       frame: s.frame,
@@ -581,11 +990,28 @@ export class Editor {
       shownFrame: s.shown.frame,
       live: s.shown.live,
       playbackSpeed: s.playback_speed,
-      historyFirst: s.history.first ?? 0,
-      historyLast: s.history.last ?? 0,
+      historyFirst,
+      historyLast,
       errorMessage: s.error?.message ?? '',
+      cache: s.cache
+        ? { valid: s.cache.valid ?? [], stale: s.cache.stale ?? [], simulating: s.cache.simulating ?? null, checkpoints: s.cache.checkpoints ?? [], reported: true }
+        : derivedCache(historyFirst, historyLast, s.history.last !== null),
+      endFrame: typeof s.end_frame === 'number' ? s.end_frame : this.sceneEndFrame(),
     };
+    this.afterState(before);
+  }
+
+  private afterState(before: SessionStatusName) {
+    // Frame 0 with nothing after it: a reset (or a new session) cleared the history.
+    if (this.view.frame === 0 && this.view.historyLast === 0) this.newestLiveFrame = 0;
     this.signals.sessionView.dispatch(this.view);
+    if (before !== this.view.status) this.statusChanged(before, this.view.status);
+  }
+
+  /** The scene's duration × frame rate (where playback stops when the server does not say). */
+  sceneEndFrame(): number {
+    const d = this.session?.sceneJson?.['duration'];
+    return Math.max(1, Math.round((typeof d === 'number' && d > 0 ? d : 10) * this.frameRate()));
   }
 
   /** StateChange messages received (REST answers older than the newest are not applied). */
@@ -598,6 +1024,8 @@ export class Editor {
       return;
     }
     const wasError = this.view.status === 'error';
+    const before = this.view.status;
+    const cache = this.view.cache.reported ? this.view.cache : derivedCache(s.historyFirst, s.historyLast, true);
     this.view = {
       status: s.status,
       frame: s.frame,
@@ -608,17 +1036,49 @@ export class Editor {
       historyFirst: s.historyFirst,
       historyLast: s.historyLast,
       errorMessage: s.message,
+      cache,
+      endFrame: this.view.endFrame,
     };
     if (s.status === 'error' && !wasError) this.message('error', `simulation stopped: ${s.message}`);
-    this.signals.sessionView.dispatch(this.view);
+    this.afterState(before);
   }
 }
 
 function emptyView(): SessionView {
   return {
     status: 'paused', frame: 0, time: 0, shownFrame: 0, live: true, playbackSpeed: 0,
-    historyFirst: 0, historyLast: 0, errorMessage: '',
+    historyFirst: 0, historyLast: 0, errorMessage: '', cache: derivedCache(0, 0, false), endFrame: 0,
   };
+}
+
+/** A server without cache ranges: the replay history is all valid. */
+function derivedCache(first: number, last: number, any: boolean): CacheView {
+  return { valid: any ? [[first, last]] : [], stale: [], simulating: null, checkpoints: [], reported: false };
+}
+
+/**
+ * Where a new instance of template `t` goes: its region centred at
+ * `position`, scaled down (uniformly, to 0.01) when the region is larger than
+ * 90 % of the domain, and moved so that its box lies inside the domain.
+ */
+export function fitInDomain(
+  t: TemplateInfo | undefined, domain: { min: number[]; max: number[] } | undefined, position: number[], dim: 2 | 3,
+): { translation: number[]; scale: number } {
+  const r4 = (v: number) => Math.round(v * 1e4) / 1e4;
+  const p = position.slice(0, dim);
+  if (!t?.region_min || !t.region_max || !domain) return { translation: p.map(r4), scale: 1 };
+  let scale = 1;
+  for (let d = 0; d < dim; d++) {
+    const size = (t.region_max[d] ?? 0) - (t.region_min[d] ?? 0), room = (domain.max[d] ?? 0) - (domain.min[d] ?? 0);
+    if (size > 0 && room > 0) scale = Math.min(scale, (0.9 * room) / size);
+  }
+  if (scale < 1) scale = Math.max(0.01, Math.floor(scale * 100) / 100);
+  const translation = p.map((v, d) => {
+    const half = (((t.region_max![d] ?? 0) - (t.region_min![d] ?? 0)) * scale) / 2;
+    const lo = (domain.min[d] ?? 0) + half, hi = (domain.max[d] ?? 0) - half;
+    return r4(lo <= hi ? Math.min(hi, Math.max(lo, v)) : v);
+  });
+  return { translation, scale };
 }
 
 /** `?token=T` in the page's URL (a server started with --token), kept for the tab. */

@@ -168,3 +168,63 @@ export function keyMatrix(k: FullKey, dim: 2 | 3, centre: number[], out: THREE.M
   const c = new THREE.Matrix4().makeTranslation(-centre[0]!, -centre[1]!, dim === 3 ? -centre[2]! : 0);
   return out.multiply(c);
 }
+
+/**
+ * The track after changing the transform at `time` with auto-key off: a track
+ * of at most one key is edited in place; an animated track moves as a whole
+ * (every key gets the change made at `time`: translation and rotation offset,
+ * scale ratio, reflection set), so its motion keeps its shape.
+ */
+export function offsetTrack(
+  track: TransformKey[] | undefined,
+  time: number,
+  dim: 2 | 3,
+  centre: number[],
+  change: (k: FullKey) => void,
+): TransformKey[] {
+  const keys = (track ?? []).map((k) => fullKey(k, dim, centre));
+  if (keys.length <= 1) return editTrackAt(track, time, 0, dim, centre, change);
+  const before = evaluateTrack(track, time, dim, centre);
+  const after: FullKey = structuredClone(before);
+  change(after);
+  const dt = after.translation.map((v, d) => v - before.translation[d]!);
+  const dr = after.rotation.map((v, d) => v - before.rotation[d]!);
+  const ds = after.scale.map((v, d) => (Math.abs(before.scale[d]!) > 1e-12 ? v / before.scale[d]! : 1));
+  const reflectChanged = after.reflect.some((v, d) => v !== before.reflect[d]);
+  const r = (v: number, digits: number) => Number(v.toFixed(digits));
+  for (const k of keys) {
+    k.translation = k.translation.map((v, d) => r(v + dt[d]!, 6));
+    k.rotation = k.rotation.map((v, d) => r(v + dr[d]!, 4));
+    k.scale = k.scale.map((v, d) => Math.max(1e-3, r(v * ds[d]!, 6)));
+    if (reflectChanged) k.reflect = after.reflect.slice();
+  }
+  return keys.map((k) => toWire(k, dim));
+}
+
+/** Auto-key on: the key at the playhead (editTrackAt); off: the whole track (offsetTrack). */
+export function editTrack(
+  track: TransformKey[] | undefined,
+  time: number,
+  tolerance: number,
+  dim: 2 | 3,
+  centre: number[],
+  change: (k: FullKey) => void,
+  autoKey: boolean,
+): TransformKey[] {
+  return autoKey ? editTrackAt(track, time, tolerance, dim, centre, change) : offsetTrack(track, time, dim, centre, change);
+}
+
+/**
+ * The track with key `index` moved to scene time `time`, kept strictly
+ * between its neighbours (at least `gap` s from each) and at or after 0: the
+ * keys keep their order, so a drag moves the same key throughout.
+ */
+export function moveKey(track: TransformKey[], index: number, time: number, gap: number): TransformKey[] {
+  const keys = track.map((k) => ({ ...k }));
+  const k = keys[index];
+  if (!k) return keys;
+  const lo = index > 0 ? (keys[index - 1]!.time ?? 0) + gap : Math.min(0, k.time ?? 0);
+  const hi = index + 1 < keys.length ? (keys[index + 1]!.time ?? 0) - gap : Infinity;
+  k.time = Math.min(hi, Math.max(lo, time));
+  return keys;
+}

@@ -3,7 +3,7 @@
 // or status 0 when the server could not be reached.
 import type {
   EditJson, EditResultJson, InstanceEditResponse, InstanceJson, ParametersJson, PresetsJson, SceneJson, SceneSummary, SessionState, SettingsPatch,
-  TemplateInfo, TemplatePreviewJson, TransportName,
+  TemplateInfo, TemplatePreviewJson, TransportArgs, TransportName,
 } from './types';
 
 export class ApiError extends Error {
@@ -112,7 +112,7 @@ export class Api {
   getSessionScene(id: string) {
     return this.request<SceneJson>('GET', `/api/sessions/${enc(id)}/scene`);
   }
-  transport(id: string, command: TransportName, args: { frames?: number; frame?: number; speed?: number } = {}) {
+  transport(id: string, command: TransportName, args: TransportArgs = {}) {
     return this.request<SessionState>('POST', `/api/sessions/${enc(id)}/transport`, { command, ...args });
   }
   listInstances(id: string) {

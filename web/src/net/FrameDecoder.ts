@@ -128,7 +128,7 @@ export class FrameDecoder {
   target: ParticleTarget = new ArrayParticleTarget();
   /** Boundary particles (kind 2 at the end of Frame.particles; Layer.Boundary). */
   boundaryTarget: ParticleTarget = new ArrayParticleTarget();
-  /** Control particles, coloured by α: green (α≈0, covered) → black (α≈1, uncovered). */
+  /** Control particles, coloured by α: green (α≈0, covered) → magenta (α≈1, uncovered), both visible on the dark background. */
   controlTarget: ParticleTarget = new ArrayParticleTarget();
   /** Repulsion particles (red). */
   repulsionTarget: ParticleTarget = new ArrayParticleTarget();
@@ -160,6 +160,7 @@ export class FrameDecoder {
   readonly temporaryColor = new Float32Array(3);
   readonly boundaryColor = new Float32Array(3);
   readonly controlColor = new Float32Array([0.2, 0.85, 0.3]);
+  readonly uncoveredColor = new Float32Array([1.0, 0.35, 0.9]);
   readonly repulsionColor = new Float32Array([1.0, 0.2, 0.2]);
   /**
    * Colour liquid particles by speed (frames that carry Layer.Speed): a ramp
@@ -262,13 +263,13 @@ export class FrameDecoder {
       const alpha = ctl!.alphaArray();
       const c = this.controlTarget.reserve(nc);
       this.dequantize(cpts, nc, dim, 0, nc, c.positions, `frame ${info.frame}: control`);
-      const g = this.controlColor;
+      const g = this.controlColor, u = this.uncoveredColor;
       const haveAlpha = alpha !== null && alpha.length >= nc;
       for (let i = 0, o = 0; i < nc; i++, o += 3) {
-        const k = haveAlpha ? 1 - alpha![i]! / 255 : 1; // α = 0 (covered): green; α = 1: black
-        c.colors[o] = g[0]! * k;
-        c.colors[o + 1] = g[1]! * k;
-        c.colors[o + 2] = g[2]! * k;
+        const a = haveAlpha ? alpha![i]! / 255 : 0; // α = 0 (covered): green; α = 1: magenta
+        c.colors[o] = g[0]! + (u[0]! - g[0]!) * a;
+        c.colors[o + 1] = g[1]! + (u[1]! - g[1]!) * a;
+        c.colors[o + 2] = g[2]! + (u[2]! - g[2]!) * a;
       }
     }
     const rpts = info.layers & Layer.Repulsion ? frame.repulsion(this.points) : null;

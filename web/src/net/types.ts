@@ -7,6 +7,8 @@ export interface SceneSummary {
   dimension: 2 | 3 | null;
   instances: number;
   error?: string;
+  /** Templates its instances name that the server's database lacks. */
+  missing_templates?: string[];
 }
 
 export interface TemplateInfo {
@@ -51,6 +53,17 @@ export interface SessionState {
   computing?: boolean;
   memory: Record<string, number>;
   error?: { message: string; frame: number };
+  /** Recorded frames against the current scene (inclusive ranges); absent from servers without re-simulation. */
+  cache?: {
+    valid: [number, number][];
+    stale: [number, number][];
+    simulating: { from: number; to: number; frame: number } | null;
+    checkpoints?: number[];
+    checkpoint_every?: number;
+    checkpoint_bytes?: number;
+  };
+  /** Where playback stops: the scene's duration × frame rate. */
+  end_frame?: number;
 }
 
 export interface TransformKey {
@@ -106,6 +119,14 @@ export interface SceneJson {
 }
 
 export type TransportName = 'play' | 'pause' | 'step' | 'reset' | 'seek' | 'speed';
+
+export interface TransportArgs {
+  frames?: number;
+  frame?: number;
+  speed?: number;
+  /** play: the frame to stop at. */
+  until?: number;
+}
 
 /** One parameter's declaration (GET /api/parameters): the server's ParamSpec. */
 export interface ParamSpecJson {

@@ -1,5 +1,8 @@
 // The inspector (right panel): the selected instance's transform at the
-// playhead (with keyframes added and removed there), its time map (start,
+// playhead, rounded (0.1 mm, 0.01°, 1e-4), marked keyed (a key is at the
+// playhead) or animated (interpolated between keys), with keyframes added
+// and removed there; an edit keys it (auto-key on) or moves an animated
+// track as a whole (off); a warning when it steers no liquid; its time map (start,
 // crop, speed, reverse), its phase and its control parameters; below, the
 // scene's solver, simulation and control settings. Parameter fields are
 // built from the server's declarations (GET /api/parameters: name, unit,
@@ -9,7 +12,7 @@ import type { Editor } from '../core/Editor';
 import { SetInstanceTransformCommand } from '../commands/SetInstanceTransformCommand';
 import { SetInstanceValueCommand } from '../commands/SetInstanceValueCommand';
 import { SetSceneSettingsCommand } from '../commands/SetSceneSettingsCommand';
-import { addKeyAt, editTrackAt, evaluateTrack, keyIndexAt, removeKeyAt, type FullKey } from '../core/TransformTrack';
+import { addKeyAt, editTrack, evaluateTrack, keyIndexAt, removeKeyAt, type FullKey } from '../core/TransformTrack';
 import type { AccuracyPresetJson, InstanceJson, ParametersJson, ParamSpecJson, SettingsPatch, TransformKey } from '../net/types';
 import { el } from './dom';
 import { checkboxField, formatNumber, numberField, paramField, selectField, type Field } from './fields';
@@ -50,6 +53,7 @@ export class Inspector {
   private readonly instanceBox: HTMLElement;
   private readonly sceneBox: HTMLElement;
   private readonly header: HTMLElement;
+  private readonly warning: HTMLElement;
   private readonly keyInfo: HTMLElement;
   private readonly addKey: HTMLButtonElement;
   private readonly removeKey: HTMLButtonElement;
@@ -65,6 +69,7 @@ export class Inspector {
   constructor(private readonly editor: Editor) {
     this.header = el('div', { className: 'inspector-header', testid: 'inspector-header' });
     this.keyInfo = el('span', { className: 'key-info', testid: 'inspector-key-info' });
+    this.warning = el('div', { className: 'inspector-warning', testid: 'inspector-warning' });
     this.addKey = el('button', { text: '◆ key', testid: 'inspector-add-key', title: 'Add a keyframe at the playhead holding the transform there', attrs: { type: 'button' } });
     this.removeKey = el('button', { text: '◇ key', testid: 'inspector-remove-key', title: 'Remove the keyframe at the playhead', attrs: { type: 'button' } });
     this.addKey.addEventListener('click', () => this.keyAtPlayhead(true));
@@ -84,6 +89,8 @@ export class Inspector {
     editor.signals.selectionChanged.add(() => this.update());
     editor.signals.instancesChanged.add(() => this.update());
     editor.signals.playheadChanged.add(() => this.update()); // the transform at the playhead
+    editor.signals.issuesChanged.add(() => this.update());
+    editor.signals.autoKeyChanged.add(() => this.update());
     editor.signals.presetsChanged.add(() => {
       this.buildSceneFields();
       this.update();
@@ -167,6 +174,7 @@ export class Inspector {
 
     this.instanceBox.replaceChildren(
       this.header,
+      this.warning,
       el('h3', { text: 'Transform at the playhead' }),
       transform,
       el('h3', { text: 'Time' }),
@@ -201,13 +209,25 @@ export class Inspector {
     const info = e.templateInfo(inst.template);
     this.header.textContent = `${inst.name} · ${inst.template}${info?.duration !== undefined ? ` (${formatNumber(info.duration)} s)` : ''}`;
     this.header.dataset['value'] = inst.name;
+    const issue = e.issues.get(inst.name) ?? null;
+    this.warning.hidden = issue === null;
+    this.warning.textContent = issue ? `⚠ ${inst.name} ${issue}` : '';
     const k = evaluateTrack(inst.transform, t, dim, centre);
-    for (const what of ['translation', 'rotation', 'scale'] as const)
-      k[what].forEach((v, d) => this.fields.get(`transform.${what}.${d}`)?.show(v));
-    k.reflect.forEach((v, d) => this.fields.get(`transform.reflect.${d}`)?.show(v));
     const keys = inst.transform ?? [];
     const at = keyIndexAt(keys, t, this.tolerance());
-    this.keyInfo.textContent = `t = ${t.toFixed(3)} s · ${keys.length} key${keys.length === 1 ? '' : 's'}${at >= 0 ? ' · ◆ here' : ''}`;
+    // Keyed: the value of the key here; animated: interpolated between keys (Blender's yellow and green).
+    const state = keys.length > 1 ? (at >= 0 ? 'keyed' : 'animated') : '';
+    const digits = { translation: 4, rotation: 2, scale: 4 } as const;
+    for (const what of ['translation', 'rotation', 'scale'] as const)
+      k[what].forEach((v, d) => {
+        const f = this.fields.get(`transform.${what}.${d}`);
+        if (!f) return;
+        f.show(Number(v.toFixed(digits[what])));
+        f.row.dataset['state'] = state;
+      });
+    k.reflect.forEach((v, d) => this.fields.get(`transform.reflect.${d}`)?.show(v));
+    this.keyInfo.textContent = `frame ${e.playheadFrame} · ${keys.length} key${keys.length === 1 ? '' : 's'}${at >= 0 ? ' · ◆ here' : keys.length > 1 ? ' · interpolated' : ''}` +
+      `${keys.length > 1 && !e.autoKey ? ' · auto-key off: edits move the whole track' : ''}`;
     this.keyInfo.dataset['keys'] = String(keys.length);
     this.keyInfo.dataset['here'] = String(at >= 0);
     this.removeKey.disabled = at < 0;
@@ -235,7 +255,8 @@ export class Inspector {
     const e = this.editor, time = e.playheadTime(), tol = this.tolerance(), dim = this.dim();
     const centre = e.templateCentre(inst.template);
     // Built from the track as it is when the command runs (edits in flight land first).
-    const edit = (track: TransformKey[]) => editTrackAt(track, time, tol, dim, centre, change);
+    const autoKey = e.autoKey;
+    const edit = (track: TransformKey[]) => editTrack(track, time, tol, dim, centre, change, autoKey);
     return e.execute(new SetInstanceTransformCommand(e, inst.name, edit)).then(() => this.update());
   }
 

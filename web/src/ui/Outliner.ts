@@ -1,6 +1,7 @@
 // The outliner (right panel, top): the scene's instances in scene order with
-// their template and whether they play at the frame shown; click selects,
-// ✕ removes (an undoable command).
+// their template and whether they play at the frame shown, ⚠ on one that
+// steers no liquid (the title says why); click selects, ✕ removes (an
+// undoable command).
 import type { Editor } from '../core/Editor';
 import { RemoveInstanceCommand } from '../commands/RemoveInstanceCommand';
 import type { FrameInfo } from '../net/FrameDecoder';
@@ -16,6 +17,7 @@ export class Outliner {
     this.dom = el('section', { className: 'panel outliner', testid: 'outliner' }, [el('h2', { text: 'Instances' }), this.list]);
     editor.signals.instancesChanged.add(() => this.render());
     editor.signals.selectionChanged.add(() => this.render());
+    editor.signals.issuesChanged.add(() => this.render());
     editor.signals.frameDecoded.add((f) => this.onFrame(f));
     this.render();
   }
@@ -48,13 +50,15 @@ export class Outliner {
         void e.execute(new RemoveInstanceCommand(e, inst.name));
       });
       const active = this.active.has(inst.name);
+      const issue = e.issues.get(inst.name);
       const item = el('div', {
-        className: `outliner-item${inst.name === e.selected ? ' selected' : ''}`,
+        className: `outliner-item${inst.name === e.selected ? ' selected' : ''}${issue ? ' warning' : ''}`,
         testid: `outliner-item-${inst.name}`,
-        title: active ? 'playing at the frame shown' : 'not playing at the frame shown',
+        title: `${active ? 'playing at the frame shown' : 'not playing at the frame shown'}${issue ? `\n⚠ ${inst.name} ${issue}` : ''}`,
       }, [
         el('span', { className: `dot${active ? ' active' : ''}` }),
         el('span', { className: 'outliner-name', text: inst.name }),
+        ...(issue ? [el('span', { className: 'outliner-warning', testid: `outliner-warning-${inst.name}`, text: '⚠', title: `${inst.name} ${issue}` })] : []),
         el('span', { className: 'outliner-template', text: inst.template }),
         remove,
       ]);

@@ -1,5 +1,6 @@
-// Viewport overlays: the layer toggles (top left) and the stats overlay
-// (bottom left). Values are also in data-value attributes (tests read them).
+// The layer toggles (a viewport overlay, top left) and the stats panel (in
+// the left sidebar, off the viewport so that it never covers the liquid).
+// Values are also in data-value attributes (tests read them).
 import type { Editor, LayerToggles } from '../core/Editor';
 import type { FrameInfo } from '../net/FrameDecoder';
 import { el } from './dom';
@@ -20,7 +21,7 @@ export class LayerPanel {
     };
     this.dom = el('div', { className: 'overlay layers', testid: 'layers' }, [
       box('liquid', 'liquid', '#73b3ff', 'Liquid and temporary particles'),
-      box('control', 'control', 'linear-gradient(90deg, #33d94d, #000)', 'Control particles: green α≈0 (covered by liquid) → black α≈1 (uncovered)'),
+      box('control', 'control', 'linear-gradient(90deg, #33d94d, #ff59e6)', 'Control particles: green α≈0 (covered by liquid) → magenta α≈1 (uncovered)'),
       box('repulsion', 'repulsion', '#ff3333', 'Repulsion particles'),
       box('boundary', 'boundary', '#8c8c99', 'Boundary (wall and obstacle) particles'),
       box('speed', 'by speed', 'linear-gradient(90deg, #0d1f73, #73b3ff, #fff)', 'Colour the liquid by speed: dark blue at rest → white at the fastest (temporary particles stay orange)'),
@@ -28,14 +29,16 @@ export class LayerPanel {
   }
 }
 
-/** Simulation timings and rate, particle counts by kind, fidelity per instance, server memory. */
+const RATE_WINDOW_MS = 2000;
+
+/** Simulation timings, the rate frames arrive at, particle counts by kind, fidelity per instance, server memory. */
 export class StatsOverlay {
   readonly dom: HTMLElement;
   private readonly fields: Record<string, HTMLElement> = {};
   private readonly fidelityList: HTMLElement;
-  private lastFrame = -1;
-  private lastArrival = 0;
-  private fps = 0;
+  /** Wall times (ms) of the frames that arrived in the last RATE_WINDOW_MS. */
+  private arrivals: number[] = [];
+  private idleTimer: ReturnType<typeof setTimeout> | null = null;
 
   constructor(editor: Editor) {
     const row = (id: string, label: string, title: string) => {
@@ -44,10 +47,11 @@ export class StatsOverlay {
       return el('div', { className: 'row', title }, [el('span', { className: 'label', text: label }), value]);
     };
     this.fidelityList = el('div', { className: 'fidelity', testid: 'stats-fidelity' });
-    this.dom = el('div', { className: 'overlay stats', testid: 'stats' }, [
+    this.dom = el('section', { className: 'panel stats', testid: 'stats' }, [
+      el('h2', { text: 'Simulation' }),
       row('sim-ms', 'sim ms/frame', 'Wall time of the frame on the server (control included)'),
       row('control-ms', 'control ms', 'Template control part of it'),
-      row('fps', 'sim frames/s', 'Simulated frames per wall second (successive frames\' arrival; 1000 / ms per frame for a single frame)'),
+      row('fps', 'frames/s', 'Frames arriving per wall second (over the last 2 s; the stream sends at most 30 per second)'),
       row('liquid', 'liquid', 'Liquid particles (temporary ones excluded)'),
       row('temporary', 'temporary', 'Temporary particles seeded by template control'),
       row('boundary', 'boundary', 'Boundary particles'),
@@ -57,26 +61,37 @@ export class StatsOverlay {
     editor.signals.frameDecoded.add((f) => this.onFrame(f));
     editor.signals.serverMemory.add((mb) => this.set('memory', mb.toFixed(0), String(mb)));
     editor.signals.sessionChanged.add(() => {
-      this.lastFrame = -1;
-      this.fps = 0;
+      this.arrivals = [];
       for (const k of Object.keys(this.fields)) if (k !== 'memory') this.set(k, '–', '');
       this.fidelityList.replaceChildren();
     });
   }
 
+  /** Frames per second over the arrivals still in the window (0 with fewer than two). */
+  private rate(now: number): number {
+    this.arrivals = this.arrivals.filter((t) => now - t <= RATE_WINDOW_MS);
+    const a = this.arrivals;
+    if (a.length < 2) return 0;
+    return ((a.length - 1) * 1000) / Math.max(1, a[a.length - 1]! - a[0]!);
+  }
+
+  private showRate() {
+    const fps = this.rate(performance.now());
+    this.set('fps', fps > 0 ? fps.toFixed(1) : '–', String(fps));
+  }
+
   private onFrame(f: FrameInfo) {
     const now = performance.now();
-    if (this.lastFrame >= 0 && f.frame === this.lastFrame + 1 && now > this.lastArrival) {
-      const rate = 1000 / (now - this.lastArrival);
-      this.fps = this.fps > 0 ? 0.8 * this.fps + 0.2 * rate : rate; // smoothed
-    } else if (f.frame !== this.lastFrame) {
-      this.fps = f.wallMs > 0 ? 1000 / f.wallMs : 0;
-    }
-    this.lastFrame = f.frame;
-    this.lastArrival = now;
+    this.arrivals.push(now);
+    this.showRate();
+    // Frames stopped: the readout falls to – once the window is empty (one timer, no loop).
+    if (this.idleTimer) clearTimeout(this.idleTimer);
+    this.idleTimer = setTimeout(() => {
+      this.idleTimer = null;
+      this.showRate();
+    }, RATE_WINDOW_MS + 50);
     this.set('sim-ms', f.wallMs.toFixed(1), String(f.wallMs));
     this.set('control-ms', f.controlMs.toFixed(1), String(f.controlMs));
-    this.set('fps', this.fps.toFixed(1), String(this.fps));
     this.set('liquid', f.liquid.toLocaleString('en-US'), String(f.liquid));
     this.set('temporary', f.temporary.toLocaleString('en-US'), String(f.temporary));
     this.set('boundary', f.boundary.toLocaleString('en-US'), String(f.boundary));

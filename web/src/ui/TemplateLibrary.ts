@@ -34,9 +34,18 @@ export class TemplateLibrary {
   private render(templates: TemplateInfo[]) {
     const dim = this.editor.session?.dimension ?? null;
     this.list.replaceChildren();
-    if (templates.length === 0) {
-      this.list.append(el('div', { className: 'empty', text: 'No templates on the server' }));
-      return;
+    // None of the open scene's dimension: say how to get one (templates are recorded from recipes).
+    const usable = templates.filter((t) => !t.error && (dim === null || t.dimension === dim));
+    if (usable.length === 0) {
+      const what = dim === null ? 'No templates on the server.' : `No ${dim}D template on the server.`;
+      const hint = el('div', { className: 'empty library-hint', testid: 'library-empty' }, [
+        `${what} Record one from a recipe on the server machine, e.g. `,
+        el('code', { text: `flowclip record templates/recipes/${dim === 3 ? 'hand3d' : 'drop2d'}.json` }),
+        ' (the recipes are in templates/recipes/), then ',
+        el('button', { text: '⟳ re-read', attrs: { type: 'button' }, title: 'Re-read the template database' }),
+      ]);
+      hint.querySelector('button')!.addEventListener('click', () => void this.editor.loadTemplates());
+      this.list.append(hint);
     }
     for (const t of templates) this.list.append(this.item(t, dim));
   }

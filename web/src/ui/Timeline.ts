@@ -1,23 +1,30 @@
-// The timeline (under the viewport): a ruler in scene seconds with the
-// simulated range (the server's replay history) shaded and a playhead at the
-// frame shown, and one track per instance (scene order) over the scene time
-// it is active. Tracks select their instance, move (body) and crop (ends);
-// the ruler scrubs through the history (seek). Wheel zooms around the
-// cursor, Shift+wheel or dragging the empty background pans.
+// The timeline (under the viewport), laid out like a DCC's: a ruler in
+// frames or seconds (a toggle) with frame-aligned ticks, the play range's
+// start and end markers and the scene's end; under it the cache bar (frames
+// recorded and valid, stale after an edit, being re-simulated); a playhead
+// that goes anywhere in [0, end frame]; and one track per instance (scene
+// order) over the scene time it is active, with its transform keys as
+// diamonds. Tracks select their instance, move (body) and crop (ends); a
+// key diamond drags in time; the ruler scrubs (recorded frames are seeks,
+// others are drawn by the client). Wheel zooms around the cursor,
+// Shift+wheel or dragging the empty background pans.
 //
 // It listens to the hub's signals and acts only through it: edits are
-// SetInstanceValuesCommands (one history entry per drag), scrubbing is
-// editor.transport('seek'). It renders on demand (one animation frame after
+// Commands (one history entry per drag), the playhead is
+// editor.setPlayhead. It renders on demand (one animation frame after
 // something changed), never in a loop. Plain DOM: tests find the parts by
 // data-testid and read data-* values.
 import './timeline.css';
 import type { Editor } from '../core/Editor';
 import type { InstanceJson, TemplateInfo } from '../net/types';
 import { SetInstanceValuesCommand, type InstanceValues } from '../commands/SetInstanceValuesCommand';
+import { SetInstanceTransformCommand } from '../commands/SetInstanceTransformCommand';
+import { moveKey } from '../core/TransformTrack';
+import type { TransformKey } from '../net/types';
 import { el } from './dom';
-import { dragValues, keysOf, sceneEnd, tickStep, timingOf, withValues, type DragPart, type Timing } from './TimelineModel';
+import { dragValues, frameTickStep, keysOf, sceneEnd, timingOf, withValues, type DragPart, type Timing } from './TimelineModel';
 
-const RULER_HEIGHT = 22;
+export type TimeUnits = 'frames' | 'seconds';
 /** Pixels a pointer moves before a press becomes a drag (a click selects only). */
 const DRAG_THRESHOLD_PX = 3;
 const MIN_PX_PER_SECOND = 4;
@@ -48,7 +55,31 @@ type Drag =
       dragId: string;
     }
   | { kind: 'pan'; pointerId: number; x0: number; viewStart0: number; moved: boolean }
-  | { kind: 'scrub'; pointerId: number };
+  | { kind: 'scrub'; pointerId: number }
+  | { kind: 'range'; end: 'start' | 'end'; pointerId: number }
+  | {
+      kind: 'key';
+      pointerId: number;
+      instance: string;
+      index: number;
+      x0: number;
+      moved: boolean;
+      /** The track when the drag began (every command of the drag is built from it). */
+      track0: TransformKey[];
+      time0: number;
+      dragId: string;
+    };
+
+/** A key drag on its way to the server: the diamond shows `time` at once; at most one PATCH in flight. */
+interface KeyFlight {
+  instance: string;
+  index: number;
+  time: number;
+  dragId: string;
+  pending: TransformKey[] | null;
+  running: boolean;
+  released: boolean;
+}
 
 /** An edit drag's values on their way to the server: at most one PATCH in flight, the latest values win. */
 interface EditFlight {
@@ -76,11 +107,21 @@ export class Timeline {
   private readonly ruler: HTMLElement;
   private readonly ticks: HTMLElement;
   private readonly simulated: HTMLElement;
+  private readonly cache: HTMLElement;
+  private readonly rangeStart: HTMLElement;
+  private readonly rangeEnd: HTMLElement;
+  private readonly outsideBefore: HTMLElement;
+  private readonly outsideAfter: HTMLElement;
+  private readonly endMark: HTMLElement;
   private readonly tracks: HTMLElement;
   private readonly playhead: HTMLElement;
   private readonly readout: HTMLElement;
   private readonly hint: HTMLElement;
+  private readonly unitsButton: HTMLButtonElement;
+  private readonly loopButton: HTMLButtonElement;
+  private readonly autoKeyButton: HTMLButtonElement;
   private readonly trackDoms = new Map<string, TrackDom>();
+  private units: TimeUnits = readUnits();
 
   /** Scene time at the left edge, s, and the zoom. */
   private viewStart = 0;
@@ -89,28 +130,11 @@ export class Timeline {
   private fitPending = true;
   private width = 0;
 
-  /**
-   * The playhead: the frame the viewport shows. The decoded frames are the
-   * truth (a REST answer can arrive after the stream's newer frames and state,
-   * e.g. a step's answer after the stepped frame); the session view gives it
-   * until the session's first frame arrives, and the pointer while scrubbing.
-   */
-  private shownFrame = 0;
-  private frameArrived = false;
-  /** Live or replay, and the replay history's range, from REST and StateChange. */
-  private live = true;
-  private historyFirst = 0;
-  private historyLast = 0;
-  /** The newest live frame decoded (the history reaches it even if a late REST answer says less). */
-  private newestLiveFrame = 0;
-
   private drag: Drag | null = null;
   private flight: EditFlight | null = null;
-  /** Scrubbing: the frame to seek next (latest wins) while one seek is in flight. */
-  private seekWanted: number | null = null;
-  /** The frame the pointer last asked for (the playhead shows it until the seeks are answered). */
-  private scrubFrame: number | null = null;
-  private seeking = false;
+  private keyFlight: KeyFlight | null = null;
+  /** The recorded range last drawn (a frame growing it redraws the bars only). */
+  private drawnRecorded = '';
 
   private templatesListed = false;
   private renderScheduled = false;
@@ -123,20 +147,49 @@ export class Timeline {
     this.ticks = el('div', { className: 'ticks' });
     this.simulated = el('div', {
       className: 'simulated', testid: 'timeline-simulated',
-      title: 'Simulated range (the replay history on the server): drag here to scrub',
+      title: 'Recorded frames (the replay history on the server): drag here to scrub',
+    });
+    this.rangeStart = el('div', { className: 'range-mark start', testid: 'timeline-range-start', attrs: { 'data-range': 'start' }, title: 'Play range start: drag to move' });
+    this.rangeEnd = el('div', { className: 'range-mark end', testid: 'timeline-range-end', attrs: { 'data-range': 'end' }, title: 'Play range end (playback stops or loops here): drag to move' });
+    this.endMark = el('div', { className: 'scene-end', testid: 'timeline-scene-end', title: "The scene's end (its duration)" });
+    this.cache = el('div', {
+      className: 'cache', testid: 'timeline-cache',
+      title: 'Cache: blue frames are recorded and valid, orange ones are stale (an edit changed them; re-simulated by the server), the striped part is being simulated',
     });
     this.readout = el('span', { className: 'readout', testid: 'timeline-readout' });
-    const fit = el('button', { className: 'fit', testid: 'timeline-fit', text: 'fit', title: 'Fit the view to the instances and the simulated range', attrs: { type: 'button' } });
-    fit.addEventListener('click', () => this.fitView());
+    const button = (testid: string, text: string, title: string, onClick: () => void) => {
+      const b = el('button', { testid, text, title, attrs: { type: 'button' } });
+      b.addEventListener('click', onClick);
+      return b;
+    };
+    const fit = button('timeline-fit', 'fit', 'Fit the view to the scene, the instances and the recorded frames', () => this.fitView());
+    fit.classList.add('fit');
+    this.unitsButton = button('timeline-units', '', 'Ruler and readout in frames or in seconds', () => {
+      this.units = this.units === 'frames' ? 'seconds' : 'frames';
+      try {
+        localStorage.setItem('flowclip-time-units', this.units);
+      } catch {
+        // Storage refused (private mode): the toggle still works for this page.
+      }
+      this.requestRender();
+    });
+    this.loopButton = button('timeline-loop', '⟲', 'Loop the play range (off: playback stops at its end)', () =>
+      editor.setPlayRange({ loop: !editor.playRange.loop }));
+    this.autoKeyButton = button('timeline-autokey', '●', '', () => editor.setAutoKey(!editor.autoKey));
+    const prevKey = button('timeline-prev-key', '◆◀', 'Previous key (Down arrow): of the selected instance, else of any', () => editor.jumpToKey(-1));
+    const nextKey = button('timeline-next-key', '▶◆', 'Next key (Up arrow): of the selected instance, else of any', () => editor.jumpToKey(1));
     this.ruler = el('div', {
       className: 'ruler', testid: 'timeline-ruler',
-      title: 'Scene time, s. Press or drag to show a recorded frame (seek); the newest frame is live',
-    }, [this.simulated, this.ticks]);
+      title: 'Press or drag to move the playhead: a recorded frame is shown from the server, any other from the tracks',
+    }, [this.simulated, this.ticks, this.endMark, this.rangeStart, this.rangeEnd]);
     this.tracks = el('div', { className: 'tracks', testid: 'timeline-tracks' });
+    this.outsideBefore = el('div', { className: 'outside-range' });
+    this.outsideAfter = el('div', { className: 'outside-range' });
     this.hint = el('div', { className: 'hint', text: 'open a scene to see its instances' });
     this.playhead = el('div', { className: 'playhead', testid: 'timeline-playhead', attrs: { 'data-value': '0' } });
     this.dom = el('div', { className: 'timeline', testid: 'timeline', attrs: { 'data-pending': 'false' } }, [
-      this.ruler, this.tracks, this.hint, this.playhead, el('div', { className: 'corner' }, [this.readout, fit]),
+      this.ruler, this.cache, this.tracks, this.outsideBefore, this.outsideAfter, this.hint, this.playhead,
+      el('div', { className: 'corner' }, [this.readout, prevKey, nextKey, this.autoKeyButton, this.loopButton, this.unitsButton, fit]),
     ]);
 
     this.dom.addEventListener('pointerdown', (e) => this.onPointerDown(e));
@@ -157,43 +210,32 @@ export class Timeline {
     s.sessionChanged.add((info) => {
       this.drag = null;
       this.flight = null;
-      this.seekWanted = null;
-      this.frameArrived = false;
-      this.newestLiveFrame = 0;
+      this.keyFlight = null;
       this.updatePending();
       this.fitPending = info !== null;
-      this.readView();
       this.requestRender();
     });
-    s.sessionView.add(() => {
-      this.readView();
-      this.requestRender();
-    });
-    s.frameDecoded.add((f) => {
-      // StateChange messages come with status changes only: while playing,
-      // the frames themselves move the playhead and grow the history.
-      if (f.sessionId !== this.editor.session?.id) return;
-      this.frameArrived = true;
-      if (this.live) this.newestLiveFrame = Math.max(this.newestLiveFrame, f.frame);
-      const last = Math.max(this.historyLast, this.newestLiveFrame);
-      const shown = this.seeking && this.scrubFrame !== null ? this.scrubFrame : f.frame;
-      if (shown === this.shownFrame && last === this.historyLast) return;
-      this.shownFrame = shown;
-      this.historyLast = last;
+    s.sessionView.add(() => this.requestRender());
+    s.issuesChanged.add(() => this.requestRender());
+    s.playRangeChanged.add(() => this.requestRender());
+    s.autoKeyChanged.add(() => this.requestRender());
+    s.playbackChanged.add(() => {
+      this.updatePending();
       this.requestRender('playhead');
+    });
+    s.playheadChanged.add(() => this.requestRender('playhead'));
+    s.frameDecoded.add((f) => {
+      // While playing, StateChange messages are rare: the frames grow the recorded range.
+      if (f.sessionId !== this.editor.session?.id) return;
+      if (this.recordedKey() !== this.drawnRecorded) this.requestRender('playhead');
     });
   }
 
   // -------------------------------------------------------------- state ---
 
-  private readView() {
-    const v = this.editor.view;
-    if (!this.frameArrived) this.shownFrame = v.shownFrame;
-    this.live = v.live;
-    // Frame 0 with nothing after it: a reset (or a new session) cleared the history.
-    if (v.frame === 0 && v.historyLast === 0) this.newestLiveFrame = 0;
-    this.historyFirst = v.historyFirst;
-    this.historyLast = Math.max(v.historyLast, this.newestLiveFrame);
+  private recordedKey(): string {
+    const [a, b] = this.editor.recordedRange();
+    return `${a}:${b}`;
   }
 
   private sceneFrameRate(): number {
@@ -224,7 +266,7 @@ export class Timeline {
 
   /** 0 to the latest of the instances' ends, the simulated time and the scene's duration, plus a margin. */
   private fitView() {
-    let end = this.historyLast / this.sceneFrameRate();
+    let end = this.editor.lastFrame() / this.sceneFrameRate();
     const sceneDuration = this.editor.session?.sceneJson?.['duration'];
     if (typeof sceneDuration === 'number' && sceneDuration > 0) end = Math.max(end, sceneDuration);
     for (const inst of this.editor.instances.values()) {
@@ -276,7 +318,14 @@ export class Timeline {
     if (target.closest('.corner')) return; // the fit button
     const session = this.editor.session;
     const part = target.closest<HTMLElement>('[data-part]');
-    if (target.closest('.ruler')) {
+    const mark = target.closest<HTMLElement>('[data-range]');
+    if (mark && session) {
+      e.preventDefault();
+      this.dom.setPointerCapture(e.pointerId);
+      this.drag = { kind: 'range', end: mark.dataset['range'] === 'start' ? 'start' : 'end', pointerId: e.pointerId };
+      return;
+    }
+    if (target.closest('.ruler') || target.closest('.cache')) {
       if (!session) return;
       e.preventDefault();
       this.dom.setPointerCapture(e.pointerId);
@@ -290,11 +339,23 @@ export class Timeline {
       e.preventDefault();
       this.editor.select(inst.name);
       const partName = part.dataset['part'];
+      if (partName === 'key') {
+        // A key diamond drags in time (the previous key drag lands first: its track is this one's start).
+        const index = Number(part.dataset['index']);
+        const track0 = structuredClone(inst.transform ?? []);
+        if (this.keyFlight || !track0[index]) return;
+        this.dom.setPointerCapture(e.pointerId);
+        this.drag = {
+          kind: 'key', pointerId: e.pointerId, instance: inst.name, index, x0: e.clientX, moved: false,
+          track0, time0: track0[index]!.time ?? 0, dragId: `key-${++dragCount}`,
+        };
+        return;
+      }
       const timing0 = this.timing(inst);
-      // A key diamond only selects; no length to drag while the template is
-      // unknown; and the previous drag's last PATCH lands first (its values
-      // are this drag's old values, and one flight at a time keeps them in order).
-      if (partName === 'key' || !timing0 || this.flight) return;
+      // No length to drag while the template is unknown; and the previous
+      // drag's last PATCH lands first (its values are this drag's old values,
+      // and one flight at a time keeps them in order).
+      if (!timing0 || this.flight) return;
       const dragPart: DragPart = partName === 'left' ? 'left' : partName === 'right' ? 'right' : 'body';
       const old: InstanceValues = {};
       for (const k of keysOf(dragPart, timing0.reverse)) old[k] = inst[k];
@@ -318,8 +379,22 @@ export class Timeline {
       this.scrubTo(e.clientX);
       return;
     }
+    if (d.kind === 'range') {
+      const frame = Math.round(this.timeAt(e.clientX) * this.sceneFrameRate());
+      const { start, end } = this.editor.rangeFrames();
+      const last = this.editor.lastFrame();
+      if (d.end === 'start') this.editor.setPlayRange({ start: Math.max(0, Math.min(frame, end - 1)) });
+      else this.editor.setPlayRange({ end: Math.min(last, Math.max(frame, start + 1)) });
+      return;
+    }
     if (!d.moved && Math.abs(e.clientX - d.x0) < DRAG_THRESHOLD_PX) return;
     d.moved = true;
+    if (d.kind === 'key') {
+      const fr = this.sceneFrameRate();
+      const t = Math.round((d.time0 + (e.clientX - d.x0) / this.pxPerSecond) * fr) / fr;
+      this.sendKey(d, t);
+      return;
+    }
     if (d.kind === 'pan') {
       this.viewStart = d.viewStart0 - (e.clientX - d.x0) / this.pxPerSecond;
       this.fitPending = false;
@@ -336,6 +411,13 @@ export class Timeline {
     this.drag = null;
     if (this.dom.hasPointerCapture(e.pointerId)) this.dom.releasePointerCapture(e.pointerId);
     if (d.kind === 'pan' && !d.moved) this.editor.select(null);
+    const k = this.keyFlight;
+    if (d.kind === 'key' && k && k.dragId === d.dragId) {
+      k.released = true;
+      // The release's track joins the history's queue now (an undo right after undoes the whole drag).
+      if (k.running && k.pending) void this.pumpKey(k, true);
+      if (!k.running) this.endKeyFlight(k);
+    }
     const f = this.flight;
     if (d.kind === 'edit' && f && f.dragId === d.dragId) {
       f.released = true;
@@ -372,7 +454,55 @@ export class Timeline {
 
   /** data-pending on the timeline: a drag's PATCHes or a scrub's seeks are still on their way (tests wait for it). */
   private updatePending() {
-    this.dom.dataset['pending'] = String(this.flight !== null || this.seeking);
+    this.dom.dataset['pending'] = String(this.flight !== null || this.keyFlight !== null || this.editor.seeking);
+  }
+
+  /** Shows key `d.index` at `time` at once and sends the track (one PATCH in flight, the newest track waits). */
+  private sendKey(d: Extract<Drag, { kind: 'key' }>, time: number) {
+    const gap = 1 / this.sceneFrameRate();
+    const track = moveKey(d.track0, d.index, time, gap);
+    let k = this.keyFlight;
+    if (!k || k.dragId !== d.dragId) {
+      k = { instance: d.instance, index: d.index, time: d.time0, dragId: d.dragId, pending: null, running: false, released: false };
+      this.keyFlight = k;
+      this.updatePending();
+    }
+    const t = track[d.index]!.time ?? 0;
+    if (t === k.time && !k.pending) return;
+    k.time = t;
+    k.pending = track;
+    this.requestRender();
+    if (!k.running) void this.pumpKey(k);
+  }
+
+  private async pumpKey(k: KeyFlight, release = false) {
+    if (release) {
+      // Issued behind the PATCH in flight (it merges with it: same drag).
+      const track = k.pending!;
+      k.pending = null;
+      await this.issueKey(k, track);
+      return;
+    }
+    k.running = true;
+    while (k.pending && this.keyFlight === k) {
+      const track = k.pending;
+      k.pending = null;
+      await this.issueKey(k, track);
+    }
+    k.running = false;
+    if (k.released) this.endKeyFlight(k);
+  }
+
+  private issueKey(k: KeyFlight, track: TransformKey[]): Promise<void> {
+    const name = `Move key ${k.index} of ${k.instance}`;
+    return this.editor.execute(new SetInstanceTransformCommand(this.editor, k.instance, track, undefined, k.dragId, { name }));
+  }
+
+  private endKeyFlight(k: KeyFlight) {
+    if (this.keyFlight !== k) return;
+    this.keyFlight = null;
+    this.updatePending();
+    this.requestRender();
   }
 
   private async pumpEdits(f: EditFlight) {
@@ -413,41 +543,10 @@ export class Timeline {
 
   // ----------------------------------------------------------- scrubbing ---
 
-  /** Seeks the recorded frame nearest the pointer (within the history); the playhead follows at once. */
+  /** Moves the playhead to the frame under the pointer (the hub seeks recorded frames). */
   private scrubTo(clientX: number) {
-    const frame = clamp(Math.round(this.timeAt(clientX) * this.sceneFrameRate()), this.historyFirst, this.historyLast);
-    if (frame !== this.shownFrame || this.live) {
-      this.shownFrame = frame;
-      this.requestRender('playhead');
-    }
-    this.seekWanted = frame;
-    this.scrubFrame = frame;
-    if (!this.seeking) void this.pumpSeeks();
-  }
-
-  private async pumpSeeks() {
-    this.seeking = true;
+    this.editor.setPlayhead(Math.round(this.timeAt(clientX) * this.sceneFrameRate()));
     this.updatePending();
-    let sent: number | null = null;
-    while (this.seekWanted !== null) {
-      const frame = this.seekWanted;
-      this.seekWanted = null;
-      if (frame === sent) continue;
-      const v = this.editor.view;
-      if (sent === null && !v.live && v.shownFrame === frame) continue; // already shown
-      sent = frame;
-      await this.editor.transport('seek', { frame }); // its errors are reported by the hub
-    }
-    this.seeking = false;
-    this.scrubFrame = null;
-    this.updatePending();
-    // The last seek's frame is on its way to the viewport; a refused seek
-    // leaves the playhead on the frame the viewport shows.
-    const decoded = this.editor.decoder.info;
-    if (sent !== null && this.editor.view.shownFrame === sent) this.shownFrame = sent;
-    else if (this.frameArrived && decoded.sessionId === this.editor.session?.id) this.shownFrame = decoded.frame;
-    this.readView();
-    this.requestRender();
   }
 
   // ------------------------------------------------------------ render ---
@@ -471,6 +570,7 @@ export class Timeline {
       this.renderPlayhead();
       return;
     }
+    this.renderButtons();
     this.layoutDirty = false;
     this.width = this.dom.clientWidth;
     if (this.fitPending && this.width > 0 && this.editor.session && this.contentKnown()) {
@@ -490,34 +590,112 @@ export class Timeline {
     return this.templatesListed || this.editor.templates.length > 0;
   }
 
+  private renderButtons() {
+    const e = this.editor;
+    this.unitsButton.textContent = this.units === 'frames' ? 'frames' : 'sec';
+    this.unitsButton.dataset['value'] = this.units;
+    this.loopButton.classList.toggle('on', e.playRange.loop);
+    this.loopButton.setAttribute('aria-pressed', String(e.playRange.loop));
+    this.loopButton.dataset['value'] = String(e.playRange.loop);
+    this.autoKeyButton.classList.toggle('on', e.autoKey);
+    this.autoKeyButton.setAttribute('aria-pressed', String(e.autoKey));
+    this.autoKeyButton.dataset['value'] = String(e.autoKey);
+    this.autoKeyButton.title = e.autoKey
+      ? 'Auto-key on: an edit of an animated transform keys it at the playhead'
+      : 'Auto-key off: an edit of an animated transform moves its whole track (turn on to key at the playhead)';
+  }
+
+  /** Ticks at whole frames: labelled in frames, or in seconds at steps that are whole frames too. */
   private renderRuler() {
     const fr = this.sceneFrameRate();
-    const step = tickStep(this.pxPerSecond, 64);
-    const minor = step / (String(step).startsWith('2') ? 4 : 5);
-    const t0 = this.viewStart, t1 = this.viewStart + this.width / this.pxPerSecond;
-    const decimals = Math.max(0, -Math.floor(Math.log10(step) + 1e-9));
+    const { major, minor } = frameTickStep(this.pxPerSecond / fr, fr, 64, this.units);
+    const f0 = this.viewStart * fr, f1 = (this.viewStart + this.width / this.pxPerSecond) * fr;
     const nodes: HTMLElement[] = [];
-    for (let i = Math.ceil(t0 / minor); i * minor <= t1; i++) {
-      const t = i * minor;
-      const major = Math.abs(t / step - Math.round(t / step)) < 1e-6;
-      const tick = el('div', { className: major ? 'tick major' : 'tick' });
-      tick.style.left = `${this.x(t)}px`;
-      if (major) tick.append(el('span', { text: `${t.toFixed(decimals)}s` }));
+    const decimals = Math.min(3, Math.max(0, Math.ceil(-Math.log10(major / fr) - 1e-9)));
+    for (let i = Math.ceil(f0 / minor); i * minor <= f1; i++) {
+      const frame = i * minor;
+      const isMajor = frame % major === 0;
+      const tick = el('div', { className: isMajor ? 'tick major' : 'tick' });
+      tick.style.left = `${this.x(frame / fr)}px`;
+      if (isMajor) {
+        tick.dataset['frame'] = String(frame);
+        tick.append(el('span', { text: this.units === 'frames' ? String(frame) : `${(frame / fr).toFixed(decimals)}s` }));
+      }
       nodes.push(tick);
     }
     this.ticks.replaceChildren(...nodes);
+    this.ticks.dataset['major'] = String(major);
     this.renderSimulated();
   }
 
+  /** The recorded range, the cache bar, the play range and the scene's end. */
   private renderSimulated() {
-    const fr = this.sceneFrameRate();
-    const hasSession = this.editor.session !== null;
-    this.simulated.hidden = !hasSession;
-    const a = this.x(this.historyFirst / fr), b = this.x(this.historyLast / fr);
-    this.simulated.style.left = `${a}px`;
-    this.simulated.style.width = `${Math.max(2, b - a)}px`;
-    this.simulated.dataset['first'] = String(this.historyFirst);
-    this.simulated.dataset['last'] = String(this.historyLast);
+    const e = this.editor, fr = this.sceneFrameRate();
+    const hasSession = e.session !== null;
+    this.drawnRecorded = this.recordedKey();
+    for (const n of [this.simulated, this.cache, this.rangeStart, this.rangeEnd, this.endMark, this.outsideBefore, this.outsideAfter]) n.hidden = !hasSession;
+    if (!hasSession) return;
+    const [first, last] = e.recordedRange();
+    const span = (n: HTMLElement, a: number, b: number) => {
+      const xa = this.x(a / fr), xb = this.x(b / fr);
+      n.style.left = `${xa}px`;
+      n.style.width = `${Math.max(2, xb - xa)}px`;
+    };
+    span(this.simulated, first, last);
+    this.simulated.dataset['first'] = String(first);
+    this.simulated.dataset['last'] = String(last);
+
+    // Cache bar: valid (the newest live frames extend the last valid range), stale, simulating.
+    const c = e.view.cache;
+    const valid = c.valid.map(([a, b]) => [a, b] as [number, number]);
+    const newest = e.recordedRange()[1];
+    const top = valid[valid.length - 1];
+    const inStale = c.stale.some(([a, b]) => newest >= a && newest <= b);
+    if (!inStale && !c.simulating) {
+      if (top && newest > top[1]) top[1] = newest;
+      else if (!top && newest > first) valid.push([first, newest]);
+    }
+    const segments: HTMLElement[] = [];
+    const seg = (kind: string, k: number, a: number, b: number, title: string) => {
+      // A range [a, b] of frames covers the times of frames a..b: from (a − ½) to (b + ½) frames, at least a pixel.
+      const n = el('div', { className: `segment ${kind}`, testid: `timeline-cache-${kind}-${k}`, title });
+      const xa = this.x((a - 0.5) / fr), xb = this.x((b + 0.5) / fr);
+      n.style.left = `${xa}px`;
+      n.style.width = `${Math.max(2, xb - xa)}px`;
+      n.dataset['first'] = String(a);
+      n.dataset['last'] = String(b);
+      segments.push(n);
+    };
+    valid.forEach(([a, b], k) => seg('valid', k, a, b, `frames ${a}–${b}: recorded, valid`));
+    c.stale.forEach(([a, b], k) => seg('stale', k, a, b, `frames ${a}–${b}: stale (an edit changed them); viewable until re-simulated`));
+    if (c.simulating) {
+      const sim = c.simulating;
+      seg('simulating', 0, sim.from, Math.max(sim.from, sim.frame), `re-simulating frames ${sim.from}–${sim.to}: at ${sim.frame}`);
+    }
+    for (const f of c.checkpoints) {
+      const n = el('div', { className: 'checkpoint', title: `checkpoint at frame ${f}` });
+      n.style.left = `${this.x(f / fr)}px`;
+      segments.push(n);
+    }
+    this.cache.replaceChildren(...segments);
+    this.cache.dataset['valid'] = valid.map(([a, b]) => `${a}-${b}`).join(',');
+    this.cache.dataset['stale'] = c.stale.map(([a, b]) => `${a}-${b}`).join(',');
+    this.cache.dataset['simulating'] = c.simulating ? `${c.simulating.from}-${c.simulating.to}@${c.simulating.frame}` : '';
+    this.cache.dataset['reported'] = String(c.reported);
+
+    // Play range and scene end.
+    const { start, end } = e.rangeFrames();
+    this.rangeStart.style.left = `${this.x(start / fr)}px`;
+    this.rangeEnd.style.left = `${this.x(end / fr)}px`;
+    this.rangeStart.dataset['value'] = String(start);
+    this.rangeEnd.dataset['value'] = String(end);
+    this.endMark.style.left = `${this.x(e.view.endFrame / fr)}px`;
+    this.endMark.dataset['value'] = String(e.view.endFrame);
+    const xs = this.x(start / fr), xe = this.x(end / fr);
+    this.outsideBefore.style.left = '0px';
+    this.outsideBefore.style.width = `${Math.max(0, xs)}px`;
+    this.outsideAfter.style.left = `${Math.max(0, xe)}px`;
+    this.outsideAfter.style.right = '0px';
   }
 
   private renderTracks() {
@@ -560,7 +738,11 @@ export class Timeline {
     body.classList.toggle('unknown', t === null);
     body.dataset['selected'] = String(this.editor.selected === inst.name);
     const arrow = t?.reverse ? '◀ ' : '';
-    const text = `${arrow}${inst.name}`;
+    const issue = this.editor.issues.get(inst.name) ?? null;
+    body.classList.toggle('warning', issue !== null);
+    if (issue) body.dataset['warning'] = issue;
+    else delete body.dataset['warning'];
+    const text = `${issue ? '⚠ ' : ''}${arrow}${inst.name}`;
     if (dom.label.textContent !== text) dom.label.textContent = text;
     if (!t) {
       // Template not listed (yet, or missing): no length to draw or crop.
@@ -583,7 +765,8 @@ export class Timeline {
     body.title =
       `${inst.name} (${inst.template}): scene ${t.start.toFixed(3)}–${end.toFixed(3)} s plays template ` +
       `${t.reverse ? `${t.end.toFixed(3)} → ${t.begin.toFixed(3)}` : `${t.begin.toFixed(3)} → ${t.end.toFixed(3)}`} s` +
-      `${t.speed !== 1 ? ` at ${t.speed}×` : ''}${t.reverse ? ', reversed' : ''}. Drag to move; drag an end to crop`;
+      `${t.speed !== 1 ? ` at ${t.speed}×` : ''}${t.reverse ? ', reversed' : ''}. Drag to move; drag an end to crop` +
+      `${issue ? `\n⚠ ${inst.name} ${issue}` : ''}`;
     this.renderKeys(inst, dom);
   }
 
@@ -591,36 +774,55 @@ export class Timeline {
   private renderKeys(inst: InstanceJson, dom: TrackDom) {
     const keys = inst.transform ?? [];
     const times = keys.length > 1 ? keys.map((k) => k.time ?? 0) : [];
+    const kf = this.keyFlight;
+    if (kf && kf.instance === inst.name && kf.index < times.length) times[kf.index] = kf.time; // the drag's preview
     while (dom.keys.length > times.length) dom.keys.pop()!.remove();
     for (let k = 0; k < times.length; k++) {
       let d = dom.keys[k];
       if (!d) {
-        d = el('div', { className: 'key', testid: `timeline-key-${inst.name}-${k}`, attrs: { 'data-part': 'key', 'data-instance': inst.name } });
+        d = el('div', { className: 'key', testid: `timeline-key-${inst.name}-${k}`, attrs: { 'data-part': 'key', 'data-instance': inst.name, 'data-index': String(k) } });
         dom.keys.push(d);
         dom.row.append(d);
       }
       d.style.left = `${this.x(times[k]!)}px`;
       d.dataset['value'] = String(times[k]);
-      d.title = `${inst.name}: transform key ${k} at ${times[k]!.toFixed(3)} s`;
+      const fr = this.sceneFrameRate();
+      d.title = `${inst.name}: transform key ${k} at frame ${Math.round(times[k]! * fr)} (${times[k]!.toFixed(3)} s). Drag to move it in time`;
     }
   }
 
   private renderPlayhead() {
-    const fr = this.sceneFrameRate();
-    const hasSession = this.editor.session !== null;
+    const e = this.editor, fr = this.sceneFrameRate();
+    const hasSession = e.session !== null;
+    const frame = e.playheadFrame, live = e.view.live && !e.offRecord;
     this.playhead.hidden = !hasSession;
-    this.playhead.style.left = `${this.x(this.shownFrame / fr)}px`;
-    this.playhead.classList.toggle('replay', !this.live);
-    this.playhead.dataset['value'] = String(this.shownFrame);
-    this.playhead.dataset['live'] = String(this.live);
+    this.playhead.style.left = `${this.x(frame / fr)}px`;
+    this.playhead.classList.toggle('replay', !live && !e.offRecord);
+    this.playhead.classList.toggle('off-record', e.offRecord);
+    this.playhead.dataset['value'] = String(frame);
+    this.playhead.dataset['live'] = String(live);
+    this.playhead.dataset['recorded'] = String(!e.offRecord);
+    const where = e.offRecord ? 'not simulated' : live ? 'live' : 'replay';
     const text = hasSession
-      ? `frame ${this.shownFrame} · ${(this.shownFrame / fr).toFixed(3)} s · ${this.live ? 'live' : 'replay'}`
+      ? this.units === 'frames'
+        ? `frame ${frame} / ${e.view.endFrame} · ${where}`
+        : `${(frame / fr).toFixed(3)} s · frame ${frame} · ${where}`
       : '';
     if (this.readout.textContent !== text) this.readout.textContent = text;
-    this.readout.classList.toggle('replay', !this.live);
-    this.readout.title = this.live
-      ? 'The viewport shows the newest simulated frame'
-      : 'The viewport shows a recorded frame; scrub to the end of the simulated range (or Live) to see the newest frame, play or step to simulate on';
+    this.readout.classList.toggle('replay', !live);
+    this.readout.title = e.offRecord
+      ? 'Nothing is recorded at the playhead: the instances are drawn from their tracks; Play simulates up to it'
+      : live
+        ? 'The viewport shows the newest simulated frame'
+        : 'The viewport shows a recorded frame; Live shows the newest, Play plays on from here';
+  }
+}
+
+function readUnits(): TimeUnits {
+  try {
+    return localStorage.getItem('flowclip-time-units') === 'seconds' ? 'seconds' : 'frames';
+  } catch {
+    return 'frames';
   }
 }
 

@@ -104,13 +104,45 @@ export function dragValues(part: DragPart, t0: Timing, dScene: number, sceneFram
   return { crop_end: end, start: fixedEnd - (end - t0.begin) / t0.speed };
 }
 
-/** A tick step of 1, 2 or 5 × 10^k seconds, at least `minPx` pixels apart at `pxPerSecond`. */
-export function tickStep(pxPerSecond: number, minPx: number): number {
-  for (let k = -4; k <= 6; k++) {
-    for (const m of [1, 2, 5]) {
-      const step = m * 10 ** k;
-      if (step * pxPerSecond >= minPx) return step;
+const NICE = [1, 2, 5];
+
+/**
+ * Ruler steps in whole frames at `pxPerFrame`: major ticks at least `minPx`
+ * apart (frames: 1, 2, 5 × 10^k frames; seconds: 1, 2, 5 × 10^k seconds that
+ * are whole frames at `frameRate`, else whole frames), minor ticks a divisor
+ * of it at least 6 px apart (every frame when there is room).
+ */
+export function frameTickStep(pxPerFrame: number, frameRate: number, minPx: number, units: 'frames' | 'seconds'): { major: number; minor: number } {
+  let major = 0;
+  if (units === 'seconds') {
+    outer: for (let k = -3; k <= 6; k++) {
+      for (const m of NICE) {
+        const frames = m * 10 ** k * frameRate;
+        if (frames < 1 - 1e-9 || Math.abs(frames - Math.round(frames)) > 1e-6) continue;
+        if (Math.round(frames) * pxPerFrame >= minPx) {
+          major = Math.round(frames);
+          break outer;
+        }
+      }
     }
   }
-  return 1e6;
+  if (major === 0) {
+    outer: for (let k = 0; k <= 8; k++) {
+      for (const m of NICE) {
+        if (m * 10 ** k * pxPerFrame >= minPx) {
+          major = m * 10 ** k;
+          break outer;
+        }
+      }
+    }
+  }
+  if (major === 0) major = 1e9;
+  let minor = major;
+  for (const d of [1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000, 10000]) {
+    if (d < major && major % d === 0 && d * pxPerFrame >= 6) {
+      minor = d;
+      break;
+    }
+  }
+  return { major, minor };
 }

@@ -24,13 +24,13 @@ export class Toolbar {
       return b;
     };
     this.buttons = {
-      play: button('play', '▶ Play', 'Play (simulate frames at the playback speed)', () => void editor.transport('play')),
-      pause: button('pause', '❚❚ Pause', 'Pause', () => void editor.transport('pause')),
+      play: button('play', '▶ Play', 'Play to the end of the play range (Space): recorded frames replay, the rest is simulated', () => void editor.play()),
+      pause: button('pause', '❚❚ Pause', 'Pause (Space)', () => void editor.pause()),
       step: button('step', 'Step', 'Simulate one frame', () => void editor.transport('step', { frames: 1 })),
       reset: button('reset', 'Reset', 'Back to frame 0 (history cleared)', () => void editor.transport('reset')),
       live: button('live', 'Live', 'Show the newest simulated frame (leave the replay)', () =>
         void editor.transport('seek', { frame: editor.view.frame })),
-      save: button('save-scene', 'Save', 'Save the current scene (every accepted edit) on the server as NAME.json', () => void this.save()),
+      save: button('save-scene', 'Save', 'Save the current scene (every accepted edit) on the server as NAME.json (Ctrl+S)', () => void this.save()),
       download: button('download-scene', 'Download', 'Download the current scene as JSON', () => void this.download()),
       undo: button('undo', '↶', 'Undo (Ctrl+Z)', () => void editor.undo()),
       redo: button('redo', '↷', 'Redo (Ctrl+Shift+Z)', () => void editor.redo()),
@@ -52,9 +52,20 @@ export class Toolbar {
       const current = editor.session?.scene ?? '';
       this.picker.replaceChildren(el('option', { text: 'Open scene…', attrs: { value: '' } }));
       for (const s of scenes) {
-        const label = s.error ? `${s.name} (unreadable)` : `${s.name} (${s.dimension}D)`;
+        const missing = s.missing_templates ?? [];
+        const label = s.error
+          ? `${s.name} (unreadable)`
+          : `${s.name} (${s.dimension}D)${missing.length ? ` ⚠ missing template${missing.length > 1 ? 's' : ''} ${missing.join(', ')}` : ''}`;
         const o = el('option', { text: label, attrs: { value: s.name } });
-        if (s.error) o.disabled = true;
+        if (s.error) {
+          o.disabled = true;
+          o.title = s.error;
+        }
+        if (missing.length) {
+          o.dataset['missing'] = missing.join(',');
+          o.title = `Its instances need template${missing.length > 1 ? 's' : ''} ${missing.join(', ')}, not in the server's database: ` +
+            `record ${missing.length > 1 ? 'them' : 'it'} with \`flowclip record templates/recipes/NAME.json\``;
+        }
         this.picker.append(o);
       }
       this.picker.value = current;
@@ -66,13 +77,15 @@ export class Toolbar {
     });
     editor.signals.sessionView.add(() => this.update());
     editor.signals.historyChanged.add(() => this.update());
+    editor.signals.playbackChanged.add(() => this.update());
+    editor.signals.saveRequested.add(() => void this.save());
     this.update();
   }
 
   private update() {
     const e = this.editor, v = e.view, open = e.session !== null;
-    const running = v.status === 'playing' || v.status === 'stepping';
-    this.buttons.play.disabled = !open || v.status === 'playing' || v.status === 'error';
+    const running = v.status === 'playing' || v.status === 'stepping' || e.looping;
+    this.buttons.play.disabled = !open || e.isPlaying() || v.status === 'error';
     this.buttons.pause.disabled = !open || !running;
     this.buttons.step.disabled = !open || running || v.status === 'error';
     this.buttons.reset.disabled = !open;
@@ -81,6 +94,18 @@ export class Toolbar {
     this.buttons.download.disabled = !open;
     this.buttons.undo.disabled = !e.history.canUndo;
     this.buttons.redo.disabled = !e.history.canRedo;
+    // The buttons name what they undo and redo.
+    const undo = e.history.undoEntries.at(-1)?.name, redo = e.history.redoEntries.at(-1)?.name;
+    this.name(this.buttons.undo, '↶', undo, 'Undo', 'Ctrl+Z');
+    this.name(this.buttons.redo, '↷', redo, 'Redo', 'Ctrl+Shift+Z');
+  }
+
+  private name(b: HTMLButtonElement, icon: string, what: string | undefined, verb: string, keys: string) {
+    const text = what ? `${icon} ${what}` : icon;
+    if (b.textContent !== text) b.textContent = text;
+    b.title = what ? `${verb} ${what} (${keys})` : `Nothing to ${verb.toLowerCase()}`;
+    b.setAttribute('aria-label', what ? `${verb} ${what}` : verb);
+    b.dataset['name'] = what ?? '';
   }
 
   /** Saves on the server; an existing name asks before overwriting. */

@@ -2,17 +2,18 @@
 // rotate (E), scale (R); reflection is the inspector's. The gizmo moves a
 // proxy object placed at the instance's transform at the playhead (the
 // region centre's world position, its rotation and |scale|); each change
-// during a drag becomes a SetInstanceTransformCommand editing the key at the
-// playhead (auto-key on animated tracks, core/TransformTrack.ts). A drag
-// sends at most one PATCH at a time (the newest pose wins) and all of a
-// drag's commands merge into one history entry. 2D scenes: x/y translation
-// and scale, rotation about z only.
+// during a drag becomes a SetInstanceTransformCommand: with auto-key on it
+// keys the transform at the playhead, off it moves an animated track as a
+// whole (core/TransformTrack.ts editTrack). The instance's box shows each
+// pose at once (a hub preview); a drag sends at most one PATCH at a time
+// (the newest pose wins) and all of a drag's commands merge into one
+// history entry. 2D scenes: x/y translation and scale, rotation about z only.
 import * as THREE from 'three';
 import { TransformControls } from 'three/examples/jsm/controls/TransformControls.js';
 import type { OrbitControls } from 'three/examples/jsm/controls/OrbitControls.js';
 import type { Editor } from '../core/Editor';
 import { SetInstanceTransformCommand } from '../commands/SetInstanceTransformCommand';
-import { editTrackAt, evaluateTrack, type FullKey } from '../core/TransformTrack';
+import { editTrack, evaluateTrack, type FullKey } from '../core/TransformTrack';
 import type { TransformKey } from '../net/types';
 
 const DEG = 180 / Math.PI;
@@ -30,6 +31,8 @@ export class InstanceGizmo {
   private drag: { id: number; name: string; time: number; start: FullKey; startZ: number; lastZ: number; turns: number } | null = null;
   private inFlight = false;
   private pendingTrack: ((track: TransformKey[]) => TransformKey[]) | null = null;
+  /** The hub preview showing the drag's newest pose (cleared when its last PATCH landed). */
+  private preview: { name: string; token: number } | null = null;
   private readonly euler = new THREE.Euler();
 
   constructor(
@@ -63,6 +66,7 @@ export class InstanceGizmo {
       this.drag = null;
       this.lastDrag = null;
       this.pendingTrack = null;
+      this.preview = null;
       if (s) this.setDimension(s.dimension);
       this.place();
     });
@@ -171,13 +175,15 @@ export class InstanceGizmo {
     }
     // Scale is a magnitude: reflection stays as it was (the inspector's).
     const scale = [p.scale.x, p.scale.y, p.scale.z].map((v) => Math.max(1e-3, r4(Math.abs(v)))).slice(0, dim);
-    const time = d.time, tol = 0.5 / e.frameRate(), centre = e.templateCentre(inst.template);
+    const time = d.time, tol = 0.5 / e.frameRate(), centre = e.templateCentre(inst.template), autoKey = e.autoKey;
     this.pendingTrack = (track: TransformKey[]) =>
-      editTrackAt(track, time, tol, dim, centre, (k) => {
+      editTrack(track, time, tol, dim, centre, (k) => {
         k.translation = translation;
         k.rotation = rotation;
         k.scale = scale;
-      });
+      }, autoKey);
+    // The box follows the pointer, not the server's answers.
+    this.preview = { name: inst.name, token: e.setPreview({ ...inst, transform: this.pendingTrack(structuredClone(inst.transform ?? [])) }) };
     this.pump();
   }
 
@@ -194,11 +200,19 @@ export class InstanceGizmo {
       .finally(() => {
         this.inFlight = false;
         if (this.pendingTrack) this.pump();
-        else if (!this.drag) this.place();
+        else if (!this.drag) {
+          this.clearPreview();
+          this.place();
+        }
       });
   }
 
   private lastDrag: { id: number; name: string } | null = null;
+
+  private clearPreview() {
+    if (this.preview) this.editor.clearPreview(this.preview.name, this.preview.token);
+    this.preview = null;
+  }
 
   private endDrag() {
     this.lastDrag = this.drag;
@@ -206,7 +220,10 @@ export class InstanceGizmo {
     // Queued now, behind the PATCH in flight: an undo pressed after the
     // release then undoes the whole drag.
     if (this.pendingTrack) this.pump(true);
-    else if (!this.inFlight) this.place();
+    else if (!this.inFlight) {
+      this.clearPreview();
+      this.place();
+    }
   }
 
   dispose() {

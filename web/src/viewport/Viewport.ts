@@ -1,13 +1,23 @@
 // The 3D view: streamed particles, the domain box, the instance and falloff
 // boxes. 2D scenes get an orthographic camera (pan and zoom), 3D scenes a
 // perspective one (orbit). It renders on demand only (a new frame, a camera
-// change, a resize), at most once per animation frame, never in a loop:
-// software GL would otherwise take the CPU the simulation and the stream need.
+// change, a resize, an edit), at most once per animation frame, never in a
+// loop: software GL would otherwise take the CPU the simulation and the
+// stream need.
+//
+// Instance boxes come from the document, not from the frames: each is its
+// template's region placed by the client's own evaluation of the transform
+// track at the playhead (core/TransformTrack.ts, as the server evaluates
+// it), so that they follow every edit, preview and undo at once, and are
+// drawn at frames nothing is recorded at yet.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/examples/jsm/controls/OrbitControls.js';
 import type { Editor, SessionInfo } from '../core/Editor';
 import type { FrameInfo } from '../net/FrameDecoder';
-import { Boxes } from './Boxes';
+import { Boxes, type BoxInfo } from './Boxes';
+import { evaluateTrack, keyMatrix } from '../core/TransformTrack';
+import { sceneEnd, timingOf } from '../ui/TimelineModel';
+import { el } from '../ui/dom';
 import { InstanceGizmo } from './InstanceGizmo';
 import { TEMPLATE_DRAG_TYPE } from '../ui/TemplateLibrary';
 import { ParticleLayer } from './ParticleLayer';
@@ -37,6 +47,9 @@ export class Viewport {
   private dimension: 2 | 3 = 2;
   private fitPending = true;
   private readonly resizeObserver: ResizeObserver;
+  /** Says what the viewport shows when the playhead is where nothing is recorded. */
+  private readonly note: HTMLElement;
+  private boxesScheduled = false;
 
   constructor(
     readonly container: HTMLElement,
@@ -74,6 +87,13 @@ export class Viewport {
 
     editor.signals.frameDecoded.add((f) => this.onFrame(f));
     editor.signals.sessionChanged.add((s) => this.onSession(s));
+    const boxes = () => this.scheduleBoxes();
+    for (const sig of [editor.signals.instancesChanged, editor.signals.previewChanged, editor.signals.playheadChanged,
+      editor.signals.templatesChanged, editor.signals.issuesChanged, editor.signals.parametersChanged]) sig.add(boxes);
+    editor.signals.frameSelectionRequested.add(() => this.frameSelection());
+    this.note = el('div', { className: 'viewport-note', testid: 'viewport-note' });
+    this.note.hidden = true;
+    container.append(this.note);
 
     this.resizeObserver = new ResizeObserver(() => this.resize());
     this.resizeObserver.observe(container);
@@ -130,6 +150,88 @@ export class Viewport {
     this.requestRender('fit');
   }
 
+  /** Recomputes the instance boxes at the next animation frame (coalesced with the render). */
+  private scheduleBoxes() {
+    if (this.boxesScheduled) return;
+    this.boxesScheduled = true;
+    requestAnimationFrame(() => {
+      this.boxesScheduled = false;
+      this.updateBoxes();
+    });
+  }
+
+  private readonly boxMatrix = new THREE.Matrix4();
+
+  /** Every instance's box at the playhead, from the document (the frame's record when its template is not listed). */
+  updateBoxes() {
+    const e = this.editor, s = e.session;
+    if (!s) return;
+    const dim = s.dimension, t = e.playheadTime();
+    const f = e.decoder.info;
+    const list: BoxInfo[] = [];
+    for (const name of e.instances.keys()) {
+      const inst = e.displayInstance(name)!;
+      const info = e.templateInfo(inst.template);
+      const warning = e.issues.has(name);
+      if (info?.region_min && info.region_max) {
+        const centre = e.templateCentre(inst.template);
+        keyMatrix(evaluateTrack(inst.transform, t, dim, centre), dim, centre, this.boxMatrix);
+        const timing = timingOf(inst, info);
+        const active = timing !== null && t >= timing.start - 1e-9 && t <= sceneEnd(timing) + 1e-9;
+        const pad = (v: number[]) => [v[0] ?? 0, v[1] ?? 0, dim === 3 ? v[2] ?? 0 : 0];
+        list.push({
+          name, active, warning, matrix: this.boxMatrix.elements.slice(), templateMin: pad(info.region_min), templateMax: pad(info.region_max),
+          falloffWidth: typeof inst.falloff_width === 'number' ? inst.falloff_width : 0,
+        });
+        continue;
+      }
+      if (f.sessionId !== s.id) continue;
+      for (let k = 0; k < f.instanceCount; k++) {
+        const rec = f.instances[k]!;
+        if (rec.name === name) list.push({ ...rec, warning });
+      }
+    }
+    this.boxes.update(list, dim);
+    this.updateNote();
+    this.requestRender('boxes');
+  }
+
+  private updateNote() {
+    const e = this.editor;
+    const off = e.session !== null && e.offRecord;
+    this.note.hidden = !off;
+    this.note.dataset['value'] = off ? String(e.playheadFrame) : '';
+    if (off) {
+      const shown = e.decoder.info.frame;
+      this.note.textContent = `Frame ${e.playheadFrame} is not simulated yet: the boxes are at frame ${e.playheadFrame}, the liquid is frame ${shown}. Play simulates up to it`;
+    }
+  }
+
+  /** F: the selected instance's box fills the view (nothing selected: the domain). */
+  frameSelection() {
+    const e = this.editor, s = e.session;
+    if (!s) return;
+    const box = this.boxes.shown.find((b) => b.name === e.selected);
+    if (!box) {
+      const d = s.sceneJson?.domain;
+      if (d) this.fit([d.min[0] ?? 0, d.min[1] ?? 0, d.min[2] ?? 0], [d.max[0] ?? 0, d.max[1] ?? 0, d.max[2] ?? 0]);
+      return;
+    }
+    const m = new THREE.Matrix4().fromArray(box.matrix);
+    const b = new THREE.Box3();
+    const g = box.falloffWidth;
+    for (let c = 0; c < 8; c++) {
+      const p = new THREE.Vector3(
+        c & 1 ? box.templateMax[0]! : box.templateMin[0]!,
+        c & 2 ? box.templateMax[1]! : box.templateMin[1]!,
+        c & 4 ? box.templateMax[2]! : box.templateMin[2]!,
+      ).applyMatrix4(m);
+      b.expandByPoint(p);
+    }
+    b.expandByScalar(g);
+    this.fit([b.min.x, b.min.y, b.min.z], [b.max.x, b.max.y, b.max.z]);
+  }
+
   private onSession(s: SessionInfo | null) {
     if (!s) {
       for (const l of this.layers()) l.commit(0);
@@ -147,14 +249,17 @@ export class Viewport {
     this.fitPending = true;
     if (scene?.domain) {
       const pad = (v: number[]) => [v[0] ?? 0, v[1] ?? 0, v[2] ?? 0];
+      this.boxes.setDomain(pad(scene.domain.min), pad(scene.domain.max));
       this.fit(pad(scene.domain.min), pad(scene.domain.max));
       this.fitPending = false;
     }
+    this.updateBoxes();
   }
 
   private onFrame(f: FrameInfo) {
     if (f.dimension !== this.dimension) this.setDimension(f.dimension);
-    this.boxes.update(f);
+    this.boxes.setDomain(f.domainMin, f.domainMax);
+    this.scheduleBoxes(); // a template not listed takes its box from the frame; the note names the frame
     if (this.fitPending) {
       this.fitPending = false;
       this.fit(f.domainMin, f.domainMax);
@@ -236,15 +341,14 @@ export class Viewport {
 
   /** Name of the instance whose box the view ray through client pixel (x, y) hits first, or null. */
   instanceAt(clientX: number, clientY: number): string | null {
-    const f = this.editor.decoder.info;
+    const dim = this.dimension;
     const r = this.renderer.domElement.getBoundingClientRect();
     const ndc = new THREE.Vector2(((clientX - r.left) / r.width) * 2 - 1, -((clientY - r.top) / r.height) * 2 + 1);
     const caster = new THREE.Raycaster();
     caster.setFromCamera(ndc, this.camera);
     const inv = new THREE.Matrix4(), m = new THREE.Matrix4(), hit = new THREE.Vector3();
     let best: string | null = null, bestDist = Infinity;
-    for (let k = 0; k < f.instanceCount; k++) {
-      const inst = f.instances[k]!;
+    for (const inst of this.boxes.shown) {
       m.fromArray(inst.matrix);
       if (Math.abs(m.determinant()) < 1e-12) continue;
       inv.copy(m).invert();
@@ -252,8 +356,8 @@ export class Viewport {
       const mn = inst.templateMin, mx = inst.templateMax;
       // 2D boxes are flat: give them depth so that the ray along z meets them.
       const box = new THREE.Box3(
-        new THREE.Vector3(mn[0], mn[1], f.dimension === 2 ? -1 : mn[2]),
-        new THREE.Vector3(mx[0], mx[1], f.dimension === 2 ? 1 : mx[2]),
+        new THREE.Vector3(mn[0], mn[1], dim === 2 ? -1 : mn[2]),
+        new THREE.Vector3(mx[0], mx[1], dim === 2 ? 1 : mx[2]),
       );
       if (!ray.intersectBox(box, hit)) continue;
       const d = hit.applyMatrix4(m).distanceTo(caster.ray.origin);
