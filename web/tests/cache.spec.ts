@@ -478,3 +478,97 @@ test('the frames/s readout is the rate frames arrive at', async ({ page }) => {
   await page.getByTestId('pause').click();
   await expectNoErrors(page, errors);
 });
+
+test('a looping play range replays its recorded frames on the client until paused', async ({ page, request }) => {
+  test.setTimeout(90_000);
+  const { errors, url } = await openDrop(page);
+  await page.evaluate(() => (window as any).flowclip.editor.transport('step', { frames: 20 }));
+  await expect.poll(() => readNumber(page.getByTestId('frame')), { timeout: 40_000 }).toBe(20);
+  await page.evaluate(() => (window as any).flowclip.editor.setPlayRange({ start: 5, end: 15 }));
+  await page.getByTestId('timeline-loop').click();
+  await expect(page.getByTestId('timeline-loop')).toHaveAttribute('data-value', 'true');
+  // Record the playhead's frames while it loops.
+  await page.evaluate(() => {
+    const w = window as any;
+    w.playheadSeen = [];
+    w.flowclip.editor.signals.playheadChanged.add(() => w.playheadSeen.push(w.flowclip.editor.playheadFrame));
+  });
+  await page.getByTestId('play').click();
+  // Wrapped around at least once: a frame lower than the one before it.
+  await expect.poll(() => page.evaluate(() => {
+    const seen: number[] = (window as any).playheadSeen;
+    return seen.some((f, i) => i > 0 && f < seen[i - 1]!);
+  }), { timeout: 30_000 }).toBe(true);
+  const seen: number[] = await page.evaluate(() => (window as any).playheadSeen);
+  expect(Math.min(...seen)).toBeGreaterThanOrEqual(5);
+  expect(Math.max(...seen)).toBeLessThanOrEqual(15);
+  // The server only replayed: nothing new was simulated.
+  expect((await getJson(request, url)).frame).toBe(20);
+  await expect(page.getByTestId('pause')).toBeEnabled();
+  await page.locator('body').press('Space');
+  await expect(page.getByTestId('play')).toBeEnabled();
+  const stopped = await page.evaluate(() => (window as any).playheadSeen.length);
+  await expect(page.getByTestId('timeline')).toHaveAttribute('data-pending', 'false');
+  await page.waitForTimeout(500); // a loop still running would move the playhead ~30 times in this time
+  expect(await page.evaluate(() => (window as any).playheadSeen.length)).toBeLessThanOrEqual(stopped + 1);
+  await expectNoErrors(page, errors);
+});
+
+test('the ruler counts frames or seconds at whole frames; F frames the selection', async ({ page }) => {
+  const { errors } = await openDrop(page);
+  const units = page.getByTestId('timeline-units');
+  const ticks = page.getByTestId('timeline-ruler').locator('.tick.major');
+  await expect(units).toHaveAttribute('data-value', /frames|seconds/);
+  if ((await units.getAttribute('data-value')) === 'seconds') await units.click();
+  await expect(units).toHaveAttribute('data-value', 'frames');
+  const frameLabels = await ticks.allTextContents();
+  expect(frameLabels.length).toBeGreaterThan(3);
+  for (const t of frameLabels) expect(t).toMatch(/^-?\d+$/);
+  await units.click();
+  await expect(units).toHaveAttribute('data-value', 'seconds');
+  await expect(ticks.first()).toContainText('s');
+  const frames = await ticks.evaluateAll((n) => n.map((e) => Number((e as HTMLElement).dataset['frame'])));
+  for (let i = 0; i < frames.length; i++) {
+    expect(Number.isInteger(frames[i])).toBe(true); // on whole frames
+    const label = (await ticks.nth(i).textContent())!;
+    expect(Number(label.replace('s', ''))).toBeCloseTo(frames[i]! / SCENE_FPS, 3);
+  }
+  // F: the selected instance's box fills the view (smaller than the domain: the view closes in).
+  const height = () => page.evaluate(() => {
+    const cam = (window as any).flowclip.viewport.camera;
+    return (cam.top - cam.bottom) / cam.zoom;
+  });
+  const h0 = await height();
+  await page.getByTestId('outliner-item-drop').click();
+  await page.locator('body').press('f');
+  await expect.poll(height).toBeLessThan(h0);
+  await expectNoErrors(page, errors);
+});
+
+test('new users: scenes missing templates are marked, the empty 3D library says how to record one, uncovered control particles are not black', async ({ page }) => {
+  const { errors } = await openDrop(page);
+  const picker = page.getByTestId('scene-picker');
+  // blade2d's instance needs the blade2d template, which the test database lacks.
+  await expect(picker.locator('option[value="blade2d"]')).toHaveAttribute('data-missing', 'blade2d');
+  await expect(picker.locator('option[value="blade2d"]')).toContainText('missing template blade2d');
+  await expect(picker.locator('option[value="drop2d"]')).not.toHaveAttribute('data-missing', /./);
+  // Control particles: covered green to uncovered magenta, none near the black background.
+  await page.getByTestId('layer-control').check();
+  await page.evaluate(() => (window as any).flowclip.editor.transport('step', { frames: 16 }));
+  await expect.poll(() => readNumber(page.getByTestId('frame')), { timeout: 20_000 }).toBe(16);
+  await expect.poll(() => page.evaluate(() => (window as any).flowclip.viewport.control.count as number)).toBeGreaterThan(0);
+  const darkest = await page.evaluate(() => {
+    const { viewport } = (window as any).flowclip;
+    const c = viewport.control.points.geometry.getAttribute('color').array as Float32Array;
+    let min = Infinity;
+    for (let i = 0; i < viewport.control.count; i++) min = Math.min(min, Math.max(c[3 * i]!, c[3 * i + 1]!, c[3 * i + 2]!));
+    return min;
+  });
+  expect(darkest).toBeGreaterThan(0.5);
+  // A 3D scene without 3D templates: the library says how to get one.
+  await picker.selectOption('dambreak3d');
+  await expect(page.getByTestId('session')).toContainText('dambreak3d');
+  await expect(page.getByTestId('library-empty')).toContainText('flowclip record templates/recipes/');
+  await expect(page.getByTestId('library-empty')).toContainText('No 3D template');
+  expect(errors).toEqual([]);
+});

@@ -932,8 +932,11 @@ export class Editor {
     if (this.view.live || running) this.newestLiveFrame = Math.max(this.newestLiveFrame, f.frame);
     // Simulating has reached an off-record playhead: follow the frames again.
     if (this.offRecord && running && f.frame >= this.playheadFrame) this.offRecord = false;
-    // While seeks are in flight the playhead shows the frame asked for (pumpSeeks settles it).
-    if (!this.offRecord && !this.seeking && f.frame !== this.playheadFrame) {
+    // While seeks are in flight the playhead shows the frame asked for (pumpSeeks settles it); while
+    // paused, frames re-simulated on the way to the frame shown do not move it back.
+    const resim = this.view.cache.simulating;
+    const catchingUp = resim !== null && !running && f.frame >= resim.from && f.frame < this.playheadFrame && this.playheadFrame <= resim.to;
+    if (!this.offRecord && !this.seeking && !catchingUp && f.frame !== this.playheadFrame) {
       this.playheadFrame = f.frame;
       this.signals.playheadChanged.dispatch(this.playheadTime());
     }

@@ -91,6 +91,7 @@ export class Viewport {
     for (const sig of [editor.signals.instancesChanged, editor.signals.previewChanged, editor.signals.playheadChanged,
       editor.signals.templatesChanged, editor.signals.issuesChanged, editor.signals.parametersChanged]) sig.add(boxes);
     editor.signals.frameSelectionRequested.add(() => this.frameSelection());
+    editor.signals.sessionView.add(() => this.updateNote());
     this.note = el('div', { className: 'viewport-note', testid: 'viewport-note' });
     this.note.hidden = true;
     container.append(this.note);
@@ -197,13 +198,19 @@ export class Viewport {
   }
 
   private updateNote() {
-    const e = this.editor;
+    const e = this.editor, frame = e.playheadFrame;
     const off = e.session !== null && e.offRecord;
-    this.note.hidden = !off;
-    this.note.dataset['value'] = off ? String(e.playheadFrame) : '';
+    const stale = e.session !== null && !off && e.view.cache.stale.some(([a, b]) => frame >= a && frame <= b);
+    this.note.hidden = !off && !stale;
+    this.note.dataset['value'] = off ? String(frame) : '';
+    this.note.dataset['kind'] = off ? 'not-simulated' : stale ? 'stale' : '';
     if (off) {
       const shown = e.decoder.info.frame;
-      this.note.textContent = `Frame ${e.playheadFrame} is not simulated yet: the boxes are at frame ${e.playheadFrame}, the liquid is frame ${shown}. Play simulates up to it`;
+      this.note.textContent = `Frame ${frame} is not simulated yet: the boxes are at frame ${frame}, the liquid is frame ${shown}. Play simulates up to it`;
+    } else if (stale) {
+      const sim = e.view.cache.simulating;
+      this.note.textContent = `Frame ${frame} is stale: an edit changed it` +
+        (sim ? `; re-simulating from frame ${sim.from}, now at ${Math.max(sim.frame, e.decoder.info.frame)}` : '; it will be re-simulated');
     }
   }
 
