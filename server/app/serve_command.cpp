@@ -8,6 +8,7 @@
 
 #include <chrono>
 #include <cstdio>
+#include <filesystem>
 #include <memory>
 #include <string>
 #include <vector>
@@ -15,6 +16,8 @@
 namespace fc::app {
 
 namespace {
+
+namespace fs = std::filesystem;
 
 struct ServeOptions {
   std::string host = "127.0.0.1";
@@ -34,7 +37,7 @@ struct ServeOptions {
   int ioThreads = 2;
 };
 
-int serve(const ServeOptions& o) {
+int serve(const ServeOptions& o, bool presetsGiven) {
   if (!service::isLoopbackHost(o.host) && o.token.empty()) {
     std::fprintf(stderr, "error: --host %s is reachable from other machines: give --token T (clients then send "
                          "\"Authorization: Bearer T\")\n", o.host.c_str());
@@ -45,6 +48,11 @@ int serve(const ServeOptions& o) {
   so.scenesDir = o.scenes;
   so.exportsDir = o.exports;
   so.presetsFile = o.presets;
+  // The default presets path is relative to the repository: also found when serve starts elsewhere.
+  if (!presetsGiven && !fs::exists(so.presetsFile)) {
+    const fs::path source = fs::path(FLOWCLIP_SOURCE_DIR) / "bench/accuracy/presets.json";
+    if (fs::exists(source)) so.presetsFile = source.string();
+  }
   so.maxSessions = o.maxSessions;
   so.historyCapBytes = size_t(o.historyCapMb * 1024 * 1024);
   so.maxThreads = o.maxThreads;
@@ -90,7 +98,7 @@ void addServeCommand(CLI::App& app) {
   cmd->add_option("--port", o->port, "TCP port (default 8080; 0: any free port, printed)")->check(CLI::Range(0, 65535));
   cmd->add_option("--templates", o->templates, "template directory (default: templates)");
   cmd->add_option("--scenes", o->scenes, "scene directory (default: scenes)");
-  cmd->add_option("--presets", o->presets, "accuracy presets of `bench accuracy` (default: bench/accuracy/presets.json)");
+  auto* presetsOption = cmd->add_option("--presets", o->presets, "accuracy presets of `bench accuracy` (default: bench/accuracy/presets.json)");
   cmd->add_option("--exports", o->exports, "directory for HDF5/XDMF exports (default: exports)");
   cmd->add_option("--web", o->web, "the built editor's files (default: web/dist)");
   cmd->add_option("--token", o->token, "require \"Authorization: Bearer T\" (or WebSocket subprotocol flowclip-token.T)");
@@ -107,7 +115,7 @@ void addServeCommand(CLI::App& app) {
                   "a session whose frame runs longer than this many seconds goes to its error state (default 120)")
       ->check(CLI::Range(0.1, 1e6));
   cmd->add_option("--io-threads", o->ioThreads, "network threads (default 2)")->check(CLI::Range(1, 64));
-  cmd->callback([o] { throw ExitCode(serve(*o)); });
+  cmd->callback([o, presetsOption] { throw ExitCode(serve(*o, presetsOption->count() > 0)); });
 }
 
 }  // namespace fc::app

@@ -282,6 +282,9 @@ void encodeSnapshot(const FrameSnapshot& f, const std::string& sessionId, const 
     r.templateMax = src.regionMax;
     r.falloffWidth = src.falloffWidth;
     r.fidelity = src.fidelity;
+    // The frame's stats hold what control did per instance (the editor tells an instance that steers nothing).
+    if (f.stats.instances.size() == records.size() && f.stats.instances[i].name == src.name)
+      r.controlled = f.stats.instances[i].controlled;
   }
   wire::QuantizedFrame q;
   q.sessionId = sessionId;
@@ -773,6 +776,17 @@ HttpResponse ServiceHub::listScenes(const HttpRequest&, const Params&) {
       const json scene = loadSceneJson(f.string());
       e["dimension"] = sceneDimension(scene);
       e["instances"] = instancesOf(scene).size();
+      // Templates its instances name that the database lacks (the scene then cannot be opened).
+      json missing = json::array();
+      for (const json& inst : instancesOf(scene)) {
+        const std::string t = inst.is_object() && inst.contains("template") && inst["template"].is_string()
+                                  ? inst["template"].get<std::string>()
+                                  : std::string();
+        if (!t.empty() && !database_.contains(t) &&
+            std::find(missing.begin(), missing.end(), json(t)) == missing.end())
+          missing.push_back(t);
+      }
+      if (!missing.empty()) e["missing_templates"] = missing;
     } catch (const std::exception& err) {
       e["dimension"] = nullptr;
       e["instances"] = 0;
