@@ -61,6 +61,7 @@ export class InstanceGizmo {
     editor.signals.selectionChanged.add(() => this.place());
     editor.signals.instancesChanged.add(() => this.place());
     editor.signals.playheadChanged.add(() => this.place());
+    editor.signals.previewChanged.add(() => this.place()); // an undo, a redo or an inspector edit on its way
     editor.signals.sessionChanged.add((s) => {
       // A drag or its last pose never carries over to another session.
       this.drag = null;
@@ -108,11 +109,11 @@ export class InstanceGizmo {
     c.space = flat ? 'world' : 'local';
   }
 
-  /** The proxy at the selected instance's transform at the playhead (not while the user drags it). */
+  /** The proxy at the selected instance's transform at the playhead, as the viewport shows it (not while the user drags it). */
   private place() {
     if (this.drag) return;
     const e = this.editor;
-    const inst = e.selected ? e.instances.get(e.selected) : undefined;
+    const inst = e.selected ? e.displayInstance(e.selected) : undefined;
     if (!inst || !e.session) {
       if (this.controls.object) {
         this.controls.detach();
