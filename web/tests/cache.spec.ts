@@ -572,3 +572,21 @@ test('new users: scenes missing templates are marked, the empty 3D library says 
   await expect(page.getByTestId('library-empty')).toContainText('No 3D template');
   expect(errors).toEqual([]);
 });
+
+test('layers the server sends with the newest frame only are marked on a replayed frame', async ({ page }) => {
+  const { errors } = await openDrop(page);
+  await page.getByTestId('layer-boundary').check();
+  await page.evaluate(() => (window as any).flowclip.editor.transport('step', { frames: 6 }));
+  await expect.poll(() => readNumber(page.getByTestId('frame')), { timeout: 20_000 }).toBe(6);
+  const row = page.locator('label.layer').filter({ has: page.getByTestId('layer-boundary') });
+  await expect.poll(() => page.evaluate(() => (window as any).flowclip.viewport.boundary.count as number)).toBeGreaterThan(0);
+  await expect(row).not.toHaveClass(/unavailable/);
+  await page.evaluate(() => (window as any).flowclip.editor.setPlayhead(3));
+  await expect(page.getByTestId('frame')).toHaveAttribute('data-value', '3');
+  await expect(row).toHaveClass(/unavailable/);
+  await expect(row).toHaveAttribute('title', /Not in recorded frames/);
+  await page.getByTestId('live').click();
+  await expect(page.getByTestId('frame')).toHaveAttribute('data-value', '6');
+  await expect(row).not.toHaveClass(/unavailable/);
+  await expectNoErrors(page, errors);
+});

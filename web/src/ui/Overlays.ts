@@ -3,6 +3,7 @@
 // Values are also in data-value attributes (tests read them).
 import type { Editor, LayerToggles } from '../core/Editor';
 import type { FrameInfo } from '../net/FrameDecoder';
+import { Layer } from '@wire';
 import { el } from './dom';
 
 /** Checkboxes for the liquid and the stream's optional layers; they act through editor.setLayers. */
@@ -17,7 +18,24 @@ export class LayerPanel {
       editor.signals.layersChanged.add((l) => (input.checked = l[key]));
       const sw = el('span', { className: 'swatch' });
       sw.style.background = swatch;
-      return el('label', { className: 'layer', title }, [input, sw, label]);
+      const row = el('label', { className: 'layer', title }, [input, sw, label]);
+      // The server sends these layers with the frame it simulated last, not with recorded frames.
+      const flag = ({ control: Layer.Control, repulsion: Layer.Repulsion, boundary: Layer.Boundary } as Partial<Record<keyof LayerToggles, Layer>>)[key];
+      if (flag !== undefined) {
+        const update = () => {
+          // Only on a replayed frame: a live frame's layered copy may follow its plain one.
+          const f = editor.decoder.info;
+          const missing = editor.layers[key] && !editor.view.live && f.sessionId === editor.session?.id && (f.layers & flag) === 0;
+          if (row.classList.contains('unavailable') === missing) return;
+          row.classList.toggle('unavailable', missing);
+          row.dataset['available'] = String(!missing);
+          row.title = missing ? `${title}. Not in recorded frames: shown on the newest simulated frame only` : title;
+        };
+        editor.signals.frameDecoded.add(update);
+        editor.signals.sessionView.add(update);
+        editor.signals.layersChanged.add(update);
+      }
+      return row;
     };
     this.dom = el('div', { className: 'overlay layers', testid: 'layers' }, [
       box('liquid', 'liquid', '#73b3ff', 'Liquid and temporary particles'),
