@@ -241,7 +241,11 @@ test('the playhead goes past the simulated frames; the instance box is drawn the
   expect(seeks).toEqual([]);
   expect((await getJson(request, url)).shown.frame).toBe(5);
   await page.unroute('**/transport');
-  // Home: back to the start of the play range (frame 0, recorded: a seek).
+  // Live leaves it (the server was live at frame 5); Home: the start of the play range (frame 0, recorded: a seek).
+  await expect(page.getByTestId('live')).toBeEnabled();
+  await page.getByTestId('live').click();
+  await expect(playhead).toHaveAttribute('data-value', '5');
+  await expect(playhead).toHaveAttribute('data-recorded', 'true');
   await page.locator('body').press('Home');
   await expect(playhead).toHaveAttribute('data-value', '0');
   await expect(playhead).toHaveAttribute('data-recorded', 'true');

@@ -439,7 +439,9 @@ export class Editor {
       this.stopLoop();
       if (command !== 'play') this.playUntil = null;
       if (this.offRecord) {
+        // Back on the frame the viewport shows (the command's frames move it on from there).
         this.offRecord = false;
+        if (this.frameArrived) this.playheadFrame = this.shownFrame;
         this.signals.playheadChanged.dispatch(this.playheadTime());
       }
     }

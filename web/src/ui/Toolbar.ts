@@ -78,6 +78,7 @@ export class Toolbar {
     editor.signals.sessionView.add(() => this.update());
     editor.signals.historyChanged.add(() => this.update());
     editor.signals.playbackChanged.add(() => this.update());
+    editor.signals.playheadChanged.add(() => this.update()); // Live also leaves a frame nothing is recorded at
     editor.signals.saveRequested.add(() => void this.save());
     this.update();
   }
@@ -89,7 +90,7 @@ export class Toolbar {
     this.buttons.pause.disabled = !open || !running;
     this.buttons.step.disabled = !open || running || v.status === 'error';
     this.buttons.reset.disabled = !open;
-    this.buttons.live.disabled = !open || v.live || v.status === 'error';
+    this.buttons.live.disabled = !open || (v.live && !e.offRecord) || v.status === 'error';
     this.buttons.save.disabled = !open;
     this.buttons.download.disabled = !open;
     this.buttons.undo.disabled = !e.history.canUndo;
