@@ -29,8 +29,8 @@ const toolbar = new Toolbar(editor);
 const viewportDom = el('main', { className: 'viewport', testid: 'viewport' });
 const messages = new Messages(editor);
 const statusBar = new StatusBar(editor);
-// Layout (styles.css #app grid): toolbar on top; the template library and
-// the simulation stats on the left; the viewport; the outliner and inspector on the right; the timeline
+// Layout (styles.css #app grid): toolbar on top; the template library, the
+// layer toggles and the simulation stats on the left; the viewport; the outliner and inspector on the right; the timeline
 // under the viewport; the status bar at the bottom.
 const leftPanel = el('aside', { className: 'sidebar left', testid: 'left-panel' });
 const rightPanel = el('aside', { className: 'sidebar right', testid: 'right-panel' });
@@ -38,8 +38,8 @@ const timelineDom = el('section', { className: 'timeline-area', testid: 'timelin
 toolbar.dom.classList.add('area-toolbar');
 statusBar.dom.classList.add('area-status');
 app.append(toolbar.dom, leftPanel, viewportDom, rightPanel, timelineDom, statusBar.dom);
-viewportDom.append(messages.dom, new LayerPanel(editor).dom);
-leftPanel.append(new TemplateLibrary(editor).dom, new StatsOverlay(editor).dom);
+viewportDom.append(messages.dom);
+leftPanel.append(new TemplateLibrary(editor).dom, new LayerPanel(editor).dom, new StatsOverlay(editor).dom);
 rightPanel.append(new Outliner(editor).dom, new Inspector(editor).dom);
 timelineDom.append(new Timeline(editor).dom);
 const viewport = new Viewport(viewportDom, editor);

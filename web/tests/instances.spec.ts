@@ -261,8 +261,8 @@ test('clicking an instance box in the viewport selects it; clicking nothing dese
   await page.mouse.click(inside.x, inside.y);
   await expect(page.getByTestId('outliner-item-drop')).toHaveClass(/selected/);
   await expect(page.getByTestId('inspector-header')).toHaveAttribute('data-value', 'drop');
-  // Right of the box, mid-height: clear of the overlays (layer toggles top
-  // left, stats bottom left), however tall the timeline leaves the viewport.
+  // Right of the box, mid-height: clear of the messages (top right), however
+  // tall the timeline leaves the viewport.
   const outside = await at(1.1, 0.4);
   await page.mouse.click(outside.x, outside.y);
   await expect(page.getByTestId('outliner-item-drop')).not.toHaveClass(/selected/);

@@ -1,5 +1,5 @@
-// The layer toggles (a viewport overlay, top left) and the stats panel (in
-// the left sidebar, off the viewport so that it never covers the liquid).
+// The layer toggles and the stats panel, both in the left sidebar: off the
+// viewport, so that they never cover the liquid.
 // Values are also in data-value attributes (tests read them).
 import type { Editor, LayerToggles } from '../core/Editor';
 import type { FrameInfo } from '../net/FrameDecoder';
@@ -37,7 +37,8 @@ export class LayerPanel {
       }
       return row;
     };
-    this.dom = el('div', { className: 'overlay layers', testid: 'layers' }, [
+    this.dom = el('section', { className: 'panel layers', testid: 'layers' }, [
+      el('h2', { text: 'Layers' }),
       box('liquid', 'liquid', '#73b3ff', 'Liquid and temporary particles'),
       box('control', 'control', 'linear-gradient(90deg, #33d94d, #ff59e6)', 'Control particles: green α≈0 (covered by liquid) → magenta α≈1 (uncovered)'),
       box('repulsion', 'repulsion', '#ff3333', 'Repulsion particles'),
