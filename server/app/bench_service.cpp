@@ -119,7 +119,7 @@ class PumpSession final : public Session {
   const std::string& id() const override { return id_; }
   const std::string& name() const override { return id_; }
   int dimension() const override { return 3; }
-  void play() override {}
+  void play(int) override {}
   void pause() override {}
   void step(int) override { throw SessionError("the benchmark's pump session does not simulate"); }
   void reset() override {}

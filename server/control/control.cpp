@@ -301,7 +301,32 @@ void Control<D>::setInstances(std::vector<BoundInstance<D>> instances) {
 
 template <int D>
 void Control<D>::init(Simulation<D>& sim) {
+  clearParticleMemory();
   temporaries_ = size_t(std::count(sim.fluid.kind.begin(), sim.fluid.kind.end(), uint8_t(ParticleKind::Temporary)));
+}
+
+template <int D>
+void Control<D>::clearParticleMemory() {
+  std::fill(controlAcc_.begin(), controlAcc_.end(), Vec<D>::Zero());
+  std::fill(framesOutside_.begin(), framesOutside_.end(), 0u);
+  std::fill(touched_.begin(), touched_.end(), uint8_t(0));
+  controlled_.clear();
+  for (State& s : state_) {
+    s.liquid.clear();
+    s.y.clear();
+    s.fade.clear();
+  }
+  forcesDue_ = true;
+  measureFidelity_ = true;
+}
+
+template <int D>
+void Control<D>::archiveState(StateArchive& a) {
+  // The forces and gathered lists are recomputed at the next frame's start;
+  // what carries over is each temporary particle's time outside the boxes.
+  if (a.loading()) clearParticleMemory();
+  a.io(framesOutside_);
+  a.io(temporaries_);
 }
 
 template <int D>

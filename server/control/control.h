@@ -55,6 +55,7 @@ class Control : public Effect<D> {
   void endFrame(Simulation<D>& sim, FrameStats& fs) override;
   void reorder(const std::vector<uint32_t>& perm) override;
   void resize(size_t n) override;
+  void archiveState(StateArchive& a) override;
 
   const std::vector<BoundInstance<D>>& instances() const { return instances_; }
 
@@ -67,7 +68,8 @@ class Control : public Effect<D> {
   // mid-run (a settings change) keeps its scene clock.
   void setTimeOffset(double seconds) { timeOffset_ = seconds; }
   // Counts the temporary particles the simulation already holds (a stage
-  // added to a running simulation takes over their removal).
+  // added to a running simulation takes over their removal) and forgets
+  // every particle's history (a stage as new).
   void init(Simulation<D>& sim) override;
 
   // ---- exposed for tests and tools ----
@@ -123,6 +125,7 @@ class Control : public Effect<D> {
   Real bandCoordinate(size_t i, const Vec<D>& y) const;
   bool insideBox(size_t i, const Vec<D>& y) const;
   bool insideAnyInstance(const Vec<D>& xWorld) const;  // falloff box included
+  void clearParticleMemory();
   // Algorithms 1 and 2 (temporary_particles.cpp).
   void updateTemporaryParticles(Simulation<D>& sim, FrameStats& fs);
 

@@ -59,22 +59,31 @@ template <int D>
 void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
   bool seeding = false;
   Real tau = std::numeric_limits<Real>::max(), l = std::numeric_limits<Real>::max();
+  const double now = sim.time() + timeOffset_;
   for (size_t i = 0; i < instances_.size(); ++i) {
     const ParamValues& p = instances_[i].spec.params;
     // A particle outside every instance belongs to none: removal uses the
-    // most eager instance's threshold and spacing.
-    tau = std::min(tau, Real(p.get("removal_threshold")));
-    l = std::min(l, Real(p.get("seed_distance")));
+    // most eager threshold and spacing of the instances started so far (one
+    // that starts later changes nothing before it: edits re-simulate from
+    // an instance's start).
+    if (instances_[i].spec.time.start <= now + 1e-9) {
+      tau = std::min(tau, Real(p.get("removal_threshold")));
+      l = std::min(l, Real(p.get("seed_distance")));
+    }
     seeding = seeding || (state_[i].on && p.get("temporary_particles") != 0);
   }
+  if (tau == std::numeric_limits<Real>::max()) {
+    // Only left by an instance since removed: its defaults.
+    const ParamSpecs& specs = instanceParamSpecs(D);
+    tau = Real(ParamValues(specs).get("removal_threshold"));
+    l = Real(ParamValues(specs).get("seed_distance"));
+  }
   if (!seeding && temporaries_ == 0) return;
-  // The last substep's neighbour grid and pair gradients serve, with
-  // today's positions re-read for every distance: particles moved at most a
-  // CFL fraction of a spacing since, so every particle within d_tp (or h, up
-  // to the kernel's last fraction) is still found in the 3×3 cells scanned.
-  // Refreshing them here would cost a neighbour search per frame whenever
-  // particles come or go.
-  if (sim.totalSubsteps() == 0) sim.refreshNeighbors();
+  // Neighbours and pair gradients of the frame's own positions: the frame
+  // then depends only on the state between frames, which a checkpoint
+  // restores (the last substep's lists are not part of it). When no
+  // particle comes or goes, the first substep reuses them.
+  sim.refreshNeighbors();
 
   const auto& f = sim.fluid;
   const Real hL = sim.supportRadius();

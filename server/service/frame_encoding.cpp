@@ -826,11 +826,21 @@ ClientMessage parseClientMessage(const uint8_t* data, size_t size) {
       const auto steps = t->steps();
       const auto frame = t->frame();
       const auto speed = t->speed();
+      const auto until = t->until();
       if (steps && r.command != fb::TransportCommand::Step) return unusedField("steps", "Step", r.command, r.requestId);
+      if (until && r.command != fb::TransportCommand::Play) return unusedField("until", "Play", r.command, r.requestId);
       if (frame && r.command != fb::TransportCommand::Seek) return unusedField("frame", "Seek", r.command, r.requestId);
       if (speed && r.command != fb::TransportCommand::SetSpeed)
         return unusedField("speed", "SetSpeed", r.command, r.requestId);
       switch (r.command) {
+        case fb::TransportCommand::Play:
+          if (until) {
+            r.until = *until;
+            if (r.until < 0)
+              return failure(fb::ErrorCode::InvalidArgument,
+                             "Transport.until is " + std::to_string(r.until) + ", must be >= 0", r.requestId);
+          }
+          break;
         case fb::TransportCommand::Step:
           r.steps = steps ? *steps : 1;
           if (r.steps < 1 || r.steps > 1000000)
@@ -900,6 +910,7 @@ void buildTransport(flatbuffers::FlatBufferBuilder& fbb, const TransportRequest&
   if (t.command == fb::TransportCommand::Step) b.add_steps(t.steps);
   if (t.command == fb::TransportCommand::Seek) b.add_frame(t.frame);
   if (t.command == fb::TransportCommand::SetSpeed) b.add_speed(float(t.speed));
+  if (t.command == fb::TransportCommand::Play && t.until >= 0) b.add_until(t.until);
   finishEnvelope(fbb, fb::Message::Transport, b.Finish().Union());
 }
 

@@ -155,6 +155,7 @@ struct TransportRequest {
   uint32_t steps = 1;         // Step
   int32_t frame = -1;         // Seek
   double speed = 0;           // SetSpeed: frames per wall s
+  int32_t until = -1;         // Play: the frame play stops at (-1: the scene's end)
 };
 struct SubscribeRequest {
   uint32_t requestId = 0;

@@ -310,7 +310,7 @@ class StreamConnection : public StreamHandle, public std::enable_shared_from_thi
     } else if (const auto* t = std::get_if<wire::TransportRequest>(&message)) {
       try {
         switch (t->command) {
-          case wire::fb::TransportCommand::Play: session_->play(); break;
+          case wire::fb::TransportCommand::Play: session_->play(t->until); break;
           case wire::fb::TransportCommand::Pause: session_->pause(); break;
           case wire::fb::TransportCommand::Step: session_->step(int(t->steps)); break;
           case wire::fb::TransportCommand::Reset: session_->reset(); break;

@@ -827,7 +827,7 @@ HttpResponse ServiceHub::listSessions(const HttpRequest&, const Params&) {
 
 HttpResponse ServiceHub::createSession(const HttpRequest& req, const Params&) {
   const json body = requireObject(parseBody(req));
-  onlyKeys(body, {"scene", "name", "history_cap_mb", "playback_speed", "threads"});
+  onlyKeys(body, {"scene", "name", "history_cap_mb", "playback_speed", "threads", "checkpoint_every"});
   if (!body.contains("scene")) throw ApiError(400, "\"scene\" is required: a scene name or an inline scene object", "scene");
   json scene;
   std::string sceneName;
@@ -858,6 +858,8 @@ HttpResponse ServiceHub::createSession(const HttpRequest& req, const Params&) {
                           "the server's --max-threads is the ceiling; 0: all of them"));
   if (so.threads == 0) so.threads = options_.maxThreads;
   so.frameTimeout = options_.frameTimeout;
+  so.checkpointEvery = int(getInt(body, "checkpoint_every", false, SessionOptions::kDefaultCheckpointEvery, 0, 100000,
+                                  "frames between checkpoints; 0: none"));
 
   std::string id;
   {
@@ -1024,8 +1026,8 @@ HttpResponse ServiceHub::transport(const HttpRequest& req, const Params& p) {
   const json body = requireObject(parseBody(req));
   const std::string command = getString(body, "command", true);
   if (command == "play") {
-    onlyKeys(body, {"command"});
-    s->play();
+    onlyKeys(body, {"command", "until"});
+    s->play(int(getInt(body, "until", false, -1, 0, INT32_MAX)));
   } else if (command == "pause") {
     onlyKeys(body, {"command"});
     s->pause();

@@ -4,12 +4,16 @@
 #include "control/control.h"
 #include "io/instance_binding.h"
 #include "io/recipe.h"
+#include "service/checkpoints.h"
+#include "service/edit_scope.h"
 #include "service/history_export.h"
+#include "sph/state_archive.h"
 
 #include <omp.h>
 
 #include <algorithm>
 #include <atomic>
+#include <climits>
 #include <cmath>
 #include <condition_variable>
 #include <deque>
@@ -173,7 +177,10 @@ class SessionImpl final : public Session {
  public:
   SessionImpl(std::string id, std::string name, const json& scene, TemplateDatabase& database,
               const SessionOptions& options)
-      : id_(std::move(id)), db_(database), options_(options) {
+      : id_(std::move(id)),
+        db_(database),
+        options_(options),
+        checkpoints_(options.checkpointEvery, checkpointCap(options), options.compressCheckpoints) {
     setup_ = parseScene<D>(scene);
     control_ = parseSceneControl<D>(scene, setup_.phases);
     if (!control_.instances.empty()) bound_ = bindInstances<D>(control_.instances, db_);
@@ -183,6 +190,7 @@ class SessionImpl final : public Session {
     speed_ = options_.playbackSpeed >= 0 && std::isfinite(options_.playbackSpeed) ? options_.playbackSpeed : 0;
     std::lock_guard lk(mutex_);
     sceneShared_ = scene_;
+    endFrame_ = playUntil_ = sceneEndFrame();
     recordInitialFrame();
     thread_ = std::thread([this] { run(); });
   }
@@ -203,21 +211,21 @@ class SessionImpl final : public Session {
 
   // ---- transport ----
 
-  void play() override {
-    bool wasReplay = false, changed = false;
+  void play(int until) override {
     {
       std::lock_guard lk(mutex_);
       if (status_ == SessionStatus::Error) throw SessionError(errorText() + "; reset the session first");
-      wasReplay = replay_ != nullptr;
-      replay_ = nullptr;
-      changed = status_ != SessionStatus::Playing || wasReplay;
+      if (until < -1) throw SessionError("play: until must be a frame >= 0, got " + std::to_string(until));
+      playUntil_ = until < 0 ? endFrame_ : until;
+      // From a replayed frame: the recorded frames first, then on simulating.
+      replayPlaying_ = replay_ != nullptr;
       status_ = SessionStatus::Playing;
       stepsLeft_ = 0;
+      lastStart_ = Clock::time_point{};
       ++signal_;
     }
     wake();
-    if (wasReplay) notifyFrame();
-    if (changed) notifyState();
+    notifyState();
   }
 
   void pause() override {
@@ -227,6 +235,7 @@ class SessionImpl final : public Session {
       if (status_ == SessionStatus::Playing || status_ == SessionStatus::Stepping) {
         status_ = SessionStatus::Paused;
         stepsLeft_ = 0;
+        replayPlaying_ = false;
         changed = true;
       }
       ++signal_;
@@ -243,6 +252,7 @@ class SessionImpl final : public Session {
       if (status_ == SessionStatus::Error) throw SessionError(errorText() + "; reset the session first");
       wasReplay = replay_ != nullptr;
       replay_ = nullptr;
+      replayPlaying_ = false;
       stepsLeft_ = status_ == SessionStatus::Stepping ? int(std::min<int64_t>(int64_t(stepsLeft_) + frames, INT32_MAX))
                                                       : frames;
       status_ = SessionStatus::Stepping;
@@ -285,7 +295,8 @@ class SessionImpl final : public Session {
       if (!f) throw std::out_of_range("frame " + std::to_string(frame) + " is not in the history (" + keptText() + ")");
       if (status_ != SessionStatus::Error) status_ = SessionStatus::Paused;
       stepsLeft_ = 0;
-      // Seeking the newest frame is going back to live (the timeline's end).
+      replayPlaying_ = false;
+      // Seeking the simulation's own frame is going back to live.
       replay_ = f == live_ ? nullptr : f;
       ++signal_;
     }
@@ -495,31 +506,26 @@ class SessionImpl final : public Session {
   // A fresh simulation of setup_ with bound_ at scene time 0; unchanged on failure.
   void buildSimulation() {
     auto sim = makeSimulation<D>(setup_);
-    const double timeBase = timeBase_;
     Control<D>* stage = controlStage_;
-    timeBase_ = 0;
     controlStage_ = nullptr;
     try {
       if (!bound_.empty()) attachControlStage(*sim, control_.settings);
     } catch (...) {
-      timeBase_ = timeBase;
       controlStage_ = stage;
       throw;
     }
     sim_ = std::move(sim);
-    frameBase_ = 0;
   }
 
   // A control stage over bound_ on `sim` (whose clock starts at timeBase_).
   Control<D>* attachControlStage(Simulation<D>& sim, const ParamValues& settings) {
     auto c = std::make_unique<Control<D>>(bound_, settings);
-    c->setTimeOffset(timeBase_);
     Control<D>* stage = c.get();
     sim.addEffect(std::move(c), "control");
     return controlStage_ = stage;
   }
 
-  int nextFrame() const { return frameBase_ + sim_->frame() + 1; }
+  int nextFrame() const { return sim_->frame() + 1; }
 
   std::string createdBy() const { return std::string("flowclip ") + FLOWCLIP_VERSION + " session " + id_; }
 
@@ -667,8 +673,8 @@ class SessionImpl final : public Session {
 
   FrameStats initialStats() const {
     FrameStats fs;
-    fs.frame = frameBase_ + sim_->frame();
-    fs.time = timeBase_ + sim_->time();
+    fs.frame = sim_->frame();
+    fs.time = sim_->time();
     fs.particles = sim_->fluid.size();
     fs.boundaryParticles = sim_->boundary.size();
     fs.temporaryParticles =
@@ -731,12 +737,22 @@ class SessionImpl final : public Session {
   void recordLocked(const FramePtr& f) {
     history_.push_back(f);
     historyBytes_ += f->byteSize;
-    while (historyBytes_ > options_.historyCapBytes && !history_.empty()) {
+    fitMemoryLocked();
+  }
+
+  // With mutex_ held: the history and the checkpoints within the session's
+  // cap, the oldest frames dropped first (the checkpoints hold their own
+  // share, checkpointCap).
+  void fitMemoryLocked() {
+    const size_t cap = options_.historyCapBytes, held = checkpointFigures_.bytes;
+    while (historyBytes_ + held > cap && !history_.empty()) {
       historyBytes_ -= history_.front()->byteSize;
       history_.pop_front();
       ++dropped_;
     }
   }
+
+  static size_t checkpointCap(const SessionOptions& o) { return o.checkpointsEnabled() ? o.historyCapBytes / 4 : 0; }
 
   void run() {
     if (options_.threads > 0) omp_set_num_threads(options_.threads);
@@ -758,22 +774,34 @@ class SessionImpl final : public Session {
         idleCv_.notify_all();
         continue;
       }
+      // Re-simulating stale frames goes first, as fast as possible,
+      // whatever the transport says.
+      if (resimulatingLocked()) {
+        computing_ = true;
+        lk.unlock();
+        computeFrame(lk);
+        continue;
+      }
+      if (status_ == SessionStatus::Playing && replayPlaying_) {
+        replayStep(lk);
+        continue;
+      }
+      if (status_ == SessionStatus::Playing && live_->frame >= playUntil_) {
+        // The play range's end (the scene's duration by default).
+        status_ = SessionStatus::Paused;
+        notifyStateUnlocked(lk);
+        continue;
+      }
       const bool advancing = status_ == SessionStatus::Playing || status_ == SessionStatus::Stepping;
       if (!advancing) {
         idleCv_.notify_all();
         cv_.wait(lk, [&] {
-          return stop_ || !ops_.empty() || status_ == SessionStatus::Playing || status_ == SessionStatus::Stepping;
+          return stop_ || !ops_.empty() || status_ == SessionStatus::Playing || status_ == SessionStatus::Stepping ||
+                 resimulatingLocked();
         });
         continue;
       }
-      if (status_ == SessionStatus::Playing && speed_ > 0) {
-        const auto due = lastStart_ + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1 / speed_));
-        if (Clock::now() < due) {
-          const uint64_t sig = signal_;
-          cv_.wait_until(lk, due, [&] { return stop_ || signal_ != sig || !ops_.empty(); });
-          continue;
-        }
-      }
+      if (status_ == SessionStatus::Playing && speed_ > 0 && !paced(lk, speed_)) continue;
       lastStart_ = Clock::now();
       computing_ = true;
       lk.unlock();
@@ -787,16 +815,73 @@ class SessionImpl final : public Session {
       if (op.promise) op.promise->set_value(closedResult(op));
   }
 
+  // With mutex_ held: waits until the next frame is due at `fps` frames per
+  // wall second; false when woken earlier (re-check everything).
+  bool paced(std::unique_lock<std::mutex>& lk, double fps) {
+    const auto due = lastStart_ + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1 / fps));
+    if (Clock::now() >= due) return true;
+    const uint64_t sig = signal_;
+    cv_.wait_until(lk, due, [&] { return stop_ || signal_ != sig || !ops_.empty(); });
+    return false;
+  }
+
+  // With mutex_ held, released around the listeners.
+  void notifyStateUnlocked(std::unique_lock<std::mutex>& lk) {
+    notifying_ = true;
+    lk.unlock();
+    notifyState();
+    lk.lock();
+    notifying_ = false;
+    idleCv_.notify_all();
+  }
+
+  // Playing from a replayed frame (mutex_ held): the next recorded frame at
+  // the playback speed (the scene's frame rate when "as fast as possible":
+  // recorded frames cost nothing to show), then live once the simulation's
+  // own frame is reached. A stale frame is waited for (re-simulation goes
+  // first in the loop).
+  void replayStep(std::unique_lock<std::mutex>& lk) {
+    const int next = replay_ ? replay_->frame + 1 : live_->frame + 1;
+    if (next > playUntil_) {
+      status_ = SessionStatus::Paused;
+      replayPlaying_ = false;
+      notifyStateUnlocked(lk);
+      return;
+    }
+    if (!paced(lk, speed_ > 0 ? speed_ : info_.frameRate)) return;
+    lastStart_ = Clock::now();
+    if (next >= live_->frame) {
+      // The simulation's own frame: live from here (the simulation goes on).
+      replayPlaying_ = false;
+      replay_ = nullptr;
+    } else {
+      FramePtr f = findFrame(next);
+      if (!f) {
+        replayPlaying_ = false;  // dropped by the memory cap: go live
+        replay_ = nullptr;
+      } else {
+        replay_ = f == live_ ? nullptr : f;
+        if (!replay_) replayPlaying_ = false;
+      }
+    }
+    notifying_ = true;
+    lk.unlock();
+    notifyFrame();
+    notifyState();
+    lk.lock();
+    notifying_ = false;
+    idleCv_.notify_all();
+  }
+
   // Called with mutex_ released; returns with it held.
   void computeFrame(std::unique_lock<std::mutex>& lk) {
     sim_->setFrameLimits({Clock::now() + options_.frameTimeout, &cancel_});
     FrameStats fs = sim_->advanceFrame();
-    fs.frame += frameBase_;
-    fs.time += timeBase_;
     FramePtr snap;
     if (fs.finite) {
       snap = makeSnapshot(fs);
       encodeLayers(fs);
+      if (checkpoints_.due(fs.frame)) saveCheckpoint(fs.frame);
     }
     lk.lock();
     computing_ = false;
@@ -809,18 +894,46 @@ class SessionImpl final : public Session {
       // Never published: the last good frame stays the newest.
       status_ = SessionStatus::Error;
       stepsLeft_ = 0;
+      replayPlaying_ = false;
+      resimTarget_ = -1;
       errorFrame_ = fs.frame;
       errorMessage_ = failureText(fs) + "; the simulation is paused (reset to go on)";
       stateChanged = true;
     } else {
+      const bool resim = fs.frame <= resimTarget_;
+      // Between the checkpoint and the first stale frame the frames come out
+      // the same: the recorded snapshots stay (no viewer sees a change).
+      const FramePtr kept = resim && fs.frame < staleFrom_ ? findFrame(fs.frame) : nullptr;
+      if (kept) snap = kept;
+      checkpointFigures_ = checkpoints_.figures();
+      checkpointFrames_ = checkpoints_.frames();
       live_ = snap;
-      recordLocked(snap);
+      storeLocked(snap);
       publishCountsLocked();
-      frameChanged = replay_ == nullptr;
-      if (status_ == SessionStatus::Stepping && --stepsLeft_ <= 0) {
-        status_ = SessionStatus::Paused;
-        stepsLeft_ = 0;
-        stateChanged = true;
+      if (resim) {
+        if (fs.frame >= resimTarget_) resimTarget_ = -1;
+        // A replaying viewer sees its frame replaced; a live one follows.
+        if (kept) {
+          frameChanged = false;
+        } else if (replay_ && replay_->frame == fs.frame) {
+          replay_ = snap;
+          frameChanged = true;
+        } else {
+          frameChanged = replay_ == nullptr;
+        }
+        // State at most every 100 ms while re-simulating, and at its end.
+        const auto now = Clock::now();
+        if (resimTarget_ < 0 || now - lastResimState_ >= std::chrono::milliseconds(100)) {
+          lastResimState_ = now;
+          stateChanged = true;
+        }
+      } else {
+        frameChanged = replay_ == nullptr;
+        if (status_ == SessionStatus::Stepping && --stepsLeft_ <= 0) {
+          status_ = SessionStatus::Paused;
+          stepsLeft_ = 0;
+          stateChanged = true;
+        }
       }
     }
     if (!frameChanged && !stateChanged) {
@@ -836,6 +949,84 @@ class SessionImpl final : public Session {
     idleCv_.notify_all();
   }
 
+  // Session thread: the simulation's state now, as the checkpoint of `frame`.
+  void saveCheckpoint(int frame) {
+    StateArchive a;
+    sim_->archiveState(a);
+    checkpoints_.put(frame, a.bytes());
+  }
+
+  // With mutex_ held: records a computed frame, replacing the recorded one
+  // of that number (re-simulation) or appending it; the stale range moves
+  // past it.
+  void storeLocked(const FramePtr& f) {
+    if (!history_.empty() && f->frame <= history_.back()->frame) {
+      auto it = std::lower_bound(history_.begin(), history_.end(), f->frame,
+                                 [](const FramePtr& g, int n) { return g->frame < n; });
+      if (it != history_.end() && (*it)->frame == f->frame) {
+        historyBytes_ = historyBytes_ - (*it)->byteSize + f->byteSize;
+        *it = f;
+      }
+      // else: dropped by the memory cap before; it stays dropped.
+    } else {
+      recordLocked(f);
+    }
+    if (staleFrom_ <= f->frame) staleFrom_ = f->frame + 1;
+    if (history_.empty() || staleFrom_ > history_.back()->frame) staleFrom_ = INT_MAX;
+    fitMemoryLocked();
+  }
+
+  bool resimulatingLocked() const { return resimTarget_ >= 0 && live_->frame < resimTarget_; }
+
+  // The first recorded frame an accepted edit changed is `first`
+  // (edit_scope.h): frames from there on become stale, and the simulation,
+  // if already past it, goes back to the newest checkpoint before it (frame
+  // 0: a fresh build) to re-simulate up to the frame reached before.
+  void invalidateFrom(int first) {
+    int reached = 0, simFrame = 0;
+    {
+      std::lock_guard lk(mutex_);
+      reached = history_.empty() ? live_->frame : std::max(history_.back()->frame, live_->frame);
+      simFrame = live_->frame;
+    }
+    if (first > reached) return;  // only frames not simulated yet change
+    checkpoints_.dropFrom(first);
+    if (simFrame >= first) {
+      const auto t0 = Clock::now();
+      std::vector<uint8_t> archive;
+      const int from = checkpoints_.newestAtOrBefore(first - 1, archive);
+      bool restored = false;
+      if (from > 0) {
+        try {
+          StateArchive a(archive);
+          sim_->archiveState(a);
+          restored = true;
+        } catch (const StateArchiveError&) {
+          checkpoints_.clear();  // not this scene's: rebuild from frame 0 below
+        }
+      }
+      if (!restored) buildSimulation();  // throws only for what applyEdit validated
+      checkpoints_.noteRestoreMs(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
+      FramePtr at = makeSnapshot(initialStats());
+      std::lock_guard lk(mutex_);
+      // The restored frame is the live one (its recorded snapshot is the
+      // same frame: before the edit's first change).
+      if (FramePtr kept = findFrame(at->frame)) at = kept;
+      live_ = at;
+      resimFrom_ = at->frame;
+    }
+    std::lock_guard lk(mutex_);
+    staleFrom_ = std::min(staleFrom_, first);
+    if (history_.empty() || staleFrom_ > history_.back()->frame) staleFrom_ = INT_MAX;
+    resimTarget_ = std::max(resimTarget_, reached);
+    if (simFrame < first) resimFrom_ = std::min(resimFrom_ < 0 ? simFrame : resimFrom_, simFrame);
+    lastResimState_ = Clock::time_point{};
+    checkpointFigures_ = checkpoints_.figures();
+    checkpointFrames_ = checkpoints_.frames();
+    publishCountsLocked();
+    ++signal_;
+  }
+
   void doReset() {
     cancel_ = false;
     std::string failure;
@@ -844,8 +1035,14 @@ class SessionImpl final : public Session {
     } catch (const std::exception& e) {
       failure = e.what();
     }
+    checkpoints_.clear();
     {
       std::lock_guard lk(mutex_);
+      checkpointFigures_ = checkpoints_.figures();
+      checkpointFrames_.clear();
+      staleFrom_ = INT_MAX;
+      resimTarget_ = resimFrom_ = -1;
+      replayPlaying_ = false;
       if (failure.empty()) {
         recordInitialFrame();
         status_ = SessionStatus::Paused;
@@ -943,9 +1140,14 @@ class SessionImpl final : public Session {
     r.kind = op.edit.kind;
     r.instance = op.edit.instance;
     try {
-      applyEdit(op.edit, r);
+      const double oldRate = info_.frameRate;
+      const int first = applyEdit(op.edit, r);
       r.accepted = true;
-      r.frame = nextFrame();
+      r.frame = std::min(first, nextFrame());
+      if (first == 0)
+        restartFromFrameZero(oldRate);
+      else
+        invalidateFrom(first);
     } catch (const SceneError& e) {
       r.path = e.path;
       r.message = e.what();
@@ -981,10 +1183,12 @@ class SessionImpl final : public Session {
   }
 
   // Validates fully, then applies; throws (changing nothing) when invalid.
-  void applyEdit(const Edit& e, EditResult& r) {
+  // Returns the first frame the edit changes (0: every frame, the
+  // simulation rebuilt; INT_MAX: none).
+  int applyEdit(const Edit& e, EditResult& r) {
     if (e.kind == EditKind::Settings) {
       applySettings(e.payload);
-      return;
+      return 0;
     }
     json candidate = scene_;
     json& list = candidate["instances"];
@@ -1014,6 +1218,9 @@ class SessionImpl final : public Session {
     if (e.kind != EditKind::RemoveInstance) r.instance = control.instances.at(index).name;
     std::vector<BoundInstance<D>> bound;
     if (!control.instances.empty()) bound = bindInstances<D>(control.instances, db_);
+    const InstanceSpec<D>* before = e.kind == EditKind::AddInstance ? nullptr : &bound_.at(index).spec;
+    const InstanceSpec<D>* after = e.kind == EditKind::RemoveInstance ? nullptr : &bound.at(index).spec;
+    const int first = firstAffectedFrame(firstAffectedTime<D>(before, after), info_.frameRate);
     // Valid: apply. Adding the first instance adds the control stage; once
     // there it stays (with no instances it only retires temporary particles).
     if (controlStage_) {
@@ -1030,10 +1237,11 @@ class SessionImpl final : public Session {
     }
     control_ = std::move(control);
     scene_ = canonicalScene<D>(setup_, control_);
+    return first;
   }
 
-  // A new simulation from the patched settings, carrying the current
-  // particles over; the scene clock and frame numbers continue.
+  // A new simulation from the patched settings at frame 0 (every recorded
+  // frame is then stale: restartFromFrameZero).
   void applySettings(const json& payload) {
     if (!payload.is_object())
       throw SceneError("", std::string("a settings edit must be an object, got ") + payload.type_name());
@@ -1059,44 +1267,67 @@ class SessionImpl final : public Session {
     SimulationSetup<D> setup = parseScene<D>(candidate);
     SceneControl<D> control = parseSceneControl<D>(candidate, setup.phases);
     std::unique_ptr<Simulation<D>> sim = makeSimulation<D>(setup);
-
-    // Carry the particles over (every kind, in order).
-    const auto& from = sim_->fluid;
-    std::vector<uint32_t> all(sim->fluid.size());
-    std::iota(all.begin(), all.end(), 0u);
-    sim->removeParticles(all);
-    std::vector<NewParticle<D>> add(from.size());
-    for (size_t i = 0; i < from.size(); ++i)
-      add[i] = {from.x[i], from.v[i], from.mass[i], from.phase[i], ParticleKind(from.kind[i])};
-    sim->appendParticles(add);
-
-    const int frameBase = frameBase_ + sim_->frame();
-    const double timeBase = timeBase_ + sim_->time();
-    const double oldTimeBase = timeBase_;
     Control<D>* oldStage = controlStage_;
     if (oldStage) {
-      timeBase_ = timeBase;
       try {
         attachControlStage(*sim, control.settings);
       } catch (...) {
-        timeBase_ = oldTimeBase;
         controlStage_ = oldStage;
         throw;
       }
     }
-    sim->continueBodiesFrom(*sim_, timeBase);
     sim_ = std::move(sim);
-    frameBase_ = frameBase;
-    timeBase_ = timeBase;
     setup_ = std::move(setup);
     control_ = std::move(control);
     scene_ = canonicalScene<D>(setup_, control_);
   }
 
+  // After a settings edit (the simulation rebuilt at frame 0): every
+  // recorded frame is stale, frame 0 replaced at once, and the frames up to
+  // the one reached re-simulated (at the same scene time when the frame
+  // rate changed, the history then restarting from frame 0).
+  void restartFromFrameZero(double oldFrameRate) {
+    checkpoints_.clear();
+    FramePtr zero = makeSnapshot(initialStats());
+    std::lock_guard lk(mutex_);
+    checkpointFigures_ = checkpoints_.figures();
+    checkpointFrames_.clear();
+    const int reached = history_.empty() ? live_->frame : std::max(history_.back()->frame, live_->frame);
+    const double newRate = 1.0 / sim_->frameDuration();
+    int target = reached;
+    if (std::abs(newRate - oldFrameRate) > 1e-9 * oldFrameRate) {
+      target = int(std::lround(double(reached) / oldFrameRate * newRate));
+      history_.clear();
+      historyBytes_ = 0;
+      replay_ = nullptr;
+      replayPlaying_ = false;
+      recordLocked(zero);
+      staleFrom_ = INT_MAX;
+      endFrame_ = sceneEndFrame();
+      playUntil_ = std::min(playUntil_, endFrame_);
+    } else {
+      storeLocked(zero);
+      staleFrom_ = history_.empty() || history_.back()->frame < 1 ? INT_MAX : 1;
+      if (replay_ && replay_->frame == 0) replay_ = zero;
+    }
+    layered_.reset();
+    live_ = zero;
+    resimFrom_ = 0;
+    resimTarget_ = target > 0 ? target : -1;
+    lastResimState_ = Clock::time_point{};
+    publishCountsLocked();
+    ++signal_;
+  }
+
+  // The frame playback stops at by default: the scene's duration.
+  int sceneEndFrame() const {
+    return std::max(1, int(std::lround(setup_.duration * (1.0 / sim_->frameDuration()))));
+  }
+
   // ======== shared state (mutex_ held) ========
 
   bool idleLocked() const {
-    return !computing_ && !busy_ && !notifying_ && ops_.empty() &&
+    return !computing_ && !busy_ && !notifying_ && ops_.empty() && !resimulatingLocked() &&
            (status_ == SessionStatus::Paused || status_ == SessionStatus::Error);
   }
 
@@ -1150,7 +1381,41 @@ class SessionImpl final : public Session {
                 {"simulation_bytes", simBytes_},
                 {"total_bytes", historyBytes_ + simBytes_}}}};
     if (status_ == SessionStatus::Error) j["error"] = {{"message", errorMessage_}, {"frame", errorFrame_}};
+    j["end_frame"] = endFrame_;
+    j["play_until"] = playUntil_;
+    j["replaying"] = replayPlaying_;
+    j["memory"]["checkpoint_bytes"] = checkpointFigures_.bytes;
+    j["memory"]["total_bytes"] = historyBytes_ + simBytes_ + checkpointFigures_.bytes;
+    j["cache"] = cacheLocked();
     return j;
+  }
+
+  // {valid: [[a, b]], stale: [[a, b]], simulating: null | {from, to, frame},
+  //  reached, checkpoints: [...], checkpoint_every, checkpoint_bytes,
+  //  checkpoint_raw_bytes, checkpoint_save_ms, checkpoint_restore_ms}
+  json cacheLocked() const {
+    json valid = json::array(), stale = json::array();
+    if (!history_.empty()) {
+      const int first = history_.front()->frame, last = history_.back()->frame;
+      const int staleFrom = std::max(first, staleFrom_);
+      if (staleFrom > first) valid.push_back({first, std::min(last, staleFrom - 1)});
+      if (staleFrom <= last) stale.push_back({staleFrom, last});
+    }
+    const int reached = history_.empty() ? live_->frame : std::max(history_.back()->frame, live_->frame);
+    json simulating = nullptr;
+    if (resimulatingLocked())
+      simulating = {{"from", resimFrom_ < 0 ? live_->frame : resimFrom_}, {"to", resimTarget_}, {"frame", live_->frame}};
+    return {{"valid", valid},
+            {"stale", stale},
+            {"simulating", simulating},
+            {"reached", reached},
+            {"checkpoints", checkpointFrames_},
+            {"checkpoint_every", checkpoints_.every()},
+            {"checkpoint_bytes", checkpointFigures_.bytes},
+            {"checkpoint_raw_bytes", checkpointFigures_.rawBytes},
+            {"checkpoint_cap", checkpoints_.capBytes()},
+            {"checkpoint_save_ms", checkpointFigures_.saveMs},
+            {"checkpoint_restore_ms", checkpointFigures_.restoreMs}};
   }
 
   // ======== notification (no session lock held) ========
@@ -1212,8 +1477,7 @@ class SessionImpl final : public Session {
   std::vector<BoundInstance<D>> bound_;
   std::unique_ptr<Simulation<D>> sim_;
   Control<D>* controlStage_ = nullptr;
-  int frameBase_ = 0;      // scene frame of the simulation's frame 0
-  double timeBase_ = 0;    // scene time of the simulation's time 0
+  CheckpointStore checkpoints_;
   Clock::time_point lastStart_{};
 
   // ---- shared, under mutex_ ----
@@ -1241,6 +1505,17 @@ class SessionImpl final : public Session {
   size_t dropped_ = 0;
   FramePtr live_;            // newest simulated frame
   FramePtr replay_;          // frame selected by seek (null: live)
+  bool replayPlaying_ = false;  // playing through recorded frames (replay_ advances)
+  int endFrame_ = 1;         // the scene's duration in frames: where play stops by default
+  int playUntil_ = 1;        // where the current play stops
+  // The cache: recorded frames from staleFrom_ on were changed by an edit
+  // (INT_MAX: none); re-simulation runs the simulation from resimFrom_ up
+  // to resimTarget_ (-1: not re-simulating), replacing them.
+  int staleFrom_ = INT_MAX;
+  int resimFrom_ = -1, resimTarget_ = -1;
+  Clock::time_point lastResimState_{};
+  CheckpointStore::Figures checkpointFigures_;
+  std::vector<int> checkpointFrames_;
   json sceneShared_;
   struct SceneInfo {
     std::string sceneName;

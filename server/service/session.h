@@ -186,6 +186,13 @@ struct SessionOptions {
   // The watchdog: a frame running longer puts the session in its error
   // state (the substep limit is the scene's settings.max_substeps_per_frame).
   std::chrono::milliseconds frameTimeout{120000};
+  // Checkpoints (service/checkpoints.h): the whole simulation state every
+  // this many frames (0: none; an edit then re-simulates from frame 0),
+  // within a quarter of historyCapBytes, compressed where that saves a tenth.
+  int checkpointEvery = kDefaultCheckpointEvery;
+  bool compressCheckpoints = true;
+  static constexpr int kDefaultCheckpointEvery = 10;
+  bool checkpointsEnabled() const { return checkpointEvery > 0; }
 };
 
 struct SessionListener {
@@ -211,14 +218,17 @@ class Session {
   virtual const std::string& name() const = 0;
   virtual int dimension() const = 0;
 
-  // Transport. play(): frames one after another at the playback speed.
-  // pause(): stops after the frame in progress. step(n): n more frames as
+  // Transport. play(until): frames one after another at the playback speed
+  // up to frame `until` (-1: the scene's duration, state "end_frame"), then
+  // paused; from a replayed frame it plays the recorded frames first (at
+  // the playback speed, the scene's frame rate when 0) and simulates on
+  // from the simulation's own frame. pause(): stops after the frame in progress. step(n): n more frames as
   // fast as possible, then paused (n > 0). reset(): queued like an edit;
   // rebuilds the simulation from the scene as edited so far, clears the
   // history and any error, frame 0, paused. setPlaybackSpeed(fps): 0 = as
   // fast as possible, else at most fps frames per wall second (>= 0). play
   // and step throw SessionError in the error state (reset first).
-  virtual void play() = 0;
+  virtual void play(int until = -1) = 0;
   virtual void pause() = 0;
   virtual void step(int frames) = 0;
   virtual void reset() = 0;
@@ -230,7 +240,15 @@ class Session {
   virtual FramePtr seek(int frame) = 0;
 
   // Edits: queued, validated and applied by the session's thread at the next
-  // frame boundary, in order. A rejected edit changes nothing. At most
+  // frame boundary, in order. A rejected edit changes nothing. An accepted
+  // one makes the recorded frames it changes stale (from the first frame
+  // whose simulation reads a scene time it changed: edit_scope.h; a
+  // settings edit: every frame) and the session re-simulates them by
+  // itself from the newest checkpoint before them, up to the frame reached,
+  // whatever the transport says (paused stays paused, playing goes on
+  // after). A live viewer sees the re-simulated frames as they come; a
+  // replaying one its frame replaced. state()["cache"] says which frames
+  // are valid, stale and being simulated. At most
   // kMaxPendingEdits wait at once; submit throws SessionOverloaded beyond.
   static constexpr size_t kMaxPendingEdits = 256;
   virtual EditTicket submit(Edit edit) = 0;
@@ -304,7 +322,11 @@ class Session {
   //  particles: {liquid, temporary, boundary}, instances, pending_edits,
   //  steps_left, computing (a frame is being simulated: after pause() until
   //  it ends), memory: {history_bytes, frame_bytes, history_bytes_per_1000_frames,
-  //  simulation_bytes, total_bytes}}
+  //  simulation_bytes, checkpoint_bytes, total_bytes}, end_frame, play_until,
+  //  replaying, cache: {valid, stale (inclusive frame ranges), simulating:
+  //  null | {from, to, frame}, reached, checkpoints, checkpoint_every,
+  //  checkpoint_bytes, checkpoint_raw_bytes, checkpoint_cap,
+  //  checkpoint_save_ms, checkpoint_restore_ms}}
   virtual nlohmann::json state() const = 0;
   virtual SessionStatus status() const = 0;
   // The newest simulated frame number (not the shown one).
@@ -314,7 +336,7 @@ class Session {
   virtual void unsubscribe(uint64_t id) = 0;
 
   // Waits until the session is paused (or in error) with no edit or reset
-  // pending, no frame in progress and the listeners told of the last frame
+  // pending, no re-simulation running, no frame in progress and the listeners told of the last frame
   // computed (its own calls; transport calls notify on the caller's thread).
   // false on timeout.
   virtual bool waitIdle(std::chrono::milliseconds timeout) const = 0;

@@ -76,6 +76,11 @@ class DFSPH final : public PressureSolver<D> {
     stiffness_.resize(n, 0);
     deficient_.resize(n, 0);
   }
+  // The stiffnesses warm-start the next substep's solves.
+  void archiveState(StateArchive& a) override {
+    a.io(kappaDensity_);
+    a.io(kappaDivergence_);
+  }
   void reorder(const std::vector<uint32_t>& perm) override {
     applyPermutation(kappaDensity_, perm, scratch_);
     applyPermutation(kappaDivergence_, perm, scratch_);

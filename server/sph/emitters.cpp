@@ -103,6 +103,9 @@ class Emitters final : public Effect<D> {
     sim.appendParticles(add_);
   }
 
+  // The jet length emitted and not yet placed carries over between frames.
+  void archiveState(StateArchive& a) override { a.io(travelled_); }
+
   // After the pressure solve, so that what leaves the bore is exactly the
   // nozzle's flux.
   void correctVelocities(Simulation<D>& sim, Real) override {

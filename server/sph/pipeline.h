@@ -3,6 +3,7 @@
 // Each registers by name in one table; the scene's lists pick which exist.
 #include "core/types.h"
 #include "sph/parameters.h"
+#include "sph/state_archive.h"
 #include <array>
 #include <functional>
 #include <map>
@@ -42,6 +43,12 @@ class PressureSolver {
   virtual Real maxTimeStep(const Simulation<D>&) const { return Real(1e30); }
   virtual void reorder(const std::vector<uint32_t>&) {}
   virtual void resize(size_t) {}
+  // Checkpoints (sph/state_archive.h): the state this part carries from one
+  // frame to the next (warm starts, counters, per-particle memory), saved
+  // and restored in the particles' current order. Called between frames;
+  // on load after resize() to the restored particle count. Stateless parts
+  // keep the default.
+  virtual void archiveState(StateArchive&) {}
 };
 
 // Stages an effect takes part in; the pipeline only calls what is declared.
@@ -76,6 +83,12 @@ class Effect {
   virtual Real maxTimeStep(const Simulation<D>&) const { return Real(1e30); }
   virtual void reorder(const std::vector<uint32_t>&) {}
   virtual void resize(size_t) {}
+  // Checkpoints (sph/state_archive.h): the state this part carries from one
+  // frame to the next (warm starts, counters, per-particle memory), saved
+  // and restored in the particles' current order. Called between frames;
+  // on load after resize() to the restored particle count. Stateless parts
+  // keep the default.
+  virtual void archiveState(StateArchive&) {}
 };
 
 // A name -> (parameter specs, factory) table.

@@ -199,14 +199,16 @@ void RigidBodies<D>::integrate(const Simulation<D>& sim, Real dt, const AABB<D>&
   // The pressure force of the liquid on each boundary particle b of a
   // dynamic body, the reaction of the one the particle exerts on the liquid:
   // F_b = m_i Ψ_b (p_i / ρ_i²) ∇W_ib, Ψ_b = ρ0_i V_b ([AIA*12], Sec. 4).
-  std::vector<double> acc(nb * size_t(D + A), 0.0);
-#pragma omp parallel
-  {
-    std::vector<double> local(nb * size_t(D + A), 0.0);
+  // Summed per fixed block of particles, then the blocks in order: the
+  // bodies' motion must not depend on how many threads split the liquid.
+  const size_t stride = nb * size_t(D + A);
+  const long blocks = clearBlockSums(size_t(n));
+#pragma omp parallel for schedule(static)
+  for (long blk = 0; blk < blocks; ++blk) {
+    double* local = blockSums_.data() + size_t(blk) * stride;
     Real w;
     Vec<D> g;
-#pragma omp for schedule(static) nowait
-    for (long i = 0; i < n; ++i) {
+    for (long i = blk * kBlock; i < std::min(n, (blk + 1) * kBlock); ++i) {
       if (sim.boundaryNeighbors[size_t(i)] == 0 || !(f.pressure[size_t(i)] > 0)) continue;
       const Vec<D> xi = f.x[size_t(i)];
       const Real rho = f.density[size_t(i)];
@@ -219,14 +221,16 @@ void RigidBodies<D>::integrate(const Simulation<D>& sim, Real dt, const AABB<D>&
         const VecD F = (scale * double(boundary.volume[b])) * g.template cast<double>();
         const VecD r = xb.template cast<double>() - bodies_[size_t(k)].centre;
         const Ang tq = crossRF(r, F);
-        double* o = local.data() + size_t(k) * size_t(D + A);
+        double* o = local + size_t(k) * size_t(D + A);
         for (int d = 0; d < D; ++d) o[d] += F[d];
         for (int a = 0; a < A; ++a) o[D + a] += tq[a];
       });
     }
-#pragma omp critical
-    for (size_t k = 0; k < acc.size(); ++k) acc[k] += local[k];
   }
+  std::vector<double>& acc = blockTotal_;
+  acc.assign(stride, 0.0);
+  for (long blk = 0; blk < blocks; ++blk)
+    for (size_t k = 0; k < stride; ++k) acc[k] += blockSums_[size_t(blk) * stride + k];
 
   const double step = double(dt);
   for (size_t k = 0; k < nb; ++k) {
@@ -306,8 +310,35 @@ void RigidBodies<D>::integrate(const Simulation<D>& sim, Real dt, const AABB<D>&
 }
 
 template <int D>
-void RigidBodies<D>::contact(Vec<D>& x, Vec<D>& v, Real mass, Real distance, bool& touched, bool& crossed) {
+long RigidBodies<D>::clearBlockSums(size_t particles) {
+  const long blocks = (long(particles) + kBlock - 1) / kBlock;
+  const size_t size = size_t(blocks) * bodies_.size() * size_t(D + A);
+  if (blockSums_.size() < size) blockSums_.resize(size);
+  std::fill(blockSums_.begin(), blockSums_.begin() + long(size), 0.0);
+  return blocks;
+}
+
+template <int D>
+void RigidBodies<D>::beginContacts(size_t particles) { contactBlocks_ = clearBlockSums(particles); }
+
+template <int D>
+void RigidBodies<D>::endContacts() {
+  const size_t stride = bodies_.size() * size_t(D + A);
+  for (long blk = 0; blk < contactBlocks_; ++blk)
+    for (size_t k = 0; k < bodies_.size(); ++k) {
+      const double* o = blockSums_.data() + size_t(blk) * stride + k * size_t(D + A);
+      State& s = bodies_[k];
+      for (int d = 0; d < D; ++d) s.contactImpulse[d] += o[d];
+      for (int a = 0; a < A; ++a) s.contactAngularImpulse[a] += o[D + a];
+    }
+}
+
+template <int D>
+void RigidBodies<D>::contact(Vec<D>& x, Vec<D>& v, Real mass, Real distance, bool& touched, bool& crossed,
+                             size_t particle) {
+  size_t k = 0;
   for (State& s : bodies_) {
+    const size_t body = k++;
     const VecD xd = x.template cast<double>();
     const double reach = double(s.spec.boundingRadius() + distance);
     if ((xd - s.centre).squaredNorm() > reach * reach) continue;
@@ -337,11 +368,10 @@ void RigidBodies<D>::contact(Vec<D>& x, Vec<D>& v, Real mass, Real distance, boo
         // The momentum the liquid loses goes into the body.
         const VecD J = double(mass) * vn * nrm;
         const Ang L = crossRF(VecD(moved - s.centre), J);
-#pragma omp critical(fc_body_contact)
-        {
-          s.contactImpulse += J;
-          s.contactAngularImpulse += L;
-        }
+        // This particle's block (one thread per block: beginContacts).
+        double* o = blockSums_.data() + (particle / size_t(kBlock) * bodies_.size() + body) * size_t(D + A);
+        for (int d = 0; d < D; ++d) o[d] += J[d];
+        for (int a = 0; a < A; ++a) o[D + a] += L[a];
       }
     }
   }
@@ -364,6 +394,30 @@ void RigidBodies<D>::continueFrom(const RigidBodies& old, double timeOffset) {
         s.contactAngularImpulse = o.contactAngularImpulse;
       }
   }
+}
+
+template <int D>
+void RigidBodies<D>::archiveState(StateArchive& a) {
+  a.section("bodies");
+  uint64_t n = bodies_.size();
+  a.io(n);
+  if (n != bodies_.size())
+    throw StateArchiveError("checkpoint holds " + std::to_string(n) + " bodies, the scene " +
+                            std::to_string(bodies_.size()));
+  for (State& s : bodies_) {
+    a.io(s.centre);
+    a.io(s.velocity);
+    a.io(s.rotation);
+    a.io(s.orientation.coeffs());
+    a.io(s.angle);
+    a.io(s.angularVelocity);
+    a.io(s.force);
+    a.io(s.torque);
+    a.io(s.contactImpulse);
+    a.io(s.contactAngularImpulse);
+    a.io(s.wallContacts);
+  }
+  a.io(timeOffset_);
 }
 
 template <int D>

@@ -11,6 +11,7 @@
 #include "core/kernels.h"
 #include "sph/particles.h"
 #include "sph/setup.h"
+#include "sph/state_archive.h"
 #include <Eigen/Geometry>
 #include <string>
 #include <vector>
@@ -68,7 +69,14 @@ class RigidBodies {
   // Keeps a liquid particle at least `distance` from every body (centre
   // pushed out, velocity into the body removed relative to the body);
   // returns whether it touched one and whether it had crossed its surface.
-  void contact(Vec<D>& x, Vec<D>& v, Real mass, Real distance, bool& touched, bool& crossed);
+  // Particle `particle` must be handled by the thread that handles its
+  // whole block of kBlock particles (between beginContacts and endContacts,
+  // which adds the impulses to the bodies block by block, in order: the
+  // same sums at any thread count).
+  void contact(Vec<D>& x, Vec<D>& v, Real mass, Real distance, bool& touched, bool& crossed, size_t particle);
+  static constexpr long kBlock = 1024;
+  void beginContacts(size_t particles);
+  void endContacts();
   bool inside(const Vec<D>& x) const;
   // The bodies' state into the frame's stats (wall contacts counted afresh after).
   void reportFrame(FrameStats& fs);
@@ -80,6 +88,8 @@ class RigidBodies {
   void continueFrom(const RigidBodies& old, double timeOffset);
   // Every body's state is finite.
   bool finite() const;
+  // Checkpoints: every body's pose, motion and the substep's forces.
+  void archiveState(StateArchive& a);
 
   const std::vector<State>& states() const { return bodies_; }
   bool anyDynamic() const { return dynamic_; }
@@ -88,6 +98,10 @@ class RigidBodies {
 
  private:
   void poseAt(State& s, double time) const;
+  long clearBlockSums(size_t particles);  // zeroed, grown when needed; returns the block count
+  std::vector<double> blockSums_;         // per block of particles, per body: D force + A torque terms
+  std::vector<double> blockTotal_;
+  long contactBlocks_ = 0;
   std::vector<State> bodies_;
   std::vector<int> owner_;
   size_t firstBody_ = 0;

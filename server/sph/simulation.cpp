@@ -127,6 +127,90 @@ void Simulation<D>::addEffect(std::unique_ptr<Effect<D>> effect, const std::stri
 }
 
 template <int D>
+void Simulation<D>::archiveState(StateArchive& a) {
+  a.section("simulation");
+  a.io(time_);
+  a.io(frame_);
+  a.io(lastDt_);
+  a.io(totalSubsteps_);
+  a.io(stepsSinceReorder_);
+  a.io(nextId_);
+  a.io(stepScale_);
+  a.section("fluid");
+  a.io(fluid.x);
+  a.io(fluid.v);
+  a.io(fluid.mass);
+  a.io(fluid.density);
+  a.io(fluid.pressure);
+  a.io(fluid.phase);
+  a.io(fluid.kind);
+  a.io(fluid.id);
+  const size_t n = fluid.x.size();
+  if (a.loading()) {
+    if (fluid.v.size() != n || fluid.mass.size() != n || fluid.density.size() != n || fluid.pressure.size() != n ||
+        fluid.phase.size() != n || fluid.kind.size() != n || fluid.id.size() != n)
+      throw StateArchiveError("checkpoint particle arrays differ in length");
+    if (n > setup_.maxParticles) throw StateArchiveError("checkpoint holds more particles than max_particles");
+    fluid.a.assign(n, Vec<D>::Zero());  // every substep starts it from gravity
+  }
+  uint8_t hasBodies = bodies_ != nullptr;
+  a.io(hasBodies);
+  if (bool(hasBodies) != (bodies_ != nullptr)) throw StateArchiveError("checkpoint and scene differ in moving bodies");
+  if (bodies_) {
+    bodies_->archiveState(a);
+    const size_t nb = boundary.x.size();
+    a.io(boundary.x);
+    a.io(boundary.v);
+    if (a.loading() && (boundary.x.size() != nb || boundary.v.size() != nb))
+      throw StateArchiveError("checkpoint and scene differ in boundary particles");
+  }
+
+  // Stages by name: a checkpoint saved before a stage existed restores it as new.
+  a.section("stages");
+  std::vector<std::pair<std::string, PressureSolver<D>*>> solver{{stageNames_.at(0), pressure_.get()}};
+  std::vector<std::pair<std::string, Effect<D>*>> effects;
+  for (size_t k = 0; k < effects_.size(); ++k) effects.emplace_back(stageNames_.at(k + 1), effects_[k].get());
+  if (a.saving()) {
+    uint64_t count = 1 + effects.size();
+    a.io(count);
+    auto save = [&](std::string name, auto* stage) {
+      StateArchive inner;
+      stage->archiveState(inner);
+      a.io(name);
+      a.blob(inner.bytes());
+    };
+    save(solver[0].first, solver[0].second);
+    for (auto& [name, e] : effects) save(name, e);
+    return;
+  }
+  uint64_t count = 0;
+  a.io(count);
+  std::vector<std::pair<std::string, std::vector<uint8_t>>> saved;
+  for (uint64_t k = 0; k < count; ++k) {
+    std::string name;
+    std::vector<uint8_t> bytes;
+    a.io(name);
+    a.blob(bytes);
+    saved.emplace_back(std::move(name), std::move(bytes));
+  }
+  auto restore = [&](const std::string& name, auto* stage) {
+    stage->resize(n);
+    for (auto& [savedName, bytes] : saved)
+      if (savedName == name) {
+        StateArchive inner(bytes);
+        stage->archiveState(inner);
+        if (!inner.atEnd()) throw StateArchiveError("checkpoint of stage '" + name + "' not read to its end");
+        return;
+      }
+    stage->init(*this);
+  };
+  restore(solver[0].first, solver[0].second);
+  for (auto& [name, e] : effects) restore(name, e);
+  if (bodies_) search.setStaticPoints(boundary.x);
+  neighborsFresh_ = false;
+}
+
+template <int D>
 void Simulation<D>::addStages(Effect<D>* eff) {
   if (eff->stages() & AddAccelerations) accelerationStages_.push_back(eff);
   if (eff->stages() & ImplicitVelocities) implicitStages_.push_back(eff);
@@ -460,8 +544,12 @@ void Simulation<D>::enforceSolidContact(FrameStats& fs) {
   size_t contacts = 0, crossed = 0;
   double impulse[2 * D] = {};
   const long n = long(fluid.size());
-#pragma omp parallel for schedule(static) reduction(+ : contacts, crossed, impulse[:2 * D])
-  for (long i = 0; i < n; ++i) {
+  // By whole blocks of particles: the bodies sum their contacts per block.
+  const long block = RigidBodies<D>::kBlock, blocks = (n + block - 1) / block;
+  if (bodies_) bodies_->beginContacts(size_t(n));
+#pragma omp parallel for schedule(static, block) reduction(+ : contacts, crossed, impulse[:2 * D])
+  for (long i = 0; i < blocks * block; ++i) {
+    if (i >= n) continue;
     Vec<D>& x = fluid.x[i];
     Vec<D>& v = fluid.v[i];
     bool touched = false, through = false;
@@ -478,7 +566,7 @@ void Simulation<D>::enforceSolidContact(FrameStats& fs) {
         touched = true;
       }
     }
-    if (bodies_) bodies_->contact(x, v, fluid.mass[i], c, touched, through);
+    if (bodies_) bodies_->contact(x, v, fluid.mass[i], c, touched, through, size_t(i));
     for (const auto& o : setup_.obstacles) {
       const Real sd = o.signedDistance(x);
       if (sd >= c) continue;
@@ -501,6 +589,7 @@ void Simulation<D>::enforceSolidContact(FrameStats& fs) {
     contacts += touched ? 1 : 0;
     crossed += through ? 1 : 0;
   }
+  if (bodies_) bodies_->endContacts();
   fs.wallContacts += contacts;
   fs.crossedSurface += crossed;
   for (int k = 0; k < 2 * D; ++k) fs.contactImpulse[k] += impulse[k];

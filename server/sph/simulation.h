@@ -124,6 +124,15 @@ class Simulation {
   };
   void setFrameLimits(const FrameLimits& limits) { frameLimits_ = limits; }
 
+  // Checkpoints (sph/state_archive.h): saves or restores everything the next
+  // frame reads: particles, clock, time-step control, bodies and every
+  // stage's own state (by stage name). Between frames only. A restore
+  // continues bit-identically to the run that saved it, at any thread
+  // count, provided the setup is the same; a stage absent from the archive
+  // (added after it was saved) restarts as new. Throws StateArchiveError
+  // on a mismatch (then rebuild the simulation).
+  void archiveState(StateArchive& a);
+
   // A stage built outside sph/ (control), appended to the effects.
   void addEffect(std::unique_ptr<Effect<D>> effect, const std::string& name);
   // Neighbours and densities (with pair gradients) for the current positions,

@@ -118,6 +118,7 @@ class ViscosityWeiler2018 final : public Effect<D> {
     wall_.resize(n);
   }
   void reorder(const std::vector<uint32_t>& perm) override { applyPermutation(accel_, perm, scratch_); }
+  void archiveState(StateArchive& a) override { a.io(accel_); }
 
   SolverReport solveVelocities(Simulation<D>& sim, Real dt) override {
     SolverReport rep;

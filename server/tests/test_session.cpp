@@ -382,86 +382,257 @@ TEST(SessionEdits, InvalidEditsAreRejectedNamingTheFieldAndNotApplied) {
   EXPECT_EQ(heard.size(), cases.size());
 }
 
-// A settings change rebuilds the simulation around the current particles:
-// none lost, none moved back to the initial block, the clock continues.
-TEST(SessionEdits, SettingsChangeKeepsParticlesAndClock) {
+// ------------------------------------------------------------ re-simulation ---
+
+constexpr auto kResimWait = 120000ms;  // generous: a loaded machine
+
+bool sameParticles(const FrameSnapshot& a, const FrameSnapshot& b) {
+  return a.frame == b.frame && a.positions == b.positions && a.velocities == b.velocities && a.kind == b.kind &&
+         a.phase == b.phase && a.velocityMax == b.velocityMax;
+}
+
+// A session of `scene` simulated `frames` frames from scratch: the reference
+// an edited session must match bit for bit.
+std::vector<FramePtr> freshRun(const json& scene, TemplateDatabase& db, int frames) {
+  auto s = createSession("ref", "", scene, db);
+  s->step(frames);
+  EXPECT_TRUE(s->waitIdle(kResimWait));
+  return s->history();
+}
+
+json sceneWithBlob(double start) {
+  json scene = smallTankScene();
+  scene["instances"] = json::array({{{"template", "blob"}, {"name", "blob"}, {"start", start}}});
+  return scene;
+}
+
+// An edit at time t: the session re-simulates the frames after t by itself
+// (no transport command), keeps every frame before t as it was (the same
+// snapshots), and ends with exactly the frames a fresh run of the edited
+// scene gives.
+TEST(SessionResimulation, AnEditResimulatesTheFramesItChangesByItself) {
   Fixture fx;
-  auto s = createSession("e", "", smallTankScene(), fx.db);
-  s->step(5);
-  ASSERT_TRUE(s->waitIdle(kWait));
-  const FramePtr f5 = s->latestFrame();
+  auto s = createSession("e", "", sceneWithBlob(0.2), fx.db);
+  s->step(30);
+  ASSERT_TRUE(s->waitIdle(kResimWait));
+  const std::vector<FramePtr> before = s->history();
+  ASSERT_EQ(before.size(), 31u);
+  EXPECT_EQ(s->state()["cache"]["checkpoints"], json::array({10, 20, 30}));
+  const EditResult r = resultOf(s->submit(Edit::fromJson(
+      json{{"type", "update_instance"}, {"name", "blob"}, {"patch", {{"attraction_weight", 3}}}})));
+  ASSERT_TRUE(r.accepted) << r.message;
+  EXPECT_EQ(r.frame, 12);  // the instance starts at 0.2 s: frame 12 is the first to read it
+  ASSERT_TRUE(s->waitIdle(kResimWait));
+  EXPECT_EQ(s->status(), SessionStatus::Paused);
+  const std::vector<FramePtr> after = s->history();
+  ASSERT_EQ(after.size(), 31u);
+  for (int f = 0; f < 12; ++f) EXPECT_EQ(after[size_t(f)], before[size_t(f)]) << "frame " << f << " was replaced";
+  bool changed = false;
+  for (int f = 12; f <= 30; ++f) changed = changed || !sameParticles(*after[size_t(f)], *before[size_t(f)]);
+  EXPECT_TRUE(changed) << "the stronger attraction changed no frame";
+  json edited = sceneWithBlob(0.2);
+  edited["instances"][0]["attraction_weight"] = 3;
+  const std::vector<FramePtr> reference = freshRun(edited, fx.db, 30);
+  ASSERT_EQ(reference.size(), 31u);
+  for (int f = 0; f <= 30; ++f)
+    EXPECT_TRUE(sameParticles(*after[size_t(f)], *reference[size_t(f)])) << "frame " << f << " differs from a fresh run";
+  const json cache = s->state()["cache"];
+  EXPECT_EQ(cache["valid"], json::array({json::array({0, 30})}));
+  EXPECT_EQ(cache["stale"], json::array());
+  EXPECT_TRUE(cache["simulating"].is_null());
+  EXPECT_EQ(s->currentFrame(), 30);
+}
+
+// An edit arriving while a re-simulation runs restarts it from the earlier
+// frame; the stream's states show the stale range shrinking, then none.
+TEST(SessionResimulation, AnEditDuringResimulationRestartsFromTheEarlierFrame) {
+  Fixture fx;
+  const json twoKeys = json::array({{{"time", 0}, {"translation", {0.2, 0.2}}}, {{"time", 0.5}, {"translation", {0.2, 0.2}}}});
+  json scene = sceneWithBlob(0.05);
+  scene["instances"][0]["transform"] = twoKeys;
+  auto s = createSession("e", "", scene, fx.db);
+  s->step(40);
+  ASSERT_TRUE(s->waitIdle(kResimWait));
+  std::mutex m;
+  std::vector<json> states;
+  std::atomic<bool> sent{false};
+  std::atomic<int> secondFrame{-1};
+  Session* raw = s.get();
+  s->subscribe({[&](const FramePtr& f) {
+                  // The first re-simulated frame past 30: the second edit, from inside.
+                  if (f->frame > 30 && !sent.exchange(true)) {
+                    const EditTicket t = raw->submit(Edit::fromJson(json{
+                        {"type", "update_instance"}, {"name", "blob"}, {"patch", {{"velocity_weight", 0.5}}}}));
+                    (void)t;
+                  }
+                },
+                [&](const EditResult& r) {
+                  if (r.accepted && r.id == 2) secondFrame = r.frame;
+                },
+                [&](const json& st) {
+                  std::lock_guard lk(m);
+                  states.push_back(st);
+                }});
+  // A key after the last: the track changes after 0.5 s (frame 30 on, with
+  // the margin at a frame boundary).
+  const EditResult r = resultOf(s->submit(Edit::fromJson(json{
+      {"type", "update_instance"},
+      {"name", "blob"},
+      {"patch", {{"transform", json::array({{{"time", 0}, {"translation", {0.2, 0.2}}},
+                                        {{"time", 0.5}, {"translation", {0.2, 0.2}}},
+                                        {{"time", 0.6}, {"translation", {0.3, 0.2}}}})}}}})));
+  ASSERT_TRUE(r.accepted) << r.message;
+  EXPECT_EQ(r.frame, 30);
+  ASSERT_TRUE(test::waitFor([&] { return secondFrame.load() >= 0; }, kResimWait));
+  EXPECT_EQ(secondFrame.load(), 3);  // start 0.05 s
+  ASSERT_TRUE(s->waitIdle(kResimWait));
+  json edited = sceneWithBlob(0.05);
+  edited["instances"][0]["transform"] = json::array({{{"time", 0}, {"translation", {0.2, 0.2}}},
+                                                {{"time", 0.5}, {"translation", {0.2, 0.2}}},
+                                                {{"time", 0.6}, {"translation", {0.3, 0.2}}}});
+  edited["instances"][0]["velocity_weight"] = 0.5;
+  const std::vector<FramePtr> reference = freshRun(edited, fx.db, 40);
+  const std::vector<FramePtr> after = s->history();
+  ASSERT_EQ(after.size(), reference.size());
+  for (size_t f = 0; f < after.size(); ++f)
+    EXPECT_TRUE(sameParticles(*after[f], *reference[f])) << "frame " << f << " differs from a fresh run";
+  std::lock_guard lk(m);
+  bool sawStaleFrom30 = false, sawRestartBelow30 = false;
+  for (const json& st : states) {
+    const json& c = st["cache"];
+    if (!c["stale"].empty() && c["stale"][0][0].get<int>() >= 30) sawStaleFrom30 = true;
+    if (c["simulating"].is_object() && c["simulating"]["from"].get<int>() < 30 &&
+        c["stale"][0][0].get<int>() <= 3 + 1)
+      sawRestartBelow30 = true;
+  }
+  EXPECT_TRUE(sawStaleFrom30);
+  EXPECT_TRUE(sawRestartBelow30);
+  EXPECT_EQ(states.back()["cache"]["stale"], json::array());
+  EXPECT_TRUE(states.back()["cache"]["simulating"].is_null());
+}
+
+// A replaying viewer keeps its frame (replaced once re-simulated); an edit
+// that changes only frames not simulated yet leaves the cache valid.
+TEST(SessionResimulation, AReplayingViewerSeesItsFrameReplaced) {
+  Fixture fx;
+  auto s = createSession("e", "", sceneWithBlob(0.1), fx.db);
+  s->step(20);
+  ASSERT_TRUE(s->waitIdle(kResimWait));
+  const FramePtr old15 = s->seek(15);
+  ASSERT_TRUE(resultOf(s->submit(Edit::fromJson(
+                           json{{"type", "update_instance"}, {"name", "blob"}, {"patch", {{"attraction_weight", 2}}}})))
+                  .accepted);
+  ASSERT_TRUE(s->waitIdle(kResimWait));
+  const json st = s->state();
+  EXPECT_FALSE(st["shown"]["live"].get<bool>());
+  EXPECT_EQ(st["shown"]["frame"], 15);
+  EXPECT_NE(s->latestFrame(), old15);
+  EXPECT_EQ(s->latestFrame(), s->frame(15));
+  EXPECT_EQ(s->currentFrame(), 20);
+  // Past the frames simulated: nothing stale, nothing re-simulated.
+  const FramePtr f20 = s->frame(20);
+  ASSERT_TRUE(resultOf(s->submit(Edit::fromJson(json{{"type", "add_instance"},
+                                                     {"instance", {{"template", "blob"}, {"name", "late"}, {"start", 1}}}})))
+                  .accepted);
+  ASSERT_TRUE(s->waitIdle(kResimWait));
+  EXPECT_EQ(s->frame(20), f20);
+  EXPECT_EQ(s->state()["cache"]["valid"], json::array({json::array({0, 20})}));
+}
+
+// A settings change rebuilds the simulation at frame 0 with the new
+// settings and re-simulates every frame up to the one reached.
+TEST(SessionResimulation, ASettingsChangeResimulatesFromFrameZero) {
+  Fixture fx;
+  auto s = createSession("e", "", sceneWithBlob(0), fx.db);
+  s->step(8);
+  ASSERT_TRUE(s->waitIdle(kResimWait));
   const EditResult r = resultOf(s->submit(Edit::fromJson(json{{"type", "settings"},
                                                              {"settings", {{"cfl_factor", 0.5}, {"dt_max", 0.002}}},
                                                              {"solver", {{"density_tolerance_pct", 0.05}}}})));
   ASSERT_TRUE(r.accepted) << r.message;
-  EXPECT_EQ(r.frame, 6);
+  EXPECT_EQ(r.frame, 0);
+  ASSERT_TRUE(s->waitIdle(kResimWait));
   const json scene = s->sceneJson();
   EXPECT_EQ(scene["settings"]["cfl_factor"], 0.5);
-  EXPECT_NEAR(scene["settings"]["dt_max"].get<double>(), 0.002, 1e-9);
-  EXPECT_NEAR(scene["solver"]["density_tolerance_pct"].get<double>(), 0.05, 1e-9);
   EXPECT_EQ(scene["solver"]["method"], "dfsph");
-  s->step(1);
-  ASSERT_TRUE(s->waitIdle(kWait));
-  const FramePtr f6 = s->latestFrame();
-  EXPECT_EQ(f6->frame, 6);
-  EXPECT_NEAR(f6->time, 6.0 / 60, 1e-9);
-  EXPECT_EQ(f6->particles(), f5->particles());
-  EXPECT_GE(f6->stats.minDt, 0.0);
-  EXPECT_LE(f6->stats.maxDt, 0.002 + 1e-9);
-  // The particles carried on from frame 5 (falling by at most a few mm in a
-  // frame), which is not the initial block.
-  const auto sortedY = [](const FramePtr& f) {
-    std::vector<double> y;
-    for (size_t i = 0; i < f->particles(); ++i) y.push_back(f->position(i, 1));
-    std::sort(y.begin(), y.end());
-    return y;
-  };
-  const auto y5 = sortedY(f5), y6 = sortedY(f6), y0 = sortedY(s->frame(0));
-  double d56 = 0, d06 = 0;
-  for (size_t i = 0; i < y5.size(); ++i) {
-    d56 = std::max(d56, std::abs(y5[i] - y6[i]));
-    d06 = std::max(d06, std::abs(y0[i] - y6[i]));
-  }
-  EXPECT_LT(d56, d06);
+  const std::vector<FramePtr> after = s->history();
+  const std::vector<FramePtr> reference = freshRun(scene, fx.db, 8);
+  ASSERT_EQ(after.size(), reference.size());
+  for (size_t f = 0; f < after.size(); ++f)
+    EXPECT_TRUE(sameParticles(*after[f], *reference[f])) << "frame " << f << " differs from a fresh run";
+  EXPECT_LE(after.back()->stats.maxDt, 0.002 + 1e-9);
   // A method change takes the new method's defaults.
   const EditResult w = resultOf(s->submit(Edit::fromJson(json{{"type", "settings"}, {"solver", {{"method", "wcsph"}}}})));
   ASSERT_TRUE(w.accepted) << w.message;
   EXPECT_EQ(s->sceneJson()["solver"]["method"], "wcsph");
   EXPECT_FALSE(s->sceneJson()["solver"].contains("density_tolerance_pct"));
-  s->step(1);
-  ASSERT_TRUE(s->waitIdle(kWait));
-  EXPECT_EQ(s->latestFrame()->frame, 7);
-  EXPECT_EQ(s->latestFrame()->particles(), 100u);
-  // Reset rebuilds from the scene as edited.
-  s->reset();
-  ASSERT_TRUE(s->waitIdle(kWait));
-  EXPECT_EQ(s->currentFrame(), 0);
-  EXPECT_EQ(s->sceneJson()["solver"]["method"], "wcsph");
+  ASSERT_TRUE(s->waitIdle(kResimWait));
+  EXPECT_EQ(s->currentFrame(), 8);
+  // A frame-rate change: the same scene time, in the new frames.
+  ASSERT_TRUE(resultOf(s->submit(Edit::fromJson(json{{"type", "settings"}, {"settings", {{"frame_rate", 30}}}})))
+                  .accepted);
+  ASSERT_TRUE(s->waitIdle(kResimWait));
+  EXPECT_EQ(s->currentFrame(), 4);
+  EXPECT_NEAR(s->latestFrame()->time, 8.0 / 60, 1e-9);
 }
 
-// The rebuilt simulation's control stage keeps the scene clock: instances
-// go on with the template frame they were at.
-TEST(SessionEdits, SettingsChangeKeepsInstancesOnTheSceneClock) {
+// Playback stops at the scene's duration; from a replayed frame it plays
+// the recorded frames first, then simulates on.
+TEST(SessionResimulation, PlayStopsAtTheDurationAndPlaysRecordedFramesFirst) {
   Fixture fx;
   json scene = smallTankScene();
-  scene["instances"] = json::array({{{"template", "blob"}}});
+  scene["duration"] = 0.2;  // 12 frames
   auto s = createSession("e", "", scene, fx.db);
-  s->step(3);
-  ASSERT_TRUE(s->waitIdle(kWait));
-  ASSERT_EQ(s->latestFrame()->stats.instances.size(), 1u);
-  EXPECT_EQ(s->latestFrame()->stats.instances[0].templateFrame, 2);  // frame 3 starts at t = 2/60
-  ASSERT_TRUE(resultOf(s->submit(Edit::fromJson(json{{"type", "settings"}, {"control", {{"fidelity_cell", 3}}}})))
+  EXPECT_EQ(s->state()["end_frame"], 12);
+  s->play();
+  ASSERT_TRUE(s->waitIdle(kResimWait));
+  EXPECT_EQ(s->currentFrame(), 12);
+  EXPECT_EQ(s->status(), SessionStatus::Paused);
+  s->play(16);
+  ASSERT_TRUE(s->waitIdle(kResimWait));
+  EXPECT_EQ(s->currentFrame(), 16);
+  const std::vector<FramePtr> recorded = s->history();
+  std::mutex m;
+  std::vector<int> shown;
+  s->seek(5);
+  s->subscribe({[&](const FramePtr& f) {
+                  std::lock_guard lk(m);
+                  shown.push_back(f->frame);
+                },
+                nullptr, nullptr});
+  s->play(20);
+  ASSERT_TRUE(s->waitIdle(kResimWait));
+  EXPECT_EQ(s->currentFrame(), 20);
+  std::lock_guard lk(m);
+  ASSERT_FALSE(shown.empty());
+  std::vector<int> expected;
+  for (int f = 6; f <= 20; ++f) expected.push_back(f);
+  EXPECT_EQ(shown, expected);
+  for (int f = 6; f <= 16; ++f) EXPECT_EQ(s->frame(f), recorded[size_t(f)]) << "a recorded frame was re-simulated";
+}
+
+// Checkpoints and history share the session's cap.
+TEST(SessionResimulation, CheckpointsAndHistoryStayUnderTheCap) {
+  Fixture fx;
+  SessionOptions o;
+  o.historyCapBytes = 200 * 1000;
+  o.checkpointEvery = 2;
+  auto s = createSession("e", "", sceneWithBlob(0), fx.db, o);
+  s->step(100);
+  ASSERT_TRUE(s->waitIdle(kResimWait));
+  const json st = s->state();
+  const size_t history = st["memory"]["history_bytes"], checkpoints = st["memory"]["checkpoint_bytes"];
+  EXPECT_GT(checkpoints, 0u);
+  EXPECT_LE(checkpoints, o.historyCapBytes / 4);
+  EXPECT_LE(history + checkpoints, o.historyCapBytes);
+  EXPECT_GT(st["history"]["dropped"].get<int>(), 0);
+  // An edit before the oldest kept checkpoint re-simulates from frame 0.
+  ASSERT_TRUE(resultOf(s->submit(Edit::fromJson(
+                           json{{"type", "update_instance"}, {"name", "blob"}, {"patch", {{"attraction_weight", 2}}}})))
                   .accepted);
-  EXPECT_EQ(s->sceneJson()["control"]["fidelity_cell"], 3.0);
-  s->step(2);
-  ASSERT_TRUE(s->waitIdle(kWait));
-  const FramePtr f = s->latestFrame();
-  EXPECT_EQ(f->frame, 5);
-  ASSERT_EQ(f->stats.instances.size(), 1u);
-  EXPECT_EQ(f->stats.instances[0].templateFrame, 4);
-  EXPECT_EQ(s->frame(4)->stats.instances.at(0).templateFrame, 3);
-  EXPECT_EQ(f->particles(), s->frame(3)->particles() + f->stats.seededParticles + s->frame(4)->stats.seededParticles -
-                                f->stats.removedParticles - s->frame(4)->stats.removedParticles);
+  ASSERT_TRUE(s->waitIdle(kResimWait));
+  EXPECT_EQ(s->currentFrame(), 100);
+  EXPECT_EQ(s->state()["cache"]["stale"], json::array());
 }
 
 // ------------------------------------------------------------------ history ---

@@ -123,10 +123,10 @@ export class Stream {
   }
 
   /** Sends a Transport command; returns its request id (echoed by the StateChange or Error). */
-  transport(command: TransportCommand, args: { steps?: number; frame?: number; speed?: number } = {}): number {
+  transport(command: TransportCommand, args: { steps?: number; frame?: number; speed?: number; until?: number } = {}): number {
     const b = new flatbuffers.Builder(64);
     const id = this.nextRequestId++;
-    const t = Transport.createTransport(b, id, command, args.steps ?? null, args.frame ?? null, args.speed ?? null);
+    const t = Transport.createTransport(b, id, command, args.steps ?? null, args.frame ?? null, args.speed ?? null, args.until ?? null);
     this.send(b, Message.Transport, t);
     return id;
   }

@@ -1,0 +1,72 @@
+#pragma once
+// A session's checkpoints: the simulation's whole state between two frames
+// (Simulation::archiveState) every K frames, so that an edit re-simulates
+// from the newest checkpoint before the first frame it changes instead of
+// from frame 0. Frame 0 is never stored: rebuilding the scene gives it.
+//
+// Memory. The store holds at most `capBytes`; past it, it thins itself by
+// dropping every other checkpoint from the oldest on (the newest stays),
+// so that the spacing doubles where checkpoints are oldest, as Houdini's
+// and Blender's caches keep the frames near the playhead. Each checkpoint
+// is stored compressed when that saves at least a tenth: the bytes
+// shuffled by position within a 4-byte word (floats' exponents and the
+// high bytes of indices line up) and deflated at zlib's fastest level.
+#include <cstddef>
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <vector>
+
+namespace fc::service {
+
+class CheckpointStore {
+ public:
+  struct Figures {
+    size_t count = 0;
+    size_t bytes = 0;        // stored (compressed where it paid)
+    size_t rawBytes = 0;     // before compression
+    double saveMs = 0;       // the last checkpoint: archive + compression
+    double restoreMs = 0;    // the last restore: decompression + load
+  };
+
+  CheckpointStore(int every, size_t capBytes, bool compress);
+
+  int every() const { return every_; }
+  size_t capBytes() const { return capBytes_; }
+  // A checkpoint is due after frame `frame` (every K frames, never frame 0).
+  bool due(int frame) const { return frame > 0 && frame % every_ == 0; }
+
+  // Stores the archive of frame `frame` (replacing one of that frame).
+  void put(int frame, const std::vector<uint8_t>& archive);
+  // The newest checkpoint at or before `frame`: its frame and archive
+  // (decompressed), or frame 0 and nothing (rebuild the scene).
+  int newestAtOrBefore(int frame, std::vector<uint8_t>& archive) const;
+  // Forgets the checkpoints of frames >= `frame` (an edit changed them).
+  void dropFrom(int frame);
+  void clear();
+
+  std::vector<int> frames() const;
+  Figures figures() const;
+  void noteRestoreMs(double ms) { figures_.restoreMs = ms; }
+
+  // Exposed for tests: the codec (shuffle + deflate; inflate + unshuffle).
+  static std::vector<uint8_t> compress(const std::vector<uint8_t>& raw);
+  static std::vector<uint8_t> decompress(const std::vector<uint8_t>& packed, size_t rawSize);
+
+ private:
+  struct Entry {
+    std::vector<uint8_t> bytes;
+    size_t rawSize = 0;
+    bool compressed = false;
+  };
+  void thin();
+
+  int every_;
+  size_t capBytes_;
+  bool compress_;
+  std::map<int, Entry> entries_;
+  size_t bytes_ = 0, rawBytes_ = 0;
+  Figures figures_;
+};
+
+}  // namespace fc::service
