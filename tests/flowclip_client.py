@@ -337,7 +337,8 @@ class Client:
         deadline, last, since = time.monotonic() + timeout, None, 0.0
         while True:
             st = self.session(sid)
-            idle = st["status"] in ("paused", "error") and not st["pending_edits"] and not st["steps_left"]
+            idle = (st["status"] in ("paused", "error") and not st["pending_edits"] and not st["steps_left"]
+                    and not (st.get("cache") or {}).get("simulating"))
             if not idle or last is None or st["frame"] != last["frame"]:
                 last, since = (st if idle else None), time.monotonic()
             elif time.monotonic() - since >= settle:
@@ -386,8 +387,8 @@ class Client:
     def transport(self, sid, command, **args):
         return self.call("POST", "/api/sessions/{id}/transport", {"command": command, **args}, id=sid)
 
-    def play(self, sid):
-        return self.transport(sid, "play")
+    def play(self, sid, until=None):
+        return self.transport(sid, "play", **({} if until is None else {"until": until}))
 
     def pause(self, sid):
         return self.transport(sid, "pause")

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <climits>
 #include <cmath>
+#include <vector>
 
 namespace fc::service {
 
@@ -20,15 +21,44 @@ bool sameTimeMap(const TimeMap& a, const TimeMap& b) {
          a.reverse == b.reverse;
 }
 
-// The last time both tracks certainly agree up to (they may differ after it).
+// Both tracks give exactly the same pose (and, with `velocity`, the same
+// carried velocity, taken in the segment starting at `time`).
+template <int D>
+bool sameAt(const TransformTrack<D>& a, const TransformTrack<D>& b, double time, bool velocity = true) {
+  Eigen::Matrix<double, D, D> la, lb, ga, gb;
+  Eigen::Matrix<double, D, 1> ta, tb, oa, ob;
+  a.evaluate(time, la, ta);
+  b.evaluate(time, lb, tb);
+  if (!(la == lb && ta == tb)) return false;
+  if (!velocity) return true;
+  a.velocityMap(time, ga, oa);
+  b.velocityMap(time, gb, ob);
+  return ga == gb && oa == ob;
+}
+
+// The time from which the tracks may differ. Between two consecutive key
+// times of either track both are one interpolation (linear, slerp; a
+// reflection switching only at a key), so agreeing at an interval's ends
+// and middle is agreeing on it; before the first key both hold it.
 template <int D>
 double tracksAgreeUntil(const TransformTrack<D>& a, const TransformTrack<D>& b) {
-  const size_t common = std::min(a.keys.size(), b.keys.size());
-  size_t k = 0;
-  while (k < common && sameKey(a.keys[k], b.keys[k])) ++k;
-  if (k == a.keys.size() && k == b.keys.size()) return kNeverAffected;
-  // Before the first key the first key holds: a changed first key changes everything.
-  return k == 0 ? kAffectedFromStart : a.keys[k - 1].time;
+  if (a.keys.size() == b.keys.size()) {
+    size_t k = 0;
+    while (k < a.keys.size() && sameKey(a.keys[k], b.keys[k])) ++k;
+    if (k == a.keys.size()) return kNeverAffected;
+  }
+  std::vector<double> times;
+  for (const auto* t : {&a, &b})
+    for (const auto& key : t->keys) times.push_back(key.time);
+  if (times.empty()) return kAffectedFromStart;
+  std::sort(times.begin(), times.end());
+  times.erase(std::unique(times.begin(), times.end()), times.end());
+  if (!sameAt(a, b, times.front() - 1)) return kAffectedFromStart;
+  for (size_t i = 0; i < times.size(); ++i) {
+    const double lo = times[i], hi = i + 1 < times.size() ? times[i + 1] : lo + 1;
+    if (!sameAt(a, b, lo) || !sameAt(a, b, 0.5 * (lo + hi)) || !sameAt(a, b, hi, false)) return lo;
+  }
+  return kNeverAffected;
 }
 
 }  // namespace

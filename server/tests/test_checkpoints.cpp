@@ -279,12 +279,24 @@ TEST(EditScope, FirstAffectedFrameFollowsTheInstanceTimeline) {
   b = a;
   b.transform.keys[0].translation.y() = 1;
   EXPECT_EQ(firstAffectedTime<2>(&a, &b), 1.0);
-  // A key appended after the last: from the last common key.
+  // A key appended after the last: from the last common key; one that
+  // repeats the last pose changes nothing.
   b = a;
   TransformKey<2> k3 = k2;
   k3.time = 4;
   b.transform.keys.push_back(k3);
+  EXPECT_EQ(firstAffectedTime<2>(&a, &b), service::kNeverAffected);
+  b.transform.keys.back().translation.x() = 3;
   EXPECT_EQ(firstAffectedTime<2>(&a, &b), 3.0);
+  // A key inserted on the path at its own pose: the velocity's rounding
+  // may differ, so from the key before it.
+  b = a;
+  TransformKey<2> mid = k1;
+  mid.time = 2.5;
+  mid.translation = Eigen::Vector2d(0.75, 0);
+  b.transform.keys.insert(b.transform.keys.begin() + 2, mid);
+  const double t = firstAffectedTime<2>(&a, &b);
+  EXPECT_TRUE(t == 2.0 || t == service::kNeverAffected) << t;
   // A weight: from the start; the start moved: from the earlier one.
   b = a;
   b.params.set("attraction_weight", 1);
