@@ -822,6 +822,7 @@ void Control<D>::endFrame(Simulation<D>&, FrameStats& fs) {
   fs.controlledParticles = controlled_.size();
   fs.seededParticles = seeded_;
   fs.removedParticles = removed_;
+  fs.fadedParticles = faded_;
   fs.controlMs = controlMs_;
 }
 

@@ -141,6 +141,7 @@ class Control : public Effect<D> {
   std::vector<uint32_t> seedSources_; // seeding scratch: liquid near an instance box
   std::vector<uint32_t> temporaryScratch_;  // removal pass scratch
   std::vector<uint8_t> verdictScratch_;
+  std::vector<uint32_t> overdueScratch_;
   std::vector<uint8_t> emittedScratch_;     // seeding: a source already seeded this frame
   std::vector<std::vector<std::pair<uint32_t, NewParticle<D>>>> seedCandidates_;  // per thread
   NeighborhoodSearch<D> localGrid_;   // gathered liquid in template space (for α and the forces)
@@ -166,6 +167,7 @@ class Control : public Effect<D> {
   bool forcesDue_ = true;
   double controlMs_ = 0;              // this frame
   size_t seeded_ = 0, removed_ = 0;   // this frame
+  size_t faded_ = 0;                  // this frame: removed past their grace period
   size_t temporaries_ = 0;            // temporary particles alive
   bool measureFidelity_ = true;       // at the frame's first force evaluation
   double timeOffset_ = 0;             // scene time − sim.time()

@@ -215,6 +215,9 @@ const ParamSpecs& controlSettingsSpecs() {
       {"temporary_grace_frames", "frames", 0, 1e6, 60,
        "frames a temporary particle may stay outside every instance before it is removed regardless of density",
        ParamType::Integer},
+      {"temporary_fade_share", "", 1e-4, 1, 0.02,
+       "at most this share of the liquid's mass leaves per frame as temporary particles past their grace period "
+       "(the rest go in the next frames), so that the liquid does not visibly lose a layer in one frame"},
       {"fidelity_cell", "r", 0.5, 10, 4,
        "cell size of the fidelity occupancy grid, in template particle radii (4: two particle spacings)"},
   };

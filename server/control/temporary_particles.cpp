@@ -93,6 +93,7 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
 
   // ---- Algorithm 2 in [SPDM20]: removing temporary particles ----
   std::vector<uint32_t> remove;
+  faded_ = 0;
   if (temporaries_ > 0) {
     const uint32_t grace = uint32_t(settings_.get("temporary_grace_frames"));
     const Real dtp = l * hL;
@@ -127,7 +128,30 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
     // No two removals within d_tp of each other, in index order.
     SpacingFilter<D> spacing(Real(0.95) * dtp);
     for (long k = 0; k < nt; ++k)
-      if (verdict[k] == 2 || (verdict[k] == 1 && spacing.tryKeep(f.x[temporary[k]]))) remove.push_back(temporary[k]);
+      if (verdict[k] == 1 && spacing.tryKeep(f.x[temporary[k]])) remove.push_back(temporary[k]);
+    // Past the grace period: the longest outside first, at most
+    // temporary_fade_share of the liquid's mass per frame (at least one
+    // particle), so that a whole instance's temporary particles fade out
+    // over frames instead of leaving in one (a visible loss of a layer).
+    std::vector<uint32_t>& overdue = overdueScratch_;
+    overdue.clear();
+    for (long k = 0; k < nt; ++k)
+      if (verdict[k] == 2) overdue.push_back(temporary[k]);
+    if (!overdue.empty()) {
+      std::stable_sort(overdue.begin(), overdue.end(),
+                       [&](uint32_t a, uint32_t b) { return framesOutside_[a] > framesOutside_[b]; });
+      double total = 0;
+      for (long i = 0; i < n; ++i) total += double(f.mass[i]);
+      const double budget = settings_.get("temporary_fade_share") * total;
+      double gone = 0;
+      for (uint32_t i : overdue) {
+        if (gone > 0 && gone + double(f.mass[i]) > budget) break;
+        gone += double(f.mass[i]);
+        remove.push_back(i);
+        ++faded_;
+      }
+      std::sort(remove.begin(), remove.end());
+    }
   }
 
   // ---- Algorithm 1 in [SPDM20]: seeding temporary particles ----

@@ -86,6 +86,7 @@ struct FrameStats {
   size_t controlledParticles = 0;
   size_t seededParticles = 0;    // temporary particles created this frame
   size_t removedParticles = 0;   // temporary particles removed this frame
+  size_t fadedParticles = 0;     // of those, past their grace period (control's temporary_fade_share bounds them)
   bool emitting = false;         // the scene has emitters (the two counts below are reported)
   size_t emittedParticles = 0;   // liquid particles the emitters added at this frame's start
   size_t emissionBlocked = 0;    // of an emitter's layer, points left out (liquid already there, or max_particles)

@@ -136,9 +136,49 @@ TEST(TemporaryParticles, SeedingFollowsAlgorithm1) {
   EXPECT_LT(seededLate, seeded / 4) << "seeding did not settle";
 }
 
+// Temporary particles past their grace period fade out: at most
+// temporary_fade_share of the liquid's mass leaves per frame, the longest
+// outside first, so a whole blob's worth goes over several frames instead of
+// one (a visible pop), and then the liquid is exactly the scene's again.
+TEST(TemporaryParticles, PastTheGracePeriodTheyFadeOutABoundedShareAFrame) {
+  const auto region = box2(0.3f, 0.1f, 0.7f, 0.6f);
+  auto tpl = blobTemplate(region, box2(0.42f, 0.18f, 0.58f, 0.45f), 16);  // 0.5 s at 30 fps
+  Simulation<2> sim(tank({box2(0, 0, 1, 0.2f)}));
+  auto inst = bindAtRecordingPlace(tpl);
+  ParamValues settings(controlSettingsSpecs());
+  settings.set("temporary_grace_frames", 0);  // every temporary particle outside the box is overdue at once
+  settings.set("temporary_fade_share", 0.01);
+  attach(sim, {inst}, settings);
+  const size_t n0 = sim.fluid.size();
+  size_t most = 0, fadingFrames = 0, faded = 0;
+  bool ended = false;
+  for (int f = 0; f < 200; ++f) {
+    const FrameStats s = sim.advanceFrame();
+    ASSERT_TRUE(s.finite) << "frame " << s.frame;
+    most = std::max(most, s.temporaryParticles);
+    // Equal masses: the share is a count (at least one particle a frame).
+    const size_t bound = std::max<size_t>(1, size_t(0.01 * double(s.particles + s.removedParticles - s.seededParticles)));
+    EXPECT_LE(s.fadedParticles, bound) << "frame " << s.frame;
+    EXPECT_LE(s.fadedParticles, s.removedParticles);
+    faded += s.fadedParticles;
+    fadingFrames += s.fadedParticles > 0;
+    ended = ended || (!s.instances[0].active && s.frame > 1);
+    if (ended && s.temporaryParticles == 0) break;
+  }
+  ASSERT_TRUE(ended);
+  EXPECT_EQ(countKind(sim, ParticleKind::Temporary), 0u) << "all must go in the end";
+  EXPECT_EQ(sim.fluid.size(), n0);
+  EXPECT_GT(faded, 20u) << "the blob's temporary particles should have outlived their grace";
+  EXPECT_GE(fadingFrames, faded / std::max<size_t>(1, size_t(0.01 * double(n0 + most))))
+      << "they left in fewer frames than the bound allows";
+  std::printf("[ measured ] %zu temporary particles faded out over %zu frames (at most %.0f a frame)\n", faded,
+              fadingFrames, 0.01 * double(n0 + most));
+}
+
 // Algorithm 2 and the mass guarantee: after every instance has ended, all
-// temporary particles go, within temporary_grace_frames (60) + 1 frames, and
-// the liquid count returns exactly to the scene's.
+// temporary particles go (past temporary_grace_frames, 60, at most
+// temporary_fade_share of the mass a frame), and the liquid count returns
+// exactly to the scene's.
 TEST(TemporaryParticles, AllRemovedAfterTheInstancesEnd) {
   const auto region = box2(0.3f, 0.1f, 0.7f, 0.6f);
   auto tpl = blobTemplate(region, box2(0.42f, 0.18f, 0.58f, 0.45f), 16);  // 0.5 s at 30 fps

@@ -145,7 +145,7 @@ TEST(RestApi, InstanceEditsAreAcknowledgedWithTheirFrameAndInvalidOnesChangeNoth
       "POST", base + "/instances", {{"name", "drop"}, {"template", "blob"}, {"transform", json::array({{{"time", 0}, {"translation", {0.5, 0.5}}}})}},
       201);
   EXPECT_TRUE(added["edit"]["accepted"]);
-  EXPECT_EQ(added["edit"]["frame"], 3) << "a paused session at frame 2 applies the edit to frame 3";
+  EXPECT_EQ(added["edit"]["frame"], 1) << "an instance starting at 0 changes every frame after frame 0";
   EXPECT_EQ(added["instance"]["name"], "drop");
   EXPECT_EQ(api.callJson("GET", base + "/instances", nullptr, 200)["instances"].size(), 1u);
 

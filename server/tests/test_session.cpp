@@ -257,8 +257,8 @@ TEST(SessionEdits, FromJsonNamesTheBadKey) {
 }
 
 // Adding the first instance to a scene without instances adds the control
-// stage; the ack names the first frame simulated with it, and frames before
-// it carry no instance.
+// stage; the ack names the first frame it changes (its start: frame 1),
+// which the session re-simulates, and frame 0 carries no instance.
 TEST(SessionEdits, FirstInstanceAddsControlAtTheAcknowledgedFrame) {
   Fixture fx;
   auto s = createSession("e", "", smallTankScene(), fx.db);
@@ -267,11 +267,13 @@ TEST(SessionEdits, FirstInstanceAddsControlAtTheAcknowledgedFrame) {
   EXPECT_FALSE(s->latestFrame()->stats.instances.size());
   EditResult r = resultOf(s->submit(Edit::fromJson(json{{"type", "add_instance"}, {"instance", {{"template", "blob"}}}})));
   ASSERT_TRUE(r.accepted) << r.message;
-  EXPECT_EQ(r.frame, 3);  // paused at frame 2: the next frame is the first with it
+  EXPECT_EQ(r.frame, 1);  // it starts at 0: every frame after the initial state changes
   EXPECT_EQ(r.instance, "blob");
-  EXPECT_EQ(s->editResult(r.id)->frame, 3);
+  EXPECT_EQ(s->editResult(r.id)->frame, 1);
   EXPECT_EQ(s->sceneJson()["instances"].size(), 1u);
   EXPECT_EQ(s->state()["instances"], 1);
+  ASSERT_TRUE(s->waitIdle(kWait));
+  EXPECT_EQ(s->frame(2)->stats.instances.size(), 1u) << "frame 2 was re-simulated with the instance";
   s->step(1);
   ASSERT_TRUE(s->waitIdle(kWait));
   const FramePtr f = s->latestFrame();
@@ -285,14 +287,14 @@ TEST(SessionEdits, FirstInstanceAddsControlAtTheAcknowledgedFrame) {
   const auto& m = f->instances[0].toWorld;
   EXPECT_NEAR(m[0] * 0.2 + m[4] * 0.2 + m[12], 0.2, 1e-9);
   EXPECT_NEAR(m[1] * 0.2 + m[5] * 0.2 + m[13], 0.2, 1e-9);
-  EXPECT_EQ(s->frame(2)->instances.size(), 0u);
+  EXPECT_EQ(s->frame(0)->instances.size(), 0u);
   EXPECT_TRUE(s->state()["stats"].contains("control_ms"));
 
   // Update (merge patch), then remove.
   r = resultOf(s->submit(Edit::fromJson(
       json{{"type", "update_instance"}, {"name", "blob"}, {"patch", {{"speed", 0.5}, {"name", "slow"}}}})));
   ASSERT_TRUE(r.accepted) << r.message;
-  EXPECT_EQ(r.frame, 4);
+  EXPECT_EQ(r.frame, 1);
   EXPECT_EQ(r.instance, "slow");
   json inst = s->sceneJson()["instances"][0];
   EXPECT_EQ(inst["name"], "slow");
@@ -308,24 +310,28 @@ TEST(SessionEdits, FirstInstanceAddsControlAtTheAcknowledgedFrame) {
   EXPECT_EQ(s->status(), SessionStatus::Paused);
 }
 
-// While playing, the acknowledged frame is the first one computed with the
-// edit: the frame before it has no instance, that frame has one.
+// While playing, an instance added with a later start changes only the
+// frames from its start: the frame before it has no active instance, the
+// frame at it has one, and playing goes on.
 TEST(SessionEdits, AppliedAtAFrameBoundaryWhilePlaying) {
   Fixture fx;
   auto s = createSession("e", "", smallTankScene(), fx.db);
   s->play();
   ASSERT_TRUE(s->waitForFrame(2, kWait));
-  const EditResult r =
-      resultOf(s->submit(Edit::fromJson(json{{"type", "add_instance"}, {"instance", {{"template", "blob"}}}})));
+  const EditResult r = resultOf(s->submit(
+      Edit::fromJson(json{{"type", "add_instance"}, {"instance", {{"template", "blob"}, {"start", 0.5}}}})));
   ASSERT_TRUE(r.accepted) << r.message;
-  ASSERT_TRUE(s->waitForFrame(r.frame, kWait));
+  EXPECT_GE(r.frame, 3);   // the frame after the one it was applied at, or its start (frame 30) if later
+  EXPECT_LE(r.frame, 30);
+  ASSERT_TRUE(s->waitForFrame(31, 30 * kWait));
   s->pause();
-  ASSERT_TRUE(s->waitIdle(kWait));
-  ASSERT_GE(r.frame, 3);
-  const FramePtr before = s->frame(r.frame - 1), at = s->frame(r.frame);
+  ASSERT_TRUE(s->waitIdle(30 * kWait));
+  const FramePtr before = s->frame(29), at = s->frame(31);
   ASSERT_TRUE(before && at);
-  EXPECT_EQ(before->stats.instances.size(), 0u);
-  EXPECT_EQ(at->stats.instances.size(), 1u);
+  ASSERT_EQ(before->stats.instances.size(), 1u);
+  EXPECT_FALSE(before->stats.instances[0].active);
+  ASSERT_EQ(at->stats.instances.size(), 1u);
+  EXPECT_TRUE(at->stats.instances[0].active);
 }
 
 TEST(SessionEdits, InvalidEditsAreRejectedNamingTheFieldAndNotApplied) {
