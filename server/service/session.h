@@ -134,8 +134,8 @@ const char* editKindName(EditKind kind);  // "add_instance", "update_instance", 
 //                   that name. A "solver" patch naming another "method"
 //                   replaces the solver object (the other method's
 //                   parameters do not apply). The simulation is rebuilt
-//                   around the current particles (none lost; the scene clock
-//                   and frame numbers continue).
+//                   from the scene at frame 0 and every recorded frame is
+//                   re-simulated (docs/cache.md).
 struct Edit {
   EditKind kind = EditKind::AddInstance;
   std::string instance;
@@ -153,7 +153,8 @@ struct EditResult {
   uint64_t id = 0;
   EditKind kind = EditKind::AddInstance;
   bool accepted = false;
-  // Accepted: the first frame the edit affects (the frame computed next).
+  // Accepted: the first frame the edit changes (re-simulated from there), or
+  // the next frame to simulate when that is earlier (0: every frame).
   int frame = -1;
   std::string instance;   // the instance concerned (an added one's resolved name)
   std::string path;       // rejected: key path of the offending value in the scene ("instances[2].speed")
