@@ -9,7 +9,7 @@ PORT ?= 8080
 ABS_BUILD_DIR = $(abspath $(BUILD_DIR))
 
 .PHONY: all setup build web templates run run-headless test test-web test-web-only bench bench-accuracy bench-web clean \
-  fuzz fuzz-build fuzz-regress test-fuzz asan-build test-asan bench-soak
+  fuzz fuzz-build fuzz-regress test-fuzz asan-build test-asan bench-soak bench-cache
 
 # 2D templates are recorded when missing (seconds); larger ones on demand:
 # build/flowclip record templates/recipes/letters3d.json
@@ -126,6 +126,14 @@ test-asan: asan-build templates
 # minutes, report in bench/soak/.
 bench-soak: build templates
 	$(BUILD_DIR)/venv/bin/python tools/soak.py --out bench/soak
+
+# The edit-and-see benchmark (docs/cache.md): edits at the start, middle and
+# end of a simulated second on drop2d and a 3D tank, with checkpoints every
+# 10 frames and without; report in bench/cache/ (about 5 min on 2 cores).
+# `make bench-cache BENCH_CACHE_ARGS=--quick` for a short smoke run.
+BENCH_CACHE_ARGS ?=
+bench-cache: build templates
+	$(BUILD_DIR)/venv/bin/python tools/bench_cache.py --out bench/cache $(BENCH_CACHE_ARGS)
 
 clean:
 	rm -rf $(BUILD_DIR) $(FUZZ_BUILD_DIR) $(ASAN_BUILD_DIR)
