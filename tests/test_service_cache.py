@@ -15,7 +15,7 @@ FRAMES = 40
 
 
 def drop_session(client, **options):
-    """scenes/drop2d.json: 3 000 particles, the drop template from 0.2 s (frame 12 on)."""
+    """scenes/drop2d.json: 3 000 particles, the drop template from 0.2 s (frame 13 on: frame 12 ends at 0.2 s)."""
     return client.create_session("drop2d", threads=2, **options)["id"]
 
 
@@ -54,15 +54,15 @@ def test_an_edit_resimulates_the_frames_it_changes_by_itself(server, client):
 
     name = instance_name(client, sid)
     answer = client.update_instance(sid, name, {"attraction_weight": 2.0})
-    assert answer["edit"]["frame"] == 12, "the instance starts at 0.2 s: frame 12 is the first it changes"
+    assert answer["edit"]["frame"] == 13, "the instance starts at 0.2 s, where frame 12 ends"
     # No transport command: the session re-simulates by itself and stays paused.
     st = settled(client, sid)
     assert st["status"] == "paused" and st["frame"] == FRAMES
     assert st["cache"]["valid"] == [[0, FRAMES]] and st["cache"]["simulating"] is None
     after = frames(client, sid, FRAMES)
-    for n in range(12):
+    for n in range(13):
         assert after[n] == before[n], f"frame {n}, before the edit's first change, was altered"
-    assert any(after[n] != before[n] for n in range(12, FRAMES + 1)), "the edit changed no frame"
+    assert any(after[n] != before[n] for n in range(13, FRAMES + 1)), "the edit changed no frame"
     # Exactly what a fresh run of the edited scene gives.
     assert after == fresh_frames(client, client.session_scene(sid), FRAMES)
     client.delete_session(sid)
@@ -86,11 +86,11 @@ def test_an_edit_during_resimulation_restarts_it_from_the_earlier_frame(server, 
     late = [k0, {**k0, "time": 0.5}, {**k0, "time": 0.6,
                                      "translation": [k0["translation"][0] + 0.02, k0["translation"][1]]}]
     first = client.update_instance(sid, name, {"transform": late})["edit"]["frame"]
-    assert first == 30
+    assert first == 31
     # The second edit, from the instance's start, while the first re-simulation runs (or
     # after it: either way the result must be the doubly edited scene's).
     second = client.update_instance(sid, name, {"velocity_weight": 0.1})["edit"]["frame"]
-    assert second == round(start * 60)
+    assert second == int(start * 60 + 1e-9) + 1
     st = client.session(sid)
     assert st["cache"]["stale"] == [] or st["cache"]["stale"][0][0] <= second
     settled(client, sid)
@@ -116,14 +116,18 @@ def test_the_stream_reports_stale_ranges_then_valid_ones(server, client):
         reader = threading.Thread(target=read, daemon=True)
         reader.start()
         client.update_instance(sid, instance_name(client, sid), {"attraction_weight": 3.0})
-        wait_until(lambda: states and not states[-1]["cache"]["stale"] and states[-1]["cache"]["simulating"] is None,
-                   timeout=300, what="a state with the cache valid again")
+        def clean(s):
+            return not s["cache"]["stale"] and s["cache"]["simulating"] is None
+
+        # The stream's first state (before the edit) is clean too: wait for stale, then clean.
+        wait_until(lambda: any(not clean(s) for s in states) and clean(states[-1]),
+                   timeout=300, what="a state with the cache valid again after stale ones")
         done.set()
         reader.join(5)
     stale = [s for s in states if s["cache"]["stale"]]
     assert stale, "no state showed the stale frames"
-    assert stale[0]["cache"]["stale"][0] == [12, FRAMES]
-    assert stale[0]["cache"]["valid"] == [[0, 11]]
+    assert stale[0]["cache"]["stale"][0] == [13, FRAMES]
+    assert stale[0]["cache"]["valid"] == [[0, 12]]
     running = [s for s in states if s["cache"]["simulating"]]
     assert running and all(s["cache"]["simulating"]["to"] == FRAMES for s in running)
     assert states[-1]["cache"]["valid"] == [[0, FRAMES]]

@@ -50,16 +50,16 @@ def test_instance_added_while_playing_takes_effect_at_its_frame(server, client, 
         st = client.wait_paused(sid)
         assert st["frame"] == 3 and st["status"] == "paused"
 
-        # Add the instance while the session plays: it takes effect at a frame boundary, the
-        # frame the answer names.
+        # Add the instance while the session plays, starting at 1 s: the answer names the first
+        # frame it changes (frame 60 ends at 1 s), and no frame before it is simulated again.
         client.play(sid)
         early += stream.frames_until(6, timeout=30)
-        added = client.add_instance(sid, {"name": "drop", "template": "drop2d", "start": 0,
+        added = client.add_instance(sid, {"name": "drop", "template": "drop2d", "start": 1.0,
                                           "transform": [{"time": 0, "translation": list(where)}]})
         edit = added["edit"]
         assert edit["accepted"] and edit["type"] == "add_instance" and edit["instance"] == "drop"
         first = edit["frame"]
-        assert first > 6
+        assert first == 61
         assert added["instance"]["name"] == "drop" and added["instance"]["template"] == "drop2d"
         assert [i["name"] for i in client.instances(sid)] == ["drop"]
         assert client.session(sid)["instances"] == 1
@@ -100,25 +100,29 @@ def test_instance_added_while_playing_takes_effect_at_its_frame(server, client, 
         assert all(stats[n]["instances"][0]["active"] for n in range(first, newest + 1))
         assert max(stats[n]["controlled_particles"] for n in range(first, newest + 1)) > 0
 
-        # An edit over the WebSocket: acknowledged with the frame it takes effect in.
+        # An edit over the WebSocket: acknowledged with the first frame it changes (the
+        # instance's start), from which the session re-simulates by itself.
         stream.edit(7, {"type": "update_instance", "name": "drop", "patch": {"attraction_weight": 0.3}})
         ack = stream.wait("ack")
-        assert ack == {"type": "ack", "edit_id": 7, "frame": newest + 1}
+        assert ack == {"type": "ack", "edit_id": 7, "frame": first}
         assert client.instance(sid, "drop")["attraction_weight"] == pytest.approx(0.3)
         # An invalid one is refused and changes nothing.
         stream.edit(8, {"type": "update_instance", "name": "drop", "patch": {"speed": -1}})
         err = stream.wait("error")
         assert err["request_id"] == 8 and err["code"] == "InvalidEdit" and "speed" in err["message"]
         assert client.instance(sid, "drop")["speed"] == 1
+        settled = client.wait_paused(sid, timeout=120)  # the re-simulation from `first` done
+        assert settled["frame"] == newest and settled["cache"]["valid"] == [[0, newest]]
 
         # Seek back: the stream shows the recorded frame, equal to the REST frame.
         k = first + 2
         st = client.seek(sid, k)
         assert st["status"] == "paused" and st["shown"] == {"live": False, "frame": k} and st["frame"] == newest
         seen = _messages_until(stream, lambda ms: any(m["type"] == "frame" and m["frame"] == k for m in ms)
-                               and any(m["type"] == "state" and m["shown_frame"] == k for m in ms))
-        (shown,) = [m for m in seen if m["type"] == "frame" and m["frame"] == k]
-        state = next(m for m in seen if m["type"] == "state" and m["shown_frame"] == k)
+                               and any(m["type"] == "state" and m["shown_frame"] == k and not m["live"] for m in ms))
+        # The last one: the re-simulation streamed frame k too, before the seek showed it.
+        shown = [m for m in seen if m["type"] == "frame" and m["frame"] == k][-1]
+        state = next(m for m in seen if m["type"] == "state" and m["shown_frame"] == k and not m["live"])
         assert state["live"] is False and state["frame"] == newest
 
         rest = client.frame(sid, k)
@@ -136,7 +140,8 @@ def test_instance_added_while_playing_takes_effect_at_its_frame(server, client, 
         np.testing.assert_allclose(binary["positions"], shown["positions"], atol=1e-9)
         assert client.frame(sid, "latest")["frame"] == k
 
-        # Play resumes from the newest frame, not from the one shown.
+        # Play from the frame shown: the recorded frames first, then the simulation goes on
+        # after the newest one.
         client.play(sid)
         resumed = stream.wait_frame(newest + 1, timeout=20)
         assert resumed["frame"] == newest + 1 or resumed["frame"] > newest

@@ -59,8 +59,8 @@ def test_a_client_that_stops_reading_costs_no_server_memory(server, client):
 
     rss0 = client.health()["rss_mb"]
     start = client.session(hid)["frame"]
-    client.play(hid)
-    client.play(lid)
+    client.play(hid, until=10**6)
+    client.play(lid, until=10**6)
     t0 = time.monotonic()
     rss = []
     while time.monotonic() - t0 < WINDOW_S:
@@ -111,7 +111,7 @@ def test_subscribe_limits_the_frame_rate(server, client, rate):
     with server.stream(sid) as stream:
         stream.wait("frame")
         stream.subscribe(max_frame_rate=rate)
-        client.play(sid)
+        client.play(sid, until=10**6)
         t0 = time.monotonic()
         frames = []
         while time.monotonic() - t0 < 2.0:

@@ -214,7 +214,7 @@ def main() -> int:
         for t in threads:
             t.start()
         for sid, _ in sids:
-            api.play(sid)
+            api.play(sid, until=10**6)
         t0 = time.monotonic()
         next_report = 0.0
         while (elapsed := time.monotonic() - t0) < args.seconds:

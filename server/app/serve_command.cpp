@@ -34,6 +34,7 @@ struct ServeOptions {
   double historyCapMb = 256;
   int maxThreads = 0;
   double frameTimeout = 120;
+  double streamStall = 20, streamIdle = 60;
   int ioThreads = 2;
 };
 
@@ -57,6 +58,8 @@ int serve(const ServeOptions& o, bool presetsGiven) {
   so.historyCapBytes = size_t(o.historyCapMb * 1024 * 1024);
   so.maxThreads = o.maxThreads;
   so.frameTimeout = std::chrono::milliseconds(int64_t(o.frameTimeout * 1000));
+  so.streamWriteStall = std::chrono::milliseconds(int64_t(o.streamStall * 1000));
+  so.streamIdleTimeout = std::chrono::milliseconds(int64_t(o.streamIdle * 1000));
   service::ServerOptions net;
   net.host = o.host;
   net.port = uint16_t(o.port);
@@ -114,6 +117,13 @@ void addServeCommand(CLI::App& app) {
   cmd->add_option("--frame-timeout", o->frameTimeout,
                   "a session whose frame runs longer than this many seconds goes to its error state (default 120)")
       ->check(CLI::Range(0.1, 1e6));
+  cmd->add_option("--stream-stall", o->streamStall,
+                  "a WebSocket client that takes longer than this many seconds to accept one message is "
+                  "disconnected (default 20)")
+      ->check(CLI::Range(0.1, 3600.0));
+  cmd->add_option("--stream-idle", o->streamIdle,
+                  "a WebSocket client that answers no keep-alive ping for this many seconds is dropped (default 60)")
+      ->check(CLI::Range(1.0, 86400.0));
   cmd->add_option("--io-threads", o->ioThreads, "network threads (default 2)")->check(CLI::Range(1, 64));
   cmd->callback([o, presetsOption] { throw ExitCode(serve(*o, presetsOption->count() > 0)); });
 }

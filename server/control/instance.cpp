@@ -38,12 +38,16 @@ bool finite(const VecD<D>& v) {
 template <int D>
 void compose(const TransformKey<D>& ka, const TransformKey<D>& kb, double u, const TransformKey<D>& reflectKey,
              MatD<D>& linear, VecD<D>& translation) {
-  translation = (1 - u) * ka.translation + u * kb.translation;
-  const VecD<D> scale = (1 - u) * ka.scale + u * kb.scale;
+  // a + u (b − a): equal keys give exactly the key, so a key repeating a
+  // pose changes nothing (sessions keep the frames it cannot change).
+  translation = ka.translation + u * (kb.translation - ka.translation);
+  const VecD<D> scale = ka.scale + u * (kb.scale - ka.scale);
   MatD<D> rotation;
   if constexpr (D == 2) {
-    const double angle = ((1 - u) * ka.rotationDeg[0] + u * kb.rotationDeg[0]) * kDegree;
+    const double angle = (ka.rotationDeg[0] + u * (kb.rotationDeg[0] - ka.rotationDeg[0])) * kDegree;
     rotation << std::cos(angle), -std::sin(angle), std::sin(angle), std::cos(angle);
+  } else if (ka.rotationDeg == kb.rotationDeg) {
+    rotation = eulerXYZ(ka.rotationDeg).toRotationMatrix();
   } else {
     rotation = eulerXYZ(ka.rotationDeg).slerp(u, eulerXYZ(kb.rotationDeg)).toRotationMatrix();
   }

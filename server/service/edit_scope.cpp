@@ -77,12 +77,16 @@ double firstAffectedTime(const InstanceSpec<D>* before, const InstanceSpec<D>* a
   return track == kNeverAffected ? kNeverAffected : std::max(track, start);
 }
 
-int firstAffectedFrame(double time, double frameRate) {
+int firstAffectedFrame(double time, double frameDuration) {
   if (time == kNeverAffected || std::isnan(time)) return INT_MAX;
-  if (time == kAffectedFromStart) return 1;
-  const double f = std::floor(time * frameRate - 1e-6) + 1;
-  if (f < 1) return 1;
-  return f >= double(INT_MAX) ? INT_MAX : int(f);
+  if (time == kAffectedFromStart || time < frameDuration) return 1;
+  const double guess = std::floor(time / frameDuration) + 1;
+  if (guess >= double(INT_MAX) - 2) return INT_MAX;
+  int n = int(guess);
+  // The simulation's own frame ends (Simulation::advanceFrame), not the quotient's rounding.
+  while (n > 1 && double(n - 1) * frameDuration > time) --n;
+  while (double(n) * frameDuration <= time) ++n;
+  return n;
 }
 
 template double firstAffectedTime<2>(const InstanceSpec<2>*, const InstanceSpec<2>*);

@@ -22,10 +22,11 @@ template <int D>
 double firstAffectedTime(const InstanceSpec<D>* before, const InstanceSpec<D>* after);
 
 // The first frame whose simulation reads scene time `time` or later: frame n
-// covers (t(n−1), t(n)] and evaluates the scene at times in [t(n−1), t(n)),
-// so it is the first n with t(n) > time, one frame earlier when `time` falls
-// on a frame boundary up to rounding. kAffectedFromStart gives 1;
+// covers (t(n−1), t(n)] with t(n) = n · frameDuration as the simulation
+// computes it, and evaluates the scene at times below t(n) − 1e-9 (the last
+// substep starts before that; an instance counts as started 1e-9 s early),
+// so it is the first n with t(n) > time. kAffectedFromStart gives 1;
 // kNeverAffected INT_MAX.
-int firstAffectedFrame(double time, double frameRate);
+int firstAffectedFrame(double time, double frameDuration);
 
 }  // namespace fc::service

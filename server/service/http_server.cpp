@@ -197,12 +197,7 @@ class StreamConnection : public StreamHandle, public std::enable_shared_from_thi
   // More unanswered acks and errors than this means the client does not
   // read: it is disconnected rather than buffered for.
   static constexpr size_t kMaxQueuedMessages = 256;
-  // A client that takes longer than this to accept one message (its socket
-  // buffer full: it stopped reading) is disconnected.
-  static constexpr std::chrono::seconds kWriteStall{20};
-  static constexpr std::chrono::seconds kIdleTimeout{60};
-  // A close handshake the peer does not complete within this is cut.
-  static constexpr std::chrono::seconds kCloseGrace{5};
+  // Stall, idle and close limits: ServiceOptions::stream*.
 
   StreamConnection(tcp::socket socket, HttpServer::Impl& server, std::shared_ptr<Session> session)
       : ws_(std::move(socket)), server_(server), session_(std::move(session)), timer_(ws_.get_executor()),
@@ -221,9 +216,9 @@ class StreamConnection : public StreamHandle, public std::enable_shared_from_thi
   void releaseAtShutdown() override { release(); }
 
   void start(http::request<http::string_body> req, std::string protocol) {
-    // A peer that vanished answers no ping: dropped after kIdleTimeout.
+    // A peer that vanished answers no ping: dropped after the idle timeout.
     websocket::stream_base::timeout timeouts = websocket::stream_base::timeout::suggested(beast::role_type::server);
-    timeouts.idle_timeout = kIdleTimeout;
+    timeouts.idle_timeout = server_.hub.options().streamIdleTimeout;
     timeouts.keep_alive_pings = true;
     ws_.set_option(timeouts);
     ws_.set_option(websocket::stream_base::decorator([protocol](websocket::response_type& res) {
@@ -437,7 +432,7 @@ class StreamConnection : public StreamHandle, public std::enable_shared_from_thi
 
   void write(net::const_buffer buffer) {
     writing_ = true;
-    armStallTimer(kWriteStall);
+    armStallTimer(server_.hub.options().streamWriteStall);
     ws_.async_write(buffer, [self = shared_from_this()](beast::error_code ec, size_t) {
       self->endWrite();
       self->inFlight_.reset();
@@ -458,7 +453,7 @@ class StreamConnection : public StreamHandle, public std::enable_shared_from_thi
       return;
     }
     writing_ = true;
-    armStallTimer(kCloseGrace);
+    armStallTimer(server_.hub.options().streamCloseGrace);
     ws_.async_close(websocket::close_reason(websocket::close_code::going_away, printable(reason, 120)),
                     [self = shared_from_this()](beast::error_code) { self->endWrite(); });
   }
@@ -471,7 +466,7 @@ class StreamConnection : public StreamHandle, public std::enable_shared_from_thi
   }
 
   // Fires `after` from now unless the write or close in progress ends first.
-  void armStallTimer(std::chrono::seconds after) {
+  void armStallTimer(std::chrono::milliseconds after) {
     const uint64_t seq = ++stallSeq_;
     stallTimer_.expires_after(after);
     stallTimer_.async_wait([weak = weak_from_this(), seq](beast::error_code ec) {

@@ -71,6 +71,13 @@ struct ServiceOptions {
   // answering 202 (pending); short, so that a slow frame never holds the
   // REST workers.
   std::chrono::milliseconds editWait{3000};
+  // WebSocket streams: a client that takes longer than streamWriteStall to
+  // accept one message (it stopped reading) is disconnected; one that
+  // answers no keep-alive ping within streamIdleTimeout is dropped; a close
+  // handshake not completed within streamCloseGrace is cut.
+  std::chrono::milliseconds streamWriteStall{20000};
+  std::chrono::milliseconds streamIdleTimeout{60000};
+  std::chrono::milliseconds streamCloseGrace{5000};
 };
 
 class ServiceHub {

@@ -1143,7 +1143,7 @@ class SessionImpl final : public Session {
       const double oldRate = info_.frameRate;
       const int first = applyEdit(op.edit, r);
       r.accepted = true;
-      r.frame = std::min(first, nextFrame());
+      r.frame = first == INT_MAX ? nextFrame() : first;
       if (first == 0)
         restartFromFrameZero(oldRate);
       else
@@ -1220,7 +1220,7 @@ class SessionImpl final : public Session {
     if (!control.instances.empty()) bound = bindInstances<D>(control.instances, db_);
     const InstanceSpec<D>* before = e.kind == EditKind::AddInstance ? nullptr : &bound_.at(index).spec;
     const InstanceSpec<D>* after = e.kind == EditKind::RemoveInstance ? nullptr : &bound.at(index).spec;
-    const int first = firstAffectedFrame(firstAffectedTime<D>(before, after), info_.frameRate);
+    const int first = firstAffectedFrame(firstAffectedTime<D>(before, after), sim_->frameDuration());
     // Valid: apply. Adding the first instance adds the control stage; once
     // there it stays (with no instances it only retires temporary particles).
     if (controlStage_) {

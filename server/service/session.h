@@ -153,8 +153,9 @@ struct EditResult {
   uint64_t id = 0;
   EditKind kind = EditKind::AddInstance;
   bool accepted = false;
-  // Accepted: the first frame the edit changes (re-simulated from there), or
-  // the next frame to simulate when that is earlier (0: every frame).
+  // Accepted: the first frame the edit changes (0: every frame; recorded
+  // frames from there are re-simulated), or the next frame to simulate when
+  // it changes none (a rename).
   int frame = -1;
   std::string instance;   // the instance concerned (an added one's resolved name)
   std::string path;       // rejected: key path of the offending value in the scene ("instances[2].speed")

@@ -253,12 +253,18 @@ TEST(Checkpoints, StoreThinsTheOldestToStayUnderItsCap) {
 TEST(EditScope, FirstAffectedFrameFollowsTheInstanceTimeline) {
   using service::firstAffectedFrame;
   using service::firstAffectedTime;
-  EXPECT_EQ(firstAffectedFrame(0.5, 60), 30);  // on frame 30's end, up to rounding: recomputed too
-  EXPECT_EQ(firstAffectedFrame(0.51, 60), 31);
-  EXPECT_EQ(firstAffectedFrame(0, 60), 1);
-  EXPECT_EQ(firstAffectedFrame(-3, 60), 1);
-  EXPECT_EQ(firstAffectedFrame(service::kAffectedFromStart, 60), 1);
-  EXPECT_EQ(firstAffectedFrame(service::kNeverAffected, 60), INT_MAX);
+  const double dt = 1.0 / 60;
+  EXPECT_EQ(firstAffectedFrame(0.5, dt), 31);  // frame 30 ends at 0.5 s and reads the scene before it
+  EXPECT_EQ(firstAffectedFrame(0.49, dt), 30);
+  EXPECT_EQ(firstAffectedFrame(0.2, dt), 13);
+  EXPECT_EQ(firstAffectedFrame(0, dt), 1);
+  EXPECT_EQ(firstAffectedFrame(-3, dt), 1);
+  EXPECT_EQ(firstAffectedFrame(service::kAffectedFromStart, dt), 1);
+  EXPECT_EQ(firstAffectedFrame(service::kNeverAffected, dt), INT_MAX);
+  for (int n = 1; n < 2000; ++n) {  // on every frame end, as the simulation computes it
+    EXPECT_EQ(firstAffectedFrame(double(n) * dt, dt), n + 1);
+    EXPECT_EQ(firstAffectedFrame(double(n) * dt - 1e-7, dt), n);
+  }
 
   InstanceSpec<2> a;
   a.params = ParamValues(instanceParamSpecs(2));

@@ -321,8 +321,7 @@ TEST(SessionEdits, AppliedAtAFrameBoundaryWhilePlaying) {
   const EditResult r = resultOf(s->submit(
       Edit::fromJson(json{{"type", "add_instance"}, {"instance", {{"template", "blob"}, {"start", 0.5}}}})));
   ASSERT_TRUE(r.accepted) << r.message;
-  EXPECT_GE(r.frame, 3);   // the frame after the one it was applied at, or its start (frame 30) if later
-  EXPECT_LE(r.frame, 30);
+  EXPECT_EQ(r.frame, 31);  // it starts at 0.5 s, where frame 30 ends
   ASSERT_TRUE(s->waitForFrame(31, 30 * kWait));
   s->pause();
   ASSERT_TRUE(s->waitIdle(30 * kWait));
@@ -427,14 +426,14 @@ TEST(SessionResimulation, AnEditResimulatesTheFramesItChangesByItself) {
   const EditResult r = resultOf(s->submit(Edit::fromJson(
       json{{"type", "update_instance"}, {"name", "blob"}, {"patch", {{"attraction_weight", 3}}}})));
   ASSERT_TRUE(r.accepted) << r.message;
-  EXPECT_EQ(r.frame, 12);  // the instance starts at 0.2 s: frame 12 is the first to read it
+  EXPECT_EQ(r.frame, 13);  // the instance starts at 0.2 s, where frame 12 ends: frame 13 is the first to read it
   ASSERT_TRUE(s->waitIdle(kResimWait));
   EXPECT_EQ(s->status(), SessionStatus::Paused);
   const std::vector<FramePtr> after = s->history();
   ASSERT_EQ(after.size(), 31u);
-  for (int f = 0; f < 12; ++f) EXPECT_EQ(after[size_t(f)], before[size_t(f)]) << "frame " << f << " was replaced";
+  for (int f = 0; f < 13; ++f) EXPECT_EQ(after[size_t(f)], before[size_t(f)]) << "frame " << f << " was replaced";
   bool changed = false;
-  for (int f = 12; f <= 30; ++f) changed = changed || !sameParticles(*after[size_t(f)], *before[size_t(f)]);
+  for (int f = 13; f <= 30; ++f) changed = changed || !sameParticles(*after[size_t(f)], *before[size_t(f)]);
   EXPECT_TRUE(changed) << "the stronger attraction changed no frame";
   json edited = sceneWithBlob(0.2);
   edited["instances"][0]["attraction_weight"] = 3;
@@ -466,7 +465,7 @@ TEST(SessionResimulation, AnEditDuringResimulationRestartsFromTheEarlierFrame) {
   Session* raw = s.get();
   s->subscribe({[&](const FramePtr& f) {
                   // The first re-simulated frame past 30: the second edit, from inside.
-                  if (f->frame > 30 && !sent.exchange(true)) {
+                  if (f->frame > 31 && !sent.exchange(true)) {
                     const EditTicket t = raw->submit(Edit::fromJson(json{
                         {"type", "update_instance"}, {"name", "blob"}, {"patch", {{"velocity_weight", 0.5}}}}));
                     (void)t;
@@ -479,8 +478,7 @@ TEST(SessionResimulation, AnEditDuringResimulationRestartsFromTheEarlierFrame) {
                   std::lock_guard lk(m);
                   states.push_back(st);
                 }});
-  // A key after the last: the track changes after 0.5 s (frame 30 on, with
-  // the margin at a frame boundary).
+  // A key after the last: the track changes after 0.5 s (frame 31 on).
   const EditResult r = resultOf(s->submit(Edit::fromJson(json{
       {"type", "update_instance"},
       {"name", "blob"},
@@ -488,9 +486,9 @@ TEST(SessionResimulation, AnEditDuringResimulationRestartsFromTheEarlierFrame) {
                                         {{"time", 0.5}, {"translation", {0.2, 0.2}}},
                                         {{"time", 0.6}, {"translation", {0.3, 0.2}}}})}}}})));
   ASSERT_TRUE(r.accepted) << r.message;
-  EXPECT_EQ(r.frame, 30);
+  EXPECT_EQ(r.frame, 31);
   ASSERT_TRUE(test::waitFor([&] { return secondFrame.load() >= 0; }, kResimWait));
-  EXPECT_EQ(secondFrame.load(), 3);  // start 0.05 s
+  EXPECT_EQ(secondFrame.load(), 4);  // start 0.05 s, where frame 3 ends
   ASSERT_TRUE(s->waitIdle(kResimWait));
   json edited = sceneWithBlob(0.05);
   edited["instances"][0]["transform"] = json::array({{{"time", 0}, {"translation", {0.2, 0.2}}},
@@ -506,9 +504,9 @@ TEST(SessionResimulation, AnEditDuringResimulationRestartsFromTheEarlierFrame) {
   bool sawStaleFrom30 = false, sawRestartBelow30 = false;
   for (const json& st : states) {
     const json& c = st["cache"];
-    if (!c["stale"].empty() && c["stale"][0][0].get<int>() >= 30) sawStaleFrom30 = true;
+    if (!c["stale"].empty() && c["stale"][0][0].get<int>() >= 31) sawStaleFrom30 = true;
     if (c["simulating"].is_object() && c["simulating"]["from"].get<int>() < 30 &&
-        c["stale"][0][0].get<int>() <= 3 + 1)
+        c["stale"][0][0].get<int>() <= 4)
       sawRestartBelow30 = true;
   }
   EXPECT_TRUE(sawStaleFrom30);
