@@ -40,7 +40,13 @@ class MeshSdf {
   struct Options {
     double spacing = 0;          // grid spacing, m (the particle radius)
     double band = 0;             // margin around the mesh bounds, m (the kernel support and a cell)
+#ifdef FLOWCLIP_FUZZ_LIMITS
+    // Fuzz builds: a grid costs ~250× Release under ASan + UBSan at -O1 (a
+    // 0.6 M-node grid: 49 ms against 12.8 s), so big ones are refused there.
+    size_t maxNodes = 1u << 17;
+#else
     size_t maxNodes = 1u << 24;  // 16.8 M nodes, 64 MB of floats
+#endif
     // signedDistance() answers exactly where the grid says the surface is
     // nearer than this (m; 0: the grid everywhere). See signedDistance.
     // Fine nodes nearer than 4 cells to the surface are always exact, so

@@ -444,10 +444,12 @@ struct InstanceCase {
 };
 
 // Control settings of the instance cases: temporary particles outside every
-// instance are removed after 5 frames (default 60), to keep the runs short.
+// instance are removed after 5 frames (default 60), all at once (no fade-out
+// bound), to keep the runs short.
 ParamValues quickRemoval() {
   ParamValues settings(controlSettingsSpecs());
   settings.set("temporary_grace_frames", 5);
+  settings.set("temporary_fade_share", 1);
   return settings;
 }
 
