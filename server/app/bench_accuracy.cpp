@@ -550,9 +550,13 @@ PresetPick choosePresets(std::vector<Result>& results) {
     error.push_back(r.avgErr);
   }
   const PresetPick pick = pickPresets(cost, error, paretoFront(cost, error, eligible));
-  if (pick.draft >= 0) results[size_t(pick.draft)].preset = "draft";
-  if (pick.preview >= 0 && pick.preview != pick.final) results[size_t(pick.preview)].preset = "preview";
-  if (pick.final >= 0) results[size_t(pick.final)].preset = pick.preview == pick.final ? "preview+final" : "final";
+  // A row two presets share (a short front) is tagged with both names.
+  const std::pair<long, const char*> tags[] = {{pick.draft, "draft"}, {pick.preview, "preview"}, {pick.final, "final"}};
+  for (const auto& [row, name] : tags) {
+    if (row < 0) continue;
+    std::string& tag = results[size_t(row)].preset;
+    tag = tag == "none" ? std::string(name) : tag + "+" + name;
+  }
   return pick;
 }
 
