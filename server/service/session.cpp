@@ -1,4 +1,8 @@
-// One simulation session: see session.h.
+// One simulation session: see session.h. Long because SessionImpl's thread
+// owns the simulation and every transition of its state (transport, edits,
+// re-simulation, history) happens under one lock in one place; checkpoints
+// (checkpoints.h), edit scopes (edit_scope.h) and exports (history_export.h)
+// live in their own files.
 #include "service/session.h"
 
 #include "control/control.h"
