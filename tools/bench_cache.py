@@ -186,7 +186,13 @@ def moved_key(key: dict, dim: int, delta: float, time_s=None) -> dict:
 def frame_of(time_s: float) -> int:
     """The first frame whose simulation reads scene time `time_s` or later (frame n covers
     (t(n-1), t(n)]): the first changed frame an edit from `time_s` on should be answered with."""
-    return max(1, math.floor(time_s * FRAME_RATE - 1e-6) + 1)
+    duration = 1.0 / FRAME_RATE
+    n = max(1, math.floor(time_s / duration) + 1)
+    while n > 1 and (n - 1) * duration > time_s:  # the simulation's own frame ends
+        n -= 1
+    while n * duration <= time_s:
+        n += 1
+    return n
 
 
 def edit_keys(k0: dict, t: float, dim: int, delta: float) -> list:
