@@ -758,6 +758,8 @@ HttpResponse ServiceHub::recordTemplate(const HttpRequest& req, const Params& p)
     return jsonResponse(templateEntryJson(e), 201);
   } catch (const DatabaseError& e) {
     throw ApiError(409, e.what(), "name");
+  } catch (const StaleFramesError& e) {
+    throw ApiError(409, e.what(), "first_frame");
   }
 }
 
@@ -1145,6 +1147,8 @@ HttpResponse ServiceHub::exportFrames(const HttpRequest& req, const Params& p) {
   HistoryExport e;
   try {
     e = s->exportHistory(h5.string(), first, last);
+  } catch (const StaleFramesError& err) {
+    throw ApiError(409, err.what(), "first_frame");
   } catch (const std::invalid_argument& err) {
     throw ApiError(422, err.what(), "first_frame");
   }

@@ -374,6 +374,7 @@ class SessionImpl final : public Session {
       if (first > last)
         throw std::invalid_argument("the first frame (" + std::to_string(first) + ") is after the last frame (" +
                                     std::to_string(last) + ")");
+      throwIfStaleLocked(first, last);
       for (const FramePtr& f : history_)
         if (f->frame >= first && f->frame <= last) frames.push_back(f);
       if (frames.empty())
@@ -420,6 +421,7 @@ class SessionImpl final : public Session {
     std::string recipe;
     {
       std::lock_guard lk(mutex_);
+      throwIfStaleLocked(firstFrame, lastFrame);
       auto it = std::lower_bound(history_.begin(), history_.end(), firstFrame,
                                  [](const FramePtr& f, int n) { return f->frame < n; });
       for (long long f = firstFrame; f <= lastFrame; ++f, ++it) {
@@ -981,6 +983,15 @@ class SessionImpl final : public Session {
   }
 
   bool resimulatingLocked() const { return resimTarget_ >= 0 && live_->frame < resimTarget_; }
+
+  // With mutex_ held: frames [first, last] must not be stale (exports and
+  // templates take only frames of the scene as it is).
+  void throwIfStaleLocked(int first, int last) const {
+    if (staleFrom_ == INT_MAX || staleFrom_ > last) return;
+    throw StaleFramesError("frames " + std::to_string(std::max(first, staleFrom_)) + " to " + std::to_string(last) +
+                           " are stale: an edit changed them and the session is re-simulating them (now at frame " +
+                           std::to_string(live_->frame) + "); try again once the cache is valid");
+  }
 
   // The first recorded frame an accepted edit changed is `first`
   // (edit_scope.h): frames from there on become stale, and the simulation,

@@ -211,6 +211,12 @@ struct SessionError : std::runtime_error {
 struct SessionOverloaded : SessionError {
   using SessionError::SessionError;
 };
+// An export or a template recording asked for frames an edit made stale
+// (the session is re-simulating them): try again once state "cache" has no
+// stale range.
+struct StaleFramesError : SessionError {
+  using SessionError::SessionError;
+};
 
 class Session {
  public:
@@ -276,8 +282,10 @@ class Session {
   // (replacing existing ones) only when complete: a failure leaves neither
   // a partial file nor a changed one. Runs on the caller's thread; the
   // session goes on meanwhile. Throws std::invalid_argument if
-  // firstFrame > lastFrame or the range holds no recorded frame, and
-  // std::runtime_error naming the path if a file cannot be written.
+  // firstFrame > lastFrame or the range holds no recorded frame,
+  // StaleFramesError if the range holds stale frames (an edit changed them,
+  // the session is re-simulating them), and std::runtime_error naming the
+  // path if a file cannot be written.
   virtual HistoryExport exportHistory(const std::string& h5Path, int firstFrame = -1, int lastFrame = -1) const = 0;
 
   // Records a template from the history (issue 5, "templates: record from a
@@ -296,7 +304,8 @@ class Session {
   // max, the message naming region_min or region_max; firstFrame >
   // lastFrame; no liquid in the region; frames recorded at another frame
   // rate than the scene's current one), std::out_of_range naming the first
-  // frame of the range not in the history, TemplateError on write failures
+  // frame of the range not in the history, StaleFramesError if the range
+  // holds stale frames, TemplateError on write failures
   // (no file left behind). Returns db.entry(name).
   virtual TemplateEntry recordTemplate(TemplateDatabase& db, const std::string& name,
                                        const std::vector<double>& regionMin, const std::vector<double>& regionMax,

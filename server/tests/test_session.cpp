@@ -615,6 +615,42 @@ TEST(SessionResimulation, PlayStopsAtTheDurationAndPlaysRecordedFramesFirst) {
   for (int f = 6; f <= 16; ++f) EXPECT_EQ(s->frame(f), recorded[size_t(f)]) << "a recorded frame was re-simulated";
 }
 
+// Exports and templates take only frames of the scene as it is: asked for
+// stale frames during a re-simulation they refuse, naming them; once the
+// cache is valid they work.
+TEST(SessionResimulation, ExportsRefuseStaleFrames) {
+  Fixture fx;
+  auto s = createSession("e", "", sceneWithBlob(0.1), fx.db);
+  s->step(30);
+  ASSERT_TRUE(s->waitIdle(kResimWait));
+  std::atomic<bool> tried{false};
+  std::string exportError, templateError;
+  Session* raw = s.get();
+  s->subscribe({[&](const FramePtr& f) {
+                  if (f->frame < 10 || tried.exchange(true)) return;  // a re-simulated frame: 7.. are stale
+                  try {
+                    raw->exportHistory(fx.tmp.file("stale.h5"));
+                  } catch (const StaleFramesError& e) {
+                    exportError = e.what();
+                  }
+                  try {
+                    raw->recordTemplate(fx.db, "stale", {0, 0}, {0.5, 0.5}, 0, 20, false);
+                  } catch (const StaleFramesError& e) {
+                    templateError = e.what();
+                  }
+                },
+                nullptr, nullptr});
+  ASSERT_TRUE(resultOf(s->submit(Edit::fromJson(
+                           json{{"type", "update_instance"}, {"name", "blob"}, {"patch", {{"attraction_weight", 2}}}})))
+                  .accepted);
+  ASSERT_TRUE(s->waitIdle(kResimWait));
+  ASSERT_TRUE(tried.load());
+  EXPECT_NE(exportError.find("are stale"), std::string::npos) << exportError;
+  EXPECT_NE(templateError.find("are stale"), std::string::npos) << templateError;
+  EXPECT_FALSE(std::filesystem::exists(fx.tmp.file("stale.h5")));
+  EXPECT_EQ(s->exportHistory(fx.tmp.file("valid.h5")).frames, 31);
+}
+
 // Checkpoints and history share the session's cap.
 TEST(SessionResimulation, CheckpointsAndHistoryStayUnderTheCap) {
   Fixture fx;
