@@ -263,8 +263,9 @@ class Session {
   // The result of an edit, once known (the last 1024 are kept).
   virtual std::optional<EditResult> editResult(uint64_t id) const = 0;
 
-  // The frame to show: the newest simulated frame, or the recorded frame a
-  // seek selected while replaying.
+  // The frame to show: the simulation's own frame (during a re-simulation
+  // the frame it has reached), or the recorded frame a seek selected while
+  // replaying.
   virtual FramePtr latestFrame() const = 0;
   // A recorded frame (nullptr when not, or no longer, in the history).
   virtual FramePtr frame(int frame) const = 0;
@@ -340,7 +341,8 @@ class Session {
   //  checkpoint_save_ms, checkpoint_restore_ms}}
   virtual nlohmann::json state() const = 0;
   virtual SessionStatus status() const = 0;
-  // The newest simulated frame number (not the shown one).
+  // The simulation's frame number (not the shown one; during a
+  // re-simulation the frame it has reached, state "cache.reached" the newest).
   virtual int currentFrame() const = 0;
 
   virtual uint64_t subscribe(SessionListener listener) = 0;
