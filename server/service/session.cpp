@@ -1020,7 +1020,20 @@ class SessionImpl final : public Session {
           checkpoints_.clear();  // not this scene's: rebuild from frame 0 below
         }
       }
-      if (!restored) buildSimulation();  // throws only for what applyEdit validated
+      if (!restored) {
+        try {
+          buildSimulation();
+        } catch (const std::exception& e) {
+          // The scene built before; should it not now, the session says so
+          // and waits for a reset rather than showing frames of another scene.
+          std::lock_guard lk(mutex_);
+          status_ = SessionStatus::Error;
+          errorFrame_ = live_->frame;
+          errorMessage_ = std::string("re-simulation could not rebuild the scene: ") + e.what();
+          staleFrom_ = std::min(staleFrom_, first);
+          return;
+        }
+      }
       checkpoints_.noteRestoreMs(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
       FramePtr at = makeSnapshot(initialStats());
       std::lock_guard lk(mutex_);
