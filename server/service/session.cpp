@@ -911,8 +911,7 @@ class SessionImpl final : public Session {
       // the same: the recorded snapshots stay (no viewer sees a change).
       const FramePtr kept = resim && fs.frame < staleFrom_ ? findFrame(fs.frame) : nullptr;
       if (kept) snap = kept;
-      checkpointFigures_ = checkpoints_.figures();
-      checkpointFrames_ = checkpoints_.frames();
+      publishCheckpointsLocked();
       live_ = snap;
       storeLocked(snap);
       publishCountsLocked();
@@ -982,6 +981,13 @@ class SessionImpl final : public Session {
     fitMemoryLocked();
   }
 
+  // With mutex_ held: what state() and the memory cap read of the checkpoints
+  // (the store itself is the session thread's).
+  void publishCheckpointsLocked() {
+    checkpointFigures_ = checkpoints_.figures();
+    checkpointFrames_ = checkpoints_.frames();
+  }
+
   bool resimulatingLocked() const { return resimTarget_ >= 0 && live_->frame < resimTarget_; }
 
   // With mutex_ held: frames [first, last] must not be stale (exports and
@@ -1049,8 +1055,7 @@ class SessionImpl final : public Session {
     resimTarget_ = std::max(resimTarget_, reached);
     if (simFrame < first) resimFrom_ = std::min(resimFrom_ < 0 ? simFrame : resimFrom_, simFrame);
     lastResimState_ = Clock::time_point{};
-    checkpointFigures_ = checkpoints_.figures();
-    checkpointFrames_ = checkpoints_.frames();
+    publishCheckpointsLocked();
     publishCountsLocked();
     ++signal_;
   }
@@ -1066,8 +1071,7 @@ class SessionImpl final : public Session {
     checkpoints_.clear();
     {
       std::lock_guard lk(mutex_);
-      checkpointFigures_ = checkpoints_.figures();
-      checkpointFrames_.clear();
+      publishCheckpointsLocked();
       staleFrom_ = INT_MAX;
       resimTarget_ = resimFrom_ = -1;
       replayPlaying_ = false;
@@ -1318,8 +1322,7 @@ class SessionImpl final : public Session {
     checkpoints_.clear();
     FramePtr zero = makeSnapshot(initialStats());
     std::lock_guard lk(mutex_);
-    checkpointFigures_ = checkpoints_.figures();
-    checkpointFrames_.clear();
+    publishCheckpointsLocked();
     const int reached = history_.empty() ? live_->frame : std::max(history_.back()->frame, live_->frame);
     const double newRate = 1.0 / sim_->frameDuration();
     int target = reached;

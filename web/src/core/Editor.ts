@@ -173,10 +173,8 @@ export class Editor {
   /** Client-side playback of recorded frames (loop). */
   private loopTimer: ReturnType<typeof setInterval> | null = null;
   private loopOrigin = { at: 0, frame: 0 };
-  /** The frame the current play was asked to stop at (the server's `until`, or the client's when it has none). */
+  /** The frame the current play was asked to stop at (the server's `until`). */
   private playUntil: number | null = null;
-  /** The server knows `until`, cache and end_frame (its state says end_frame). */
-  supportsUntil = false;
   /** Instances shown with unconfirmed values, by name (token: who set it). */
   private readonly previews = new Map<string, { token: number; instance: InstanceJson }>();
   private previewTokens = 0;
@@ -857,19 +855,8 @@ export class Editor {
       this.startLoop();
       return;
     }
-    if (this.supportsUntil) {
-      this.playUntil = end;
-      await this.transport('play', { until: end });
-      return;
-    }
-    // A server without `until`: step exactly the frames up to the end (a replayed range is played by the loop).
-    const frames = end - this.view.frame;
-    if (frames <= 0) {
-      this.setPlayhead(end);
-      return;
-    }
-    await this.transport('step', { frames });
     this.playUntil = end;
+    await this.transport('play', { until: end });
   }
 
   async pause() {
@@ -945,7 +932,7 @@ export class Editor {
     this.checkIssues(f);
   }
 
-  /** The server stopped at the play's end (`until`, or the steps to it): a looping range plays on from its start. */
+  /** The server stopped at the play's end (`until`): a looping range plays on from its start. */
   private statusChanged(before: SessionStatusName, after: SessionStatusName) {
     if ((before !== 'playing' && before !== 'stepping') || after !== 'paused') return;
     const until = this.playUntil;
@@ -986,7 +973,6 @@ export class Editor {
 
   private applyState(s: SessionState) {
     const before = this.view.status;
-    this.supportsUntil = typeof s.end_frame === 'number';
     const historyFirst = s.history.first ?? 0, historyLast = s.history.last ?? 0;
     this.view = {
       status: s.status,
