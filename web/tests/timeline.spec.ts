@@ -254,8 +254,9 @@ test('timeline: an undo pressed while a drag\'s last PATCH is on its way undoes 
   const x = box.x + box.width * 0.4, y = box.y + box.height / 2;
   await page.mouse.move(x, y);
   await page.mouse.down();
+  const firstLanded = page.waitForResponse((r) => r.request().method() === 'PATCH' && r.url().includes('/instances/drop'));
   await page.mouse.move(x + 0.1 * s.pxPerSecond, y, { steps: 3 });
-  await page.waitForTimeout(700); // the drag's first PATCH lands
+  await firstLanded; // the drag's first PATCH has landed
   await page.mouse.move(x + 0.3 * s.pxPerSecond, y, { steps: 6 });
   await page.mouse.up();
   await page.keyboard.press('Control+z'); // at once (no actionability wait): the last PATCHes are on their way
