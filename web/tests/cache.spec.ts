@@ -5,7 +5,7 @@
 // stops at the play range's end, key diamonds drag in time, and the
 // keyboard works whatever has the focus.
 import { expect, test, type APIRequestContext, type Page } from '@playwright/test';
-import { openEditor, readNumber, serverUrl } from './helpers';
+import { holdRequests, openEditor, readNumber, serverUrl } from './helpers';
 
 const SCENE_FPS = 60;
 
@@ -117,11 +117,8 @@ test('the box follows a gizmo drag at once and an inspector edit while paused (p
   await expect.poll(() => warmPixelsInStrip(page, strip0.x, strip0.y0, strip0.y1)).toBeGreaterThan(10);
   expect(await warmPixelsInStrip(page, strip0.x + 90, strip0.y0, strip0.y1)).toBeLessThan(5);
 
-  // A slow server: every PATCH held back 2 s. The box must follow the pointer, not the answers.
-  await page.route('**/instances/jet2d', async (route) => {
-    if (route.request().method() === 'PATCH') await new Promise((r) => setTimeout(r, 2000));
-    await route.continue();
-  });
+  // A slow server: every PATCH held back until the box has been checked. The box must follow the pointer, not the answers.
+  const held = await holdRequests(page, '**/instances/jet2d', 'PATCH');
   const handle = await page.evaluate(() => {
     const { viewport } = (window as any).flowclip;
     const cam = viewport.camera, g = viewport.gizmo;
@@ -133,9 +130,10 @@ test('the box follows a gizmo drag at once and an inspector edit while paused (p
   await page.mouse.move(handle.x, handle.y);
   await page.mouse.down();
   for (let k = 1; k <= 9; k++) await page.mouse.move(handle.x + 10 * k, handle.y, { steps: 2 });
-  // Still held, the PATCHes on their way: the box's left edge is 90 px to the right.
-  await expect.poll(() => warmPixelsInStrip(page, strip0.x + 90, strip0.y0, strip0.y1), { timeout: 1500 }).toBeGreaterThan(10);
+  // Still held, no PATCH answered: the box's left edge is 90 px to the right.
+  await expect.poll(() => warmPixelsInStrip(page, strip0.x + 90, strip0.y0, strip0.y1)).toBeGreaterThan(10);
   expect(await warmPixelsInStrip(page, strip0.x, strip0.y0, strip0.y1)).toBeLessThan(5);
+  held.release();
   await page.mouse.up();
   await page.unrouteAll({ behavior: 'wait' });
   await expect.poll(async () => (await getJson(request, `${url}/instances/jet2d`)).transform[0].translation[0], { timeout: 15_000 })

@@ -1,7 +1,7 @@
 // The editor against a real server: open the 2D drop scene, play it, and
 // check what the viewport and the readouts show against the server's REST state.
 import { expect, test } from '@playwright/test';
-import { countPixelsNear, openEditor, readNumber, serverUrl } from './helpers';
+import { animationFrames, countPixelsNear, openEditor, readNumber, serverUrl } from './helpers';
 
 // The drop scene's phase colour, sRGB (scenes/drop2d.json: [0.45, 0.7, 1.0]).
 const LIQUID: [number, number, number] = [115, 179, 255];
@@ -59,9 +59,9 @@ test('play drop2d: frames arrive, liquid is drawn, the particle count matches th
     return { n: viewport.renders as number, why: `${viewport.renders} renders, ${editor.stream.frames} frames, frame ${editor.decoder.info.frame}, requests ${JSON.stringify(viewport.requests)}` };
   });
   // (The last frame's render is scheduled for the next animation frame: let it happen.)
-  await page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
+  await animationFrames(page, 2);
   const r0 = await renders();
-  await page.waitForTimeout(1000);
+  await animationFrames(page, 60); // a render loop would render in each
   const r1 = await renders();
   expect(r1.n - r0.n, `before: ${r0.why}; after: ${r1.why}`).toBeLessThanOrEqual(1);
 

@@ -45,3 +45,36 @@ export async function openEditor(page: Page): Promise<string[]> {
   await expect(page.getByTestId('viewport-canvas')).toBeVisible();
   return errors;
 }
+
+/**
+ * Resolves after `n` animation frames of the page. A render loop renders
+ * once an animation frame: a test that nothing renders while nothing
+ * changes lets this many go by, whatever the machine's speed.
+ */
+export async function animationFrames(page: Page, n: number): Promise<void> {
+  await page.evaluate(
+    (n) =>
+      new Promise<void>((resolve) => {
+        let left = n;
+        const tick = () => (--left > 0 ? requestAnimationFrame(tick) : resolve());
+        requestAnimationFrame(tick);
+      }),
+    n,
+  );
+}
+
+/**
+ * Holds `method` requests to `url` back on their way to the server until
+ * release() (the first `passing` of them go through at once): a server that
+ * has not answered yet for as long as the test needs it, not for a time.
+ */
+export async function holdRequests(page: Page, url: string, method: string, passing = 0) {
+  let release!: () => void;
+  const released = new Promise<void>((r) => (release = r));
+  let seen = 0;
+  await page.route(url, async (route) => {
+    if (route.request().method() === method && ++seen > passing) await released;
+    await route.continue();
+  });
+  return { release };
+}

@@ -3,7 +3,7 @@
 // pixels moved at the timeline's scale, each drag is one undo step, and
 // scrubbing the ruler shows a recorded frame (seek) in the viewport.
 import { expect, test, type APIRequestContext, type Locator, type Page, type Route } from '@playwright/test';
-import { openEditor, readNumber, serverUrl } from './helpers';
+import { animationFrames, holdRequests, openEditor, readNumber, serverUrl } from './helpers';
 
 // drop2d: the drop instance starts at 0.2 s and plays the whole drop2d
 // template (1 s, 61 frames at 60 frames/s) at speed 1; the scene runs at 60 frames/s.
@@ -46,18 +46,39 @@ async function scale(page: Page) {
 
 /**
  * A real mouse drag from the centre of `handle` by dx pixels, in several
- * moves (as a hand would); `holdMs`: the hand holds still a third of the way.
+ * moves (as a hand would); `hold`: the hand holds still a third of the way
+ * (holdPastMergeWindow).
  */
-async function dragBy(page: Page, handle: Locator, dx: number, holdMs = 0) {
+async function dragBy(page: Page, handle: Locator, dx: number, hold = false) {
   const box = (await handle.boundingBox())!;
   const x = box.x + box.width / 2, y = box.y + box.height / 2;
   await page.mouse.move(x, y);
   await page.mouse.down();
   await page.mouse.move(x + dx / 3, y, { steps: 4 });
-  if (holdMs) await page.waitForTimeout(holdMs);
+  if (hold) await holdPastMergeWindow(page);
   await page.mouse.move(x + dx, y, { steps: 8 });
   await page.mouse.up();
   return { x, y };
+}
+
+/**
+ * The pointer held still mid-drag until the drag's commands so far have run
+ * (one history entry) and then for longer than the history's merge window
+ * by the page's clock: the drag's next command comes later than commands
+ * merge by time, however slow the machine.
+ */
+async function holdPastMergeWindow(page: Page) {
+  const settled = () => page.evaluate(() => {
+    const { history } = (window as any).flowclip.editor;
+    return { busy: history.busy as boolean, entries: history.undoEntries.length as number };
+  });
+  await expect.poll(settled).toEqual({ busy: false, entries: 1 });
+  const { since, windowMs } = await page.evaluate(() => ({
+    since: performance.now(),
+    windowMs: (window as any).flowclip.editor.history.mergeWindowMs as number,
+  }));
+  await expect.poll(() => page.evaluate((since) => performance.now() - since, since)).toBeGreaterThan(windowMs);
+  expect(await settled()).toEqual({ busy: false, entries: 1 });
 }
 
 /** Holds requests back `delayMs` on their way to the server and counts how many were in flight at once. */
@@ -127,9 +148,9 @@ test('timeline: one track per instance over its active scene time, selection, no
 
   // On demand: nothing changes, nothing renders.
   const timeline = page.getByTestId('timeline');
-  await page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
+  await animationFrames(page, 2);
   const r0 = Number(await timeline.getAttribute('data-renders'));
-  await page.waitForTimeout(1000);
+  await animationFrames(page, 60); // a render loop would render in each
   expect(Number(await timeline.getAttribute('data-renders'))).toBe(r0);
   await expectNoErrors(page, errors);
 });
@@ -169,7 +190,7 @@ test('timeline: dragging the left end crops crop_begin and keeps the end time', 
   const s = await scale(page);
   const dx = Math.round(0.25 * s.pxPerSecond);
   // Held still for longer than the history's merge window (0.5 s): still one drag.
-  await dragBy(page, page.getByTestId('timeline-begin-drop'), dx, 800);
+  await dragBy(page, page.getByTestId('timeline-begin-drop'), dx, true);
   await historySettled(page);
 
   const after = await getJson(request, instanceUrl);
@@ -242,14 +263,11 @@ test('timeline: an undo pressed while a drag\'s last PATCH is on its way undoes 
   const { errors, instanceUrl } = await openDrop(page);
   const before = await getJson(request, instanceUrl);
   const s = await scale(page);
-  // A slow server: every PATCH held back 600 ms, so that the key press
-  // comes while the drag's second PATCH is in flight and its last values
-  // wait (without the fix the undo ran between them, and the last PATCH put
-  // the drag back as a new entry).
-  await page.route('**/instances/drop', async (route) => {
-    if (route.request().method() === 'PATCH') await new Promise((r) => setTimeout(r, 600));
-    await route.continue();
-  });
+  // A slow server: the drag's PATCHes after the first are held back until
+  // the key press has come, so that it comes while the drag's second PATCH
+  // is in flight and its last values wait (an undo run between them would
+  // let the last PATCH put the drag back as a new entry).
+  const held = await holdRequests(page, '**/instances/drop', 'PATCH', 1);
   const box = (await page.getByTestId('timeline-track-drop').boundingBox())!;
   const x = box.x + box.width * 0.4, y = box.y + box.height / 2;
   await page.mouse.move(x, y);
@@ -260,6 +278,7 @@ test('timeline: an undo pressed while a drag\'s last PATCH is on its way undoes 
   await page.mouse.move(x + 0.3 * s.pxPerSecond, y, { steps: 6 });
   await page.mouse.up();
   await page.keyboard.press('Control+z'); // at once (no actionability wait): the last PATCHes are on their way
+  held.release();
   await historySettled(page);
   await page.unroute('**/instances/drop');
   expect((await getJson(request, instanceUrl)).start).toBe(before.start);
