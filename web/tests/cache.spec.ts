@@ -4,32 +4,10 @@
 // nothing is simulated yet and the instance boxes are drawn there, playback
 // stops at the play range's end, key diamonds drag in time, and the
 // keyboard works whatever has the focus.
-import { expect, test, type APIRequestContext, type Page } from '@playwright/test';
-import { holdRequests, openEditor, readNumber, serverUrl } from './helpers';
+import { expect, test, type Page } from '@playwright/test';
+import { countPixelsBetween, expectNoErrors, getJson, holdRequests, openDrop, readNumber, serverUrl } from './helpers';
 
 const SCENE_FPS = 60;
-
-async function openDrop(page: Page) {
-  const errors = await openEditor(page);
-  await page.getByTestId('scene-picker').selectOption('drop2d');
-  const session = page.getByTestId('session');
-  await expect(session).toHaveAttribute('data-value', /^[A-Za-z0-9_-]+$/);
-  const sid = (await session.getAttribute('data-value'))!;
-  await expect(page.getByTestId('connection')).toHaveAttribute('data-value', 'open');
-  await expect(page.getByTestId('timeline-track-drop')).toHaveAttribute('data-end', /\d/);
-  return { errors, sid, url: `${serverUrl()}/api/sessions/${sid}` };
-}
-
-async function getJson(request: APIRequestContext, url: string) {
-  const res = await request.get(url);
-  expect(res.ok(), `GET ${url}: ${res.status()} ${await res.text()}`).toBeTruthy();
-  return res.json();
-}
-
-async function expectNoErrors(page: Page, errors: string[]) {
-  expect(errors).toEqual([]);
-  await expect(page.getByTestId('message-error')).toHaveCount(0);
-}
 
 /** Client pixel of world point (x, y) (2D: z = 0). */
 function screenOf(page: Page, x: number, y: number) {
@@ -48,31 +26,12 @@ async function warmPixelsInStrip(page: Page, x: number, y0: number, y1: number):
   const canvas = page.getByTestId('viewport-canvas');
   const png = await canvas.screenshot();
   const box = (await canvas.boundingBox())!;
-  return page.evaluate(
-    async ({ b64, left, right, top, bottom }) => {
-      const img = new Image();
-      img.src = `data:image/png;base64,${b64}`;
-      await img.decode();
-      const c = document.createElement('canvas');
-      c.width = img.width;
-      c.height = img.height;
-      const ctx = c.getContext('2d')!;
-      ctx.drawImage(img, 0, 0);
-      const d = ctx.getImageData(0, 0, c.width, c.height).data;
-      let n = 0;
-      for (let y = Math.max(0, top); y < Math.min(c.height, bottom); y++)
-        for (let x = Math.max(0, left); x < Math.min(c.width, right); x++) {
-          const i = 4 * (y * c.width + x);
-          if (d[i]! > 200 && d[i + 2]! < 150) n++;
-        }
-      return n;
-    },
-    {
-      b64: png.toString('base64'),
-      left: Math.round(x - box.x - 3), right: Math.round(x - box.x + 4),
-      top: Math.round(Math.min(y0, y1) - box.y), bottom: Math.round(Math.max(y0, y1) - box.y),
-    },
-  );
+  // Warm: red above 200, blue below 150.
+  const { count } = await countPixelsBetween(page, png, [201, 0, 0], [255, 255, 149], {
+    left: Math.round(x - box.x - 3), right: Math.round(x - box.x + 4),
+    top: Math.round(Math.min(y0, y1) - box.y), bottom: Math.round(Math.max(y0, y1) - box.y),
+  });
+  return count;
 }
 
 /** The shown box of `name` (viewport.boxes.shown): its world left edge x and its vertical middle band. */

@@ -1,24 +1,16 @@
 // The editor against a real server: open the 2D drop scene, play it, and
 // check what the viewport and the readouts show against the server's REST state.
 import { expect, test } from '@playwright/test';
-import { animationFrames, countPixelsNear, openEditor, readNumber, serverUrl } from './helpers';
+import { animationFrames, countPixelsNear, expectNoErrors, getJson, openDrop, openEditor, readNumber } from './helpers';
 
 // The drop scene's phase colour, sRGB (scenes/drop2d.json: [0.45, 0.7, 1.0]).
 const LIQUID: [number, number, number] = [115, 179, 255];
 
 test('play drop2d: frames arrive, liquid is drawn, the particle count matches the server', async ({ page, request }) => {
-  const errors = await openEditor(page);
-
-  const picker = page.getByTestId('scene-picker');
-  await expect(picker.locator('option[value="drop2d"]')).toHaveCount(1);
-  await picker.selectOption('drop2d');
-
-  const session = page.getByTestId('session');
-  await expect(session).toHaveAttribute('data-value', /^[A-Za-z0-9_-]+$/);
-  const sid = (await session.getAttribute('data-value'))!;
+  const { errors, url } = await openDrop(page);
+  await expect(page.getByTestId('scene-picker')).toHaveValue('drop2d');
   const frame = page.getByTestId('frame');
   await expect(frame).toHaveAttribute('data-value', '0'); // the initial state arrives on connect
-  await expect(page.getByTestId('connection')).toHaveAttribute('data-value', 'open');
 
   await page.getByTestId('play').click();
   await expect(page.getByTestId('session-status')).toHaveAttribute('data-value', /playing|stepping/); // stepping: a server without play's `until` is stepped to the end
@@ -40,9 +32,7 @@ test('play drop2d: frames arrive, liquid is drawn, the particle count matches th
   // read the state once the session is no longer computing.
   let state: any;
   await expect.poll(async () => {
-    const res = await request.get(`${serverUrl()}/api/sessions/${sid}`);
-    expect(res.ok(), `GET /api/sessions/${sid}: ${res.status()} ${await res.text()}`).toBeTruthy();
-    state = await res.json();
+    state = await getJson(request, url);
     return state.computing === true;
   }).toBe(false);
   expect(state.status).toBe('paused');
@@ -65,8 +55,7 @@ test('play drop2d: frames arrive, liquid is drawn, the particle count matches th
   const r1 = await renders();
   expect(r1.n - r0.n, `before: ${r0.why}; after: ${r1.why}`).toBeLessThanOrEqual(1);
 
-  expect(errors).toEqual([]);
-  await expect(page.getByTestId('message-error')).toHaveCount(0);
+  await expectNoErrors(page, errors);
 });
 
 test('a server error is shown in the message area', async ({ page }) => {
@@ -79,13 +68,8 @@ test('a server error is shown in the message area', async ({ page }) => {
 });
 
 test('undo and redo of an instance move go to the server (Ctrl+Z, Ctrl+Shift+Z)', async ({ page, request }) => {
-  const errors = await openEditor(page);
-  await page.getByTestId('scene-picker').selectOption('drop2d');
-  const session = page.getByTestId('session');
-  await expect(session).toHaveAttribute('data-value', /^[A-Za-z0-9_-]+$/);
-  const sid = (await session.getAttribute('data-value'))!;
-  const url = `${serverUrl()}/api/sessions/${sid}/instances/drop`;
-  const before = await (await request.get(url)).json();
+  const { errors, instanceUrl: url } = await openDrop(page);
+  const before = await getJson(request, url);
   // An empty track is the identity: the template where it was recorded.
   const x0 = (before.transform[0]?.translation[0] ?? 0) as number;
 
@@ -109,14 +93,12 @@ test('undo and redo of an instance move go to the server (Ctrl+Z, Ctrl+Shift+Z)'
   await expect.poll(xAt).toBeCloseTo(x0, 5);
   await page.locator('body').press('Control+Shift+z');
   await expect.poll(xAt).toBeCloseTo(x0 + 0.1, 5);
-  expect(errors).toEqual([]);
+  await expectNoErrors(page, errors);
 });
 
 test('a lost stream reconnects and resyncs', async ({ page }) => {
-  await openEditor(page);
-  await page.getByTestId('scene-picker').selectOption('drop2d');
+  await openDrop(page);
   const connection = page.getByTestId('connection');
-  await expect(connection).toHaveAttribute('data-value', 'open');
   // Drop the socket under the client (as a network loss would).
   await page.evaluate(() => (window as any).flowclip.editor.stream.ws.close());
   await expect(page.getByTestId('message-warning')).toContainText('reconnecting');
@@ -129,17 +111,12 @@ test('a lost stream reconnects and resyncs', async ({ page }) => {
 
 test('layer toggles and the stats overlay: boundary count, control layer, fidelity', async ({ page, request }) => {
   test.setTimeout(30_000);
-  const errors = await openEditor(page);
-  await page.getByTestId('scene-picker').selectOption('drop2d');
-  const session = page.getByTestId('session');
-  await expect(session).toHaveAttribute('data-value', /^[A-Za-z0-9_-]+$/);
-  const sid = (await session.getAttribute('data-value'))!;
-  await expect(page.getByTestId('connection')).toHaveAttribute('data-value', 'open');
+  const { errors, url } = await openDrop(page);
   await expect(page.getByTestId('layer-liquid')).toBeChecked();
 
   // Boundary layer: the server resends the frame with the boundary particles.
   await page.getByTestId('layer-boundary').check();
-  const state = await (await request.get(`${serverUrl()}/api/sessions/${sid}`)).json();
+  const state = await getJson(request, url);
   const nb = state.particles.boundary as number;
   expect(nb).toBeGreaterThan(0);
   const stats = page.getByTestId('stats');
@@ -163,6 +140,5 @@ test('layer toggles and the stats overlay: boundary count, control layer, fideli
   expect(f).toBeLessThanOrEqual(1);
   expect((await drawn()).control).toBeGreaterThan(0);
   expect(Number(await stats.getByTestId('stats-sim-ms').getAttribute('data-value'))).toBeGreaterThan(0);
-  expect(errors).toEqual([]);
-  await expect(page.getByTestId('message-error')).toHaveCount(0);
+  await expectNoErrors(page, errors);
 });

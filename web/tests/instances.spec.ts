@@ -1,15 +1,7 @@
 // Template library, gizmo, inspector, outliner and scene saving against a
 // real server: every change the editor makes is read back over REST.
 import { expect, test, type Page } from '@playwright/test';
-import { openEditor, readNumber, serverUrl } from './helpers';
-
-async function openDrop(page: Page): Promise<string> {
-  await page.getByTestId('scene-picker').selectOption('drop2d');
-  const session = page.getByTestId('session');
-  await expect(session).toHaveAttribute('data-value', /^[A-Za-z0-9_-]+$/);
-  await expect(page.getByTestId('connection')).toHaveAttribute('data-value', 'open');
-  return (await session.getAttribute('data-value'))!;
-}
+import { openDrop, readNumber, serverUrl } from './helpers';
 
 /** Client pixels of the gizmo's centre and of a point on its X arrow (2D: orthographic camera). */
 async function gizmoHandles(page: Page) {
@@ -30,8 +22,7 @@ async function gizmoHandles(page: Page) {
 }
 
 test('instance a template from the library, move it with the gizmo, undo and redo on the server', async ({ page, request }) => {
-  const errors = await openEditor(page);
-  const sid = await openDrop(page);
+  const { errors, sid } = await openDrop(page);
   const instances = async () => (await (await request.get(`${serverUrl()}/api/sessions/${sid}/instances`)).json()).instances;
   expect((await instances()).map((i: any) => i.name)).toEqual(['drop']);
 
@@ -88,9 +79,7 @@ test('instance a template from the library, move it with the gizmo, undo and red
 });
 
 test('inspector: speed, reverse, a parameter and a keyframe go to the server; a bad value is shown, the session goes on', async ({ page, request }) => {
-  const errors = await openEditor(page);
-  const sid = await openDrop(page);
-  const url = `${serverUrl()}/api/sessions/${sid}/instances/drop`;
+  const { errors, sid, instanceUrl: url } = await openDrop(page);
   const drop = async () => (await request.get(url)).json();
   await page.getByTestId('outliner-item-drop').click();
   await expect(page.getByTestId('inspector-header')).toHaveAttribute('data-value', 'drop');
@@ -153,8 +142,7 @@ test('inspector: speed, reverse, a parameter and a keyframe go to the server; a 
 // /api/presets): offered with their measured cost and error, applied as one
 // undoable settings edit that the server's scene then holds.
 test('accuracy presets: offered with their figures, applied to the scene, undone', async ({ page, request }) => {
-  const errors = await openEditor(page);
-  const sid = await openDrop(page);
+  const { errors, sid } = await openDrop(page);
   const { presets } = await (await request.get(`${serverUrl()}/api/presets`)).json();
   expect(presets.map((p: any) => p.name)).toEqual(['draft', 'preview', 'final']);
   const select = page.getByTestId('scene-preset');
@@ -185,8 +173,7 @@ test('accuracy presets: offered with their figures, applied to the scene, undone
 });
 
 test('the scene is saved on the server and downloaded with its instances', async ({ page, request }) => {
-  const errors = await openEditor(page);
-  const sid = await openDrop(page);
+  const { errors, sid } = await openDrop(page);
   await page.getByTestId('library-add-column2d').click();
   await expect(page.getByTestId('outliner-item-column2d')).toBeVisible();
   const name = `saved_${Date.now() % 100000}`;
@@ -220,8 +207,7 @@ test('the scene is saved on the server and downloaded with its instances', async
 });
 
 test('colour by speed: the server sends |v| per particle and the liquid takes the ramp', async ({ page }) => {
-  const errors = await openEditor(page);
-  await openDrop(page);
+  const { errors } = await openDrop(page);
   // Let the liquid move (the drop instance starts at 0.2 s: frame 12).
   await page.evaluate(() => (window as any).flowclip.editor.transport('step', { frames: 20 }));
   await expect.poll(() => readNumber(page.getByTestId('frame')), { timeout: 20_000 }).toBeGreaterThanOrEqual(20);
@@ -248,8 +234,7 @@ test('colour by speed: the server sends |v| per particle and the liquid takes th
 });
 
 test('clicking an instance box in the viewport selects it; clicking nothing deselects', async ({ page }) => {
-  const errors = await openEditor(page);
-  await openDrop(page);
+  const { errors } = await openDrop(page);
   await expect.poll(() => page.evaluate(() => (window as any).flowclip.editor.decoder.info.instanceCount)).toBe(1);
   const at = (x: number, y: number) => page.evaluate(([x, y]) => {
     const { viewport } = (window as any).flowclip;

@@ -2,37 +2,13 @@
 // (crop either end, move) change the instance on the server by what the
 // pixels moved at the timeline's scale, each drag is one undo step, and
 // scrubbing the ruler shows a recorded frame (seek) in the viewport.
-import { expect, test, type APIRequestContext, type Locator, type Page, type Route } from '@playwright/test';
-import { animationFrames, holdRequests, openEditor, readNumber, serverUrl } from './helpers';
+import { expect, test, type Locator, type Page, type Route } from '@playwright/test';
+import { animationFrames, expectNoErrors, getJson, holdRequests, openDrop, readNumber } from './helpers';
 
 // drop2d: the drop instance starts at 0.2 s and plays the whole drop2d
 // template (1 s, 61 frames at 60 frames/s) at speed 1; the scene runs at 60 frames/s.
 const TEMPLATE_FRAME = 1 / 60;
 const SCENE_FPS = 60;
-
-interface Opened {
-  errors: string[];
-  sid: string;
-  instanceUrl: string;
-}
-
-async function openDrop(page: Page): Promise<Opened> {
-  const errors = await openEditor(page);
-  await page.getByTestId('scene-picker').selectOption('drop2d');
-  const session = page.getByTestId('session');
-  await expect(session).toHaveAttribute('data-value', /^[A-Za-z0-9_-]+$/);
-  const sid = (await session.getAttribute('data-value'))!;
-  await expect(page.getByTestId('connection')).toHaveAttribute('data-value', 'open');
-  // The track is drawn once the template list gave it its length.
-  await expect(page.getByTestId('timeline-track-drop')).toHaveAttribute('data-end', /\d/);
-  return { errors, sid, instanceUrl: `${serverUrl()}/api/sessions/${sid}/instances/drop` };
-}
-
-async function getJson(request: APIRequestContext, url: string) {
-  const res = await request.get(url);
-  expect(res.ok(), `GET ${url}: ${res.status()} ${await res.text()}`).toBeTruthy();
-  return res.json();
-}
 
 /** The timeline's scale: scene seconds at its left edge and pixels per second. */
 async function scale(page: Page) {
@@ -107,11 +83,6 @@ async function historySettled(page: Page) {
 
 async function undoCount(page: Page): Promise<number> {
   return page.evaluate(() => (window as any).flowclip.editor.history.undoEntries.length);
-}
-
-async function expectNoErrors(page: Page, errors: string[]) {
-  expect(errors).toEqual([]);
-  await expect(page.getByTestId('message-error')).toHaveCount(0);
 }
 
 test('timeline: one track per instance over its active scene time, selection, no render loop', async ({ page, request }) => {
@@ -363,7 +334,7 @@ test('timeline: zoom around the cursor, Shift+wheel pans', async ({ page }) => {
 
 test('timeline: scrubbing the ruler shows a recorded frame (seek), the playhead on it', async ({ page, request }) => {
   test.setTimeout(60_000);
-  const { errors, sid } = await openDrop(page);
+  const { errors, url } = await openDrop(page);
   const frame = page.getByTestId('frame');
   const playhead = page.getByTestId('timeline-playhead');
   await expect(playhead).toHaveAttribute('data-live', 'true');
@@ -399,12 +370,12 @@ test('timeline: scrubbing the ruler shows a recorded frame (seek), the playhead 
 
   await expect(playhead).toHaveAttribute('data-live', 'false');
   await expect(playhead).toHaveAttribute('data-value', String(target));
-  await expect.poll(async () => (await getJson(request, `${serverUrl()}/api/sessions/${sid}`)).shown).toEqual({ live: false, frame: target });
+  await expect.poll(async () => (await getJson(request, url)).shown).toEqual({ live: false, frame: target });
   await page.unroute('**/transport');
   console.log(`scrub: seeks sent ${JSON.stringify(seeks)}`);
   expect(seeks[seeks.length - 1]).toBe(target);
   expect(seekFlight.max).toBe(1); // one seek in flight at a time (13 pointer events over 8 frames)
-  const state = await getJson(request, `${serverUrl()}/api/sessions/${sid}`);
+  const state = await getJson(request, url);
   expect(state.frame).toBe(20); // the simulation did not move; only the frame shown did
   // The viewport shows that recorded frame.
   await expect.poll(() => page.evaluate(() => (window as any).flowclip.editor.decoder.info.frame)).toBe(target);
@@ -430,10 +401,10 @@ test('timeline: scrubbing the ruler shows a recorded frame (seek), the playhead 
   await expect(playhead).toHaveAttribute('data-value', '90');
   await expect(playhead).toHaveAttribute('data-recorded', 'false');
   await expect(page.getByTestId('viewport-note')).toHaveAttribute('data-value', '90');
-  expect((await getJson(request, `${serverUrl()}/api/sessions/${sid}`)).shown).toEqual({ live: false, frame: 4 });
+  expect((await getJson(request, url)).shown).toEqual({ live: false, frame: 4 });
   // Live: the newest frame again.
   await page.getByTestId('live').click();
-  await expect.poll(async () => (await getJson(request, `${serverUrl()}/api/sessions/${sid}`)).shown).toEqual({ live: true, frame: 21 });
+  await expect.poll(async () => (await getJson(request, url)).shown).toEqual({ live: true, frame: 21 });
   await expect(playhead).toHaveAttribute('data-live', 'true');
   await expect(playhead).toHaveAttribute('data-value', '21');
   await expect(frame).toHaveAttribute('data-value', '21');
