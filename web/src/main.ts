@@ -17,7 +17,7 @@ import { Outliner } from './ui/Outliner';
 import { Inspector } from './ui/Inspector';
 import { el } from './ui/dom';
 import { SetInstanceTransformCommand } from './commands/SetInstanceTransformCommand';
-import { SetInstanceValueCommand } from './commands/SetInstanceValueCommand';
+import { SetInstanceValuesCommand } from './commands/SetInstanceValuesCommand';
 import { AddInstanceCommand } from './commands/AddInstanceCommand';
 import * as track from './core/TransformTrack';
 
@@ -51,7 +51,7 @@ installKeyboard(editor);
 (window as unknown as { flowclip: unknown }).flowclip = {
   editor,
   viewport,
-  commands: { SetInstanceTransformCommand, SetInstanceValueCommand, AddInstanceCommand },
+  commands: { SetInstanceTransformCommand, SetInstanceValuesCommand, AddInstanceCommand },
   track,
   wire: { ByteBuffer: flatbuffers.ByteBuffer, Envelope, Frame },
 };

@@ -163,7 +163,7 @@ test('the playhead goes past the simulated frames; the instance box is drawn the
   // An animated drop, active over 0.8–1.8 s: x 0.45 at 0.9 s → 0.75 at 1.5 s.
   await page.evaluate(async () => {
     const { editor, commands } = (window as any).flowclip;
-    await editor.execute(new commands.SetInstanceValueCommand(editor, 'drop', 'start', 0.8, 0.2));
+    await editor.execute(new commands.SetInstanceValuesCommand(editor, 'drop', { start: 0.8 }, { start: 0.2 }));
     const keys = [{ time: 0.9, translation: [0.45, 0.35] }, { time: 1.5, translation: [0.75, 0.35] }];
     await editor.execute(new commands.SetInstanceTransformCommand(editor, 'drop', keys, []));
   });

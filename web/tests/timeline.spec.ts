@@ -267,7 +267,7 @@ test('timeline: a reversed instance is marked; its ends crop what plays there', 
   // Reverse it through the hub (as an inspector would).
   await page.evaluate(async () => {
     const { editor, commands } = (window as any).flowclip;
-    await editor.execute(new commands.SetInstanceValueCommand(editor, 'drop', 'reverse', true, false));
+    await editor.execute(new commands.SetInstanceValuesCommand(editor, 'drop', { reverse: true }, { reverse: false }));
   });
   const track = page.getByTestId('timeline-track-drop');
   await expect(track).toHaveClass(/reverse/);

@@ -1,15 +1,17 @@
-// Sets several keys of an instance at once on the server (one JSON merge
-// patch {key: value, ...}, so that the server validates them together: a
-// crop of the left end changes crop_begin and start, and neither alone is
-// what the user asked for). Undo patches the old values back (null for a key
-// that was absent, which removes it so that the server's default applies).
+// Sets keys of an instance on the server: one key (an inspector field) or
+// several at once, in one JSON merge patch {key: value, ...}, so that the
+// server validates them together (a crop of the left end changes crop_begin
+// and start, and neither alone is what the user asked for). Undo patches the
+// old values back (null for a key that was absent, which removes it so that
+// the server's default applies again).
 //
-// Merging: commands of the same mergeKey merge as any other command does
-// (History: within 0.5 s of the previous one). A drag passes `drag`, an id
-// unique to the drag: the mergeKey is the drag's own and the merge window
-// infinite (as SetInstanceTransformCommand's gizmo drags), so the whole drag
-// is one history entry however long the user holds still in the middle of
-// it, and two drags made in quick succession stay two entries.
+// Merging: commands of the same instance and keys merge as any other command
+// does (History: within 0.5 s of the previous one), so that quick changes of
+// one field are one history entry. A drag passes `drag`, an id unique to the
+// drag: the mergeKey is the drag's own and the merge window infinite (as
+// SetInstanceTransformCommand's gizmo drags), so the whole drag is one
+// history entry however long the user holds still in the middle of it, and
+// two drags made in quick succession stay two entries.
 import { Command } from '../core/Command';
 import type { Editor } from '../core/Editor';
 

@@ -10,7 +10,7 @@
 // Every change is a Command executed through the hub.
 import type { Editor } from '../core/Editor';
 import { SetInstanceTransformCommand } from '../commands/SetInstanceTransformCommand';
-import { SetInstanceValueCommand } from '../commands/SetInstanceValueCommand';
+import { SetInstanceValuesCommand } from '../commands/SetInstanceValuesCommand';
 import { SetSceneSettingsCommand } from '../commands/SetSceneSettingsCommand';
 import { addKeyAt, editTrack, evaluateTrack, keyIndexAt, removeKeyAt, type FullKey } from '../core/TransformTrack';
 import type { AccuracyPresetJson, InstanceJson, ParametersJson, ParamSpecJson, SettingsPatch, TransformKey } from '../net/types';
@@ -246,7 +246,7 @@ export class Inspector {
     const inst = this.selectedInstance();
     if (!inst) return;
     if (JSON.stringify(inst[key] ?? null) === JSON.stringify(value)) return;
-    return this.editor.execute(new SetInstanceValueCommand(this.editor, inst.name, key, value, inst[key])).then(() => this.update());
+    return this.editor.execute(new SetInstanceValuesCommand(this.editor, inst.name, { [key]: value }, { [key]: inst[key] })).then(() => this.update());
   }
 
   private editTransform(change: (k: FullKey) => void): Promise<void> | void {
