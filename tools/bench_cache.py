@@ -39,7 +39,6 @@ import datetime
 import json
 import math
 import os
-import platform
 import shlex
 import shutil
 import statistics
@@ -53,6 +52,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
+from bench_report import loadavg, machine  # noqa: E402  (tools/, beside this script)
 from flowclip_client import FLOWCLIP_BIN, FlowClipServer  # noqa: E402
 
 FRAME_RATE = 60
@@ -62,32 +62,6 @@ WAIT_S = 900.0                    # generous: a loaded machine is slow, never a 
 
 def log(msg: str):
     print(msg, flush=True)
-
-
-# ------------------------------------------------------------------ machine ---
-
-def machine() -> dict:
-    cpu = "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        load = Path("/proc/loadavg").read_text().split()[:3]
-    except OSError:
-        load = []
-    return {"cpu": cpu, "cores": os.cpu_count(), "kernel": platform.release(),
-            "python": platform.python_version(), "loadavg_at_start": " ".join(load), "niceness": os.nice(0)}
-
-
-def loadavg() -> str:
-    try:
-        return " ".join(Path("/proc/loadavg").read_text().split()[:3])
-    except OSError:
-        return ""
 
 
 def summary(values) -> dict:

@@ -20,7 +20,6 @@ import argparse
 import datetime
 import json
 import os
-import platform
 import random
 import socket
 import statistics
@@ -32,19 +31,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
+from bench_report import machine  # noqa: E402  (tools/, beside this script)
 from flowclip_client import FLOWCLIP_BIN, FlowClipServer  # noqa: E402
-
-
-def machine() -> dict:
-    cpu = "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"cpu": cpu, "cores": os.cpu_count(), "kernel": platform.release(), "python": platform.python_version()}
 
 
 def rss_mb(pid: int) -> float:
