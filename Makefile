@@ -8,7 +8,7 @@ CMAKE_FLAGS ?=
 PORT ?= 8080
 ABS_BUILD_DIR = $(abspath $(BUILD_DIR))
 
-.PHONY: all setup build web templates run run-headless test test-web test-web-only bench bench-accuracy bench-web clean \
+.PHONY: all setup build web templates run run-headless docs test test-web test-web-only bench bench-accuracy bench-web clean \
   fuzz fuzz-build fuzz-regress test-fuzz asan-build test-asan bench-soak bench-cache
 
 # 2D templates are recorded when missing (seconds); larger ones on demand:
@@ -47,6 +47,7 @@ run-headless: build templates
 test: build templates web
 	cd $(BUILD_DIR) && ctest --output-on-failure -j 1
 	$(BUILD_DIR)/venv/bin/python -m pytest -q tests
+	@$(MAKE) --no-print-directory docs
 	@$(MAKE) --no-print-directory test-web-only
 	@$(MAKE) --no-print-directory test-fuzz
 	@$(MAKE) --no-print-directory test-asan
@@ -63,7 +64,7 @@ test-web-only:
 bench: build
 	$(BUILD_DIR)/flowclip bench solver
 
-# The accuracy/cost study's full sweep (README "Accuracy and cost"; 1 thread
+# The accuracy/cost study's full sweep (docs/benchmarks/accuracy.md; 1 thread
 # per run, the fastest of 3: about 15 min at load 5) into bench/accuracy,
 # with a Real = double build beside the float one for the precision points
 # and the templates of every 2D template scene for their fidelity.
@@ -134,6 +135,13 @@ bench-soak: build templates
 BENCH_CACHE_ARGS ?=
 bench-cache: build templates
 	$(BUILD_DIR)/venv/bin/python tools/bench_cache.py --out bench/cache $(BENCH_CACHE_ARGS)
+
+# The documentation site (docs/, mkdocs.yml) into site/, failing on a page
+# missing from the navigation, a broken relative link or anchor. A few
+# seconds; `make test` runs it as a check.
+docs: setup
+	@NO_MKDOCS_2_WARNING=1 $(BUILD_DIR)/venv/bin/mkdocs build --strict --quiet
+	@echo "docs: site/index.html"
 
 clean:
 	rm -rf $(BUILD_DIR) $(FUZZ_BUILD_DIR) $(ASAN_BUILD_DIR)
