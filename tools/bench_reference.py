@@ -6,15 +6,15 @@ per simulated second with our share of SPlisHSPlasH's.
     build/venv/bin/python tools/bench_reference.py                 # all four scenes/bench scenes, once each
     build/venv/bin/python tools/bench_reference.py --only 3d_r0125 --repeat 3 --out ref.json
 
-Why: the figures issue 2 quotes for SPlisHSPlasH were read on one host on
-one day. The virtual machines this project runs on differ by up to 1.7x in
-speed from one session to the next (a Zen 5 host one day, a Zen 4 host
-another), so our figures can only be compared with figures taken on the
-same host in the same hour. This script takes both.
+Why: figures read on different machines, or on one virtual machine at
+different times, do not divide (the same executable ran up to 1.7x slower
+on one host than on another), so FlowClip's figures can only be compared
+with SPlisHSPlasH's taken on the same machine in the same hour. This script
+takes both (docs/benchmarks/solver.md).
 
 SPlisHSPlasH comes from its own wheel on PyPI (pysplishsplash, pinned
-below: single precision, OpenMP, the AVX code paths; not the -march=native
-build of the quoted figures), installed into build/splishsplash-venv on
+below: single precision, OpenMP, the AVX code paths; not a -march=native
+build), installed into build/splishsplash-venv on
 first use. Nothing of it is in this repository. Its scenes are written from
 the DamBreakModel.json and DamBreakModel_2D.json it ships, with the
 settings read from our reference scenes (scenes/bench/): particle radius,

@@ -6,10 +6,10 @@ particle-step (median of the repeats) side by side.
     build/venv/bin/python tools/compare_builds.py --old OLD/flowclip --new build/flowclip \\
         scenes/dambreak2d.json --frames 60 --repeat 5
 
-It is how "a plain dam break runs no slower than before issue 7" is
-measured (README, Performance): OLD is a build of the commit before the
-effects work. Both runs must do the same work (same substeps and solver
-iterations); the script says so when they do not.
+It is how "a plain dam break runs no slower than before the effects work"
+is measured (docs/benchmarks/solver.md): OLD is a build of the commit
+before the change. Both runs must do the same work (same substeps and
+solver iterations); the script says so when they do not.
 
 For a scene with template instances it also compares control's time per
 frame with an active instance and its share of the simulation's time (as

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Plots of `flowclip bench accuracy` (README "Accuracy and cost").
+"""Plots of `flowclip bench accuracy` (docs/benchmarks/accuracy.md).
 
     build/venv/bin/python tools/plot_accuracy.py DIR [--martin-moyce CSV]
 

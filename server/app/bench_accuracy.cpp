@@ -1,5 +1,5 @@
 // `flowclip bench accuracy [--quick]`: every knob that trades accuracy for
-// time, swept on reference scenes (README "Accuracy and cost"). Each point is
+// time, swept on reference scenes (docs/benchmarks/accuracy.md). Each point is
 // the reference scene with some knobs changed, run in its own child process
 // (`flowclip run --stats --export`), so that every point starts clean. Cost
 // comes from the child's per-frame simulation time (export excluded);
@@ -901,7 +901,7 @@ void addBenchAccuracyCommand(CLI::App& bench) {
   auto opt = std::make_shared<Options>();
   CLI::App* acc = bench.add_subcommand(
       "accuracy",
-      "accuracy against cost for every solver and control knob, on reference scenes (README: Accuracy and cost)");
+      "accuracy against cost for every solver and control knob, on reference scenes (docs/benchmarks/accuracy.md)");
   acc->add_flag("--quick", opt->quick, "a small coarse sweep in minutes (make test's smoke run)");
   acc->add_option("--out", opt->out, "output directory (default: build/accuracy)");
   acc->add_option("--double-binary", opt->doubleBinary,

@@ -36,9 +36,11 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// SPlisHSPlasH DFSPH on this machine (single precision, AVX2, -O3
-// -march=native, OpenMP, 2 threads, volume-map boundaries), as given in the
-// solver issue: µs per particle-step and wall s per simulated s.
+// SPlisHSPlasH DFSPH figures read once, on one machine (single precision,
+// AVX2, -O3 -march=native, OpenMP, 2 threads, volume-map boundaries): µs per
+// particle-step and wall s per simulated s. Figures from another machine do
+// not divide; tools/bench_reference.py times SPlisHSPlasH on this one
+// (docs/benchmarks/solver.md).
 struct Reference {
   double usPerParticleStep;
   double wallPerSimS;

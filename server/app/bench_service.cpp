@@ -1,4 +1,4 @@
-// `flowclip bench service`: what the service costs (issue 5). Frame encode
+// `flowclip bench service`: what the service costs. Frame encode
 // time and bytes per particle; frames/s and MB/s delivered over loopback
 // WebSockets to 1 and to 8 clients for a 100k-particle frame; memory per
 // session and per 1000 replay frames; the idle server's RSS.

@@ -512,10 +512,9 @@ void Control<D>::computeCoverage(size_t i, const Simulation<D>& sim) {
   const long cells = long(occupiedCells_.size());
   // Guided, not dynamic in chunks of a few cells: a few hundred cells a
   // frame, and every chunk taken is an atomic on one shared counter that
-  // both threads bounce between their caches (blade3d on a Zen 4 host:
-  // coverage 18-20 -> 14-18 ms over the run, the forces' loop 31-36 ->
-  // 26-28 ms). Each cell writes only its own particles: the result does not
-  // depend on the schedule.
+  // both threads bounce between their caches (measured slower: see
+  // docs/performance.md). Each cell writes only its own particles: the
+  // result does not depend on the schedule.
 #pragma omp parallel for schedule(guided)
   for (long ci = 0; ci < cells; ++ci) {
     const uint32_t c = occupiedCells_[size_t(ci)];

@@ -89,8 +89,8 @@ size_t scanRow(const std::array<std::vector<Real>, D>& sorted, const uint32_t* s
   if constexpr (std::is_same_v<Real, float>) {
     // Sixteen candidates per step; the hits are packed in a register and all
     // sixteen lanes stored. The compress-to-memory form (vpcompressd m512) is
-    // microcoded on Zen 4 and made this search 4x slower there (18 ms of a
-    // 61 ms substep at 3D r = 0.0125); the register form is fast everywhere.
+    // microcoded on some processors (AMD Zen 4), where it made this search
+    // several times slower; the register form is fast everywhere.
     __m512 pv[D];
     for (int d = 0; d < D; ++d) pv[d] = _mm512_set1_ps(p[d]);
     const __m512 r2v = _mm512_set1_ps(r2);

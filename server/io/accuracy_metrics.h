@@ -1,6 +1,6 @@
 #pragma once
-// What `flowclip bench accuracy` measures on a run (README "Accuracy and
-// cost"): the liquid's surge front, compression and volume per exported
+// What `flowclip bench accuracy` measures on a run
+// (docs/benchmarks/accuracy.md): the liquid's surge front, compression and volume per exported
 // frame, the surge front against Martin & Moyce (1952), and the Pareto front
 // and presets of a set of (cost, error) points.
 #include "io/exported_frames.h"

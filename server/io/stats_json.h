@@ -1,6 +1,6 @@
 #pragma once
 // One frame's statistics as JSON: the `frames[]` objects of `flowclip run
-// --stats` and the `stats` of a session's state (README "flowclip run").
+// --stats` and the `stats` of a session's state (docs/headless.md).
 #include "sph/simulation.h"
 #include <nlohmann/json.hpp>
 

@@ -308,7 +308,7 @@ TEST(ControlReproduction, DropTemplateOnItsSourceScene) {
               copyOn.frames, copyOn.mean, copyOn.min, copyOff.mean, copyOff.min, poolOn.mean, poolOn.min, poolOff.mean,
               poolOff.min);
   ASSERT_GE(copyOn.frames, size_t(frames - 1));
-  // Documented thresholds (README, "Template instances"). The copy diverges
+  // Documented thresholds (docs/templates.md, "Reproduction, measured"). The copy diverges
   // from its template only through the resolution change, so uncontrolled it
   // already scores high; control must still lift it. Without the drop, the
   // splash exists only through control.

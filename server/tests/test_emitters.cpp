@@ -239,7 +239,7 @@ JetShape jetShape(const Simulation<2>& sim, double axis) {
 
 }  // namespace
 
-// Viscous buckling (issue 7): scenes/honey_jet2d.json, a 3 cm jet of a liquid
+// Viscous buckling: scenes/honey_jet2d.json, a 3 cm jet of a liquid
 // 500 000× as viscous as water (ν = 0.5 m²/s, implicit viscosity) falling
 // 30 cm at 0.4 m/s, arrives faster than it can spread: it heaps and folds
 // sideways, as honey poured on toast. The same jet of water spreads into a

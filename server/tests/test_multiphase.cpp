@@ -13,9 +13,8 @@
 //     scene opens a gap at the interface (the spurious interface tension the
 //     number density removes), with DFSPH and with WCSPH.
 // Single-phase scenes are unchanged: Hydrostatic.* and DamBreak.* run the
-// mass sum, exactly as before (the formulation is never switched on for one
-// phase; their per-frame statistics are bit-identical to the commit before
-// the multiphase one, see README "The simulator").
+// mass sum, with no per-particle branch (the formulation is never switched
+// on for one phase; see docs/physics/multiphase.md).
 //
 // FLOWCLIP_TEST_VERBOSE=1 prints one line per frame.
 #include "io/scene.h"

@@ -1,4 +1,4 @@
-// The stability suite (`ctest -L stability`, README "Stability suite"): hard
+// The stability suite (`ctest -L stability`, docs/physics/stability.md): hard
 // cases that must stay bounded. Every frame of every case passes
 // checkFrameBounds: a finite state; the fastest particle (and body point)
 // below a physical bound for the case; the average density error below a

@@ -441,7 +441,7 @@ TEST(SurfaceTension, AdhesionPullsTowardsTheWall) {
 // 0.785 -> 0.971-0.978, sector ratio 0.718 -> 0.82-0.87, largest gap
 // 1.43-1.74 r; centre of mass moved by <= 3e-8 m; the KE of the last quarter
 // at most 5 % of its peak. The drop stalls short of a disk once damped
-// (README, "Surface tension"), hence the sector-ratio bound 0.78.
+// (docs/physics/surface-tension.md), hence the sector-ratio bound 0.78.
 constexpr int kSquareN = 30;
 constexpr double kSquareGamma = 2, kSquareSeconds = 1.5;
 const json kXsph = {{"name", "viscosity_xsph"}, {"coefficient", 0.3}};

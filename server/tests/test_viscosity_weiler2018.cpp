@@ -213,7 +213,7 @@ TEST(ViscosityWeiler2018, ConservesMomentumAndDissipates3D) {
 // Measured at t = 0.2 s (12 W²/(π²ν_eff)) over the middle half of the column, per particle
 // column: a least-squares parabola u = a x² + b x + c. Its curvature gives
 // the effective viscosity ν_eff = g / (2a), its roots the effective no-slip
-// planes. Expected from the operator (README): ν_eff ≈ 0.65-0.75 ν, the
+// planes. Expected from the operator (docs/physics/viscosity.md): ν_eff ≈ 0.65-0.75 ν, the
 // shear response of the 2(d+2) Laplacian at two particle spacings per
 // support radius (0.65 on the resting lattice, 0.73 with rows sliding).
 // The boundary samples carry v_b = 0 where a mirrored ghost would carry -u,
