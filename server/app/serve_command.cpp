@@ -1,6 +1,5 @@
 // `flowclip serve`: the simulation service (REST, WebSocket stream, editor
-// files) on one port. See service/http_server.h and README "The simulation
-// service".
+// files) on one port. See service/http_server.h and docs/api.md.
 #include "app/commands.h"
 #include "io/staged_files.h"
 #include "service/http_server.h"
