@@ -180,8 +180,7 @@ void printRecord(const char* name, const FrameBounds& b, const RunRecord& rec) {
 
 // The cases are a few hundred particles: on two threads the fork/join of
 // every parallel loop costs more than the loop, and on a loaded machine a
-// descheduled thread stalls every barrier (the 2D drop recipe at r = 0.01 m
-// measured 29 s on two threads under a load average of 10, 0.3 s on one).
+// descheduled thread stalls every barrier (up to 100× slower).
 struct SingleThread {
   int before = omp_get_max_threads();
   SingleThread() { omp_set_num_threads(1); }
