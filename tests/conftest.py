@@ -2,13 +2,14 @@
 
 `server` is one `flowclip serve` per test module (FLOWCLIP_BIN, default
 build/flowclip) with copies of the 2D templates and the scenes in a temporary
-directory (the tests delete templates and save scenes), --max-body-mb 1, and
-checked to exit 0 on SIGINT. Every `client` validates each response against
-proto/openapi.yaml as it arrives.
+directory (the tests delete templates and save scenes), the small recipes of
+`recipe_dir`, --max-body-mb 1, and checked to exit 0 on SIGINT. Every
+`client` validates each response against proto/openapi.yaml as it arrives.
 """
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 
@@ -16,6 +17,7 @@ import pytest
 
 from flowclip_client import FLOWCLIP_BIN, ROOT, FlowClipServer
 from openapi_check import OpenApiChecker
+from service_helpers import small_recipe
 
 TEMPLATES_2D = ("drop2d", "column2d", "jet2d")
 MAX_BODY_MB = 1
@@ -49,10 +51,20 @@ def scene_dir(tmp_path_factory):
     return out
 
 
+@pytest.fixture(scope="session")
+def recipe_dir(tmp_path_factory):
+    """Recipes of the small tank: `tiny` records template tiny_tpl (5 frames) at once, `endless`
+    (endless_tpl, 100 000 frames) runs until cancelled."""
+    out = tmp_path_factory.mktemp("recipes")
+    for name, template, frames in (("tiny", "tiny_tpl", 5), ("endless", "endless_tpl", 100000)):
+        (out / f"{name}.json").write_text(json.dumps(small_recipe(name, template, frames)))
+    return out
+
+
 @pytest.fixture(scope="module")
-def server(template_dir, scene_dir, tmp_path_factory):
+def server(template_dir, scene_dir, recipe_dir, tmp_path_factory):
     with FlowClipServer(template_dir, scene_dir, tmp_path_factory.mktemp("exports"),
-                        max_body_mb=MAX_BODY_MB) as s:
+                        max_body_mb=MAX_BODY_MB, recipes=recipe_dir) as s:
         yield s
     assert s.returncode == 0, "flowclip serve did not stop cleanly on SIGINT:\n" + "\n".join(s.output[-30:])
 

@@ -301,6 +301,34 @@ class Client:
                 "first_frame": first_frame, "last_frame": last_frame, "force": force}
         return self.call("POST", "/api/sessions/{id}/templates", body, id=sid)
 
+    # recipes: background recording jobs
+    def recipes(self):
+        """The recipes the server can record, with their templates and whether each is recorded."""
+        return self.call("GET", "/api/recipes")["recipes"]
+
+    def record_recipe(self, name, force=None):
+        """Starts (or returns the running) recording job of recipe `name`."""
+        return self.call("POST", "/api/recipes/{name}/record", None if force is None else {"force": force}, name=name)
+
+    def recipe_job(self, job_id):
+        return self.call("GET", "/api/recipes/jobs/{id}", id=job_id)
+
+    def cancel_recipe_job(self, job_id):
+        return self.call("DELETE", "/api/recipes/jobs/{id}", id=job_id)
+
+    def wait_recipe_job(self, job_id, until=lambda job: job["state"] in ("done", "failed", "cancelled"),
+                        timeout=600.0, poll=0.05):
+        """Polls the job until `until(job)` holds (default: it finished); returns the job."""
+        deadline = time.monotonic() + timeout
+        while True:
+            job = self.recipe_job(job_id)
+            if until(job):
+                return job
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"recording job {job_id} still {job['state']} "
+                                   f"({job['frames_done']}/{job['frames']} frames)")
+            time.sleep(poll)
+
     def scenes(self):
         return self.call("GET", "/api/scenes")["scenes"]
 
@@ -503,7 +531,8 @@ class FlowClipServer:
     exit status). Without `exports` the exports go to a temporary directory."""
 
     def __init__(self, templates="templates", scenes="scenes", exports=None, *, token=None, max_body_mb=None,
-                 history_cap_mb=None, max_sessions=None, extra_args=(), binary=None, startup_timeout=30.0):
+                 history_cap_mb=None, max_sessions=None, recipes=None, extra_args=(), binary=None,
+                 startup_timeout=30.0):
         self.binary = Path(binary or FLOWCLIP_BIN)
         self.token = token
         self._tmp = None if exports else tempfile.TemporaryDirectory(prefix="flowclip-exports-")
@@ -511,7 +540,8 @@ class FlowClipServer:
         self.args = [str(self.binary), "serve", "--host", "127.0.0.1", "--port", "0", "--templates", str(templates),
                      "--scenes", str(scenes), "--exports", str(self.exports)]
         for flag, value in (("--token", token), ("--max-body-mb", max_body_mb),
-                            ("--history-cap-mb", history_cap_mb), ("--max-sessions", max_sessions)):
+                            ("--history-cap-mb", history_cap_mb), ("--max-sessions", max_sessions),
+                            ("--recipes", recipes)):
             if value is not None:
                 self.args += [flag, str(value)]
         self.args += list(extra_args)

@@ -15,6 +15,14 @@ def small_scene(name="box", particles_per_side=10, radius=0.02):
             "fluid_blocks": [{"min": [0, 0], "max": [side, side]}]}
 
 
+def small_recipe(name, template, frames):
+    """small_scene plus a capture of its whole tank for `frames` frames (a recipe, templates/README.md):
+    ~1 ms a frame, so 5 frames record at once and 100 000 run until cancelled."""
+    recipe = small_scene(name)
+    recipe["capture"] = {"name": template, "region": {"min": [0, 0], "max": [1, 1]}, "frames": frames}
+    return recipe
+
+
 def heavy_frames_scene(name="heavy"):
     """20 000 particles settling under weak gravity, one cheap WCSPH substep a frame (~4 ms a
     frame on one thread): 120 kB a frame, ~30 MB of frames per second."""

@@ -119,6 +119,16 @@ def test_tour_of_every_endpoint(server, client, openapi):
     assert client.save_scene("tour_saved", sid, force=True)["name"] == "tour_saved"
     assert client.create_session("tour_saved")["instances"] == 1
 
+    # Recipes recorded in the background.
+    recipes = {r["name"]: r for r in client.recipes()}
+    assert recipes["tiny"]["templates"] == [{"name": "tiny_tpl", "recorded": False}]
+    job = client.record_recipe("tiny")
+    assert job["recipe"] == "tiny" and job["state"] in ("queued", "running", "done")
+    assert client.wait_recipe_job(job["id"])["state"] == "done"
+    assert client.template("tiny_tpl")["frames"] == 5
+    assert refused(409, lambda: client.cancel_recipe_job(job["id"])).code == "conflict"
+    assert client.delete_template("tiny_tpl") == {"deleted": "tiny_tpl"}
+
     # Export and download.
     exported = client.export(sid, "tour", first_frame=1, last_frame=3)
     assert exported["frames"] == 3

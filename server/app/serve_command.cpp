@@ -23,6 +23,7 @@ struct ServeOptions {
   int port = 8080;
   std::string templates = "templates";
   std::string scenes = "scenes";
+  std::string recipes;  // "": TEMPLATES/recipes, else the source tree's
   std::string exports = "exports";
   std::string presets = "bench/accuracy/presets.json";
   std::string web = "web/dist";
@@ -48,6 +49,13 @@ int serve(const ServeOptions& o, bool presetsGiven) {
   so.scenesDir = o.scenes;
   so.exportsDir = o.exports;
   so.presetsFile = o.presets;
+  so.recipesDir = o.recipes;
+  // Recipes live next to the database they record into; a database elsewhere records the shipped ones.
+  if (so.recipesDir.empty()) {
+    const fs::path beside = fs::path(o.templates) / "recipes";
+    const fs::path source = fs::path(FLOWCLIP_SOURCE_DIR) / "templates/recipes";
+    so.recipesDir = fs::is_directory(beside) || !fs::is_directory(source) ? beside.string() : source.string();
+  }
   // The default presets path is relative to the repository: also found when serve starts elsewhere.
   if (!presetsGiven && !fs::exists(so.presetsFile)) {
     const fs::path source = fs::path(FLOWCLIP_SOURCE_DIR) / "bench/accuracy/presets.json";
@@ -100,6 +108,9 @@ void addServeCommand(CLI::App& app) {
   cmd->add_option("--port", o->port, "TCP port (default 8080; 0: any free port, printed)")->check(CLI::Range(0, 65535));
   cmd->add_option("--templates", o->templates, "template directory (default: templates)");
   cmd->add_option("--scenes", o->scenes, "scene directory (default: scenes)");
+  cmd->add_option("--recipes", o->recipes,
+                  "recipes the editor can record (default: TEMPLATES/recipes, else the source tree's "
+                  "templates/recipes)");
   auto* presetsOption = cmd->add_option("--presets", o->presets, "accuracy presets of `bench accuracy` (default: bench/accuracy/presets.json)");
   cmd->add_option("--exports", o->exports, "directory for HDF5/XDMF exports (default: exports)");
   cmd->add_option("--web", o->web, "the built editor's files (default: web/dist)");

@@ -138,6 +138,14 @@ Recipe parseRecipe(const nlohmann::json& recipe, const std::string& text) {
   return r;
 }
 
+int recipeSimulationFrames(const Recipe& recipe) {
+  const double frameRate = recipe.dimension == 2 ? parseScene<2>(recipe.scene).settings.get("frame_rate")
+                                                 : parseScene<3>(recipe.scene).settings.get("frame_rate");
+  int last = 0;
+  for (const CaptureSpec& c : recipe.captures) last = std::max(last, windowOf(c, 1.0 / frameRate).last());
+  return last;
+}
+
 Recipe loadRecipe(const std::string& file) {
   std::ifstream in(file, std::ios::binary);
   if (!in) throw SceneError("", "cannot read recipe '" + file + "'");
@@ -189,6 +197,7 @@ std::vector<Template<D>> captureTemplates(const Recipe& recipe, const RecordOpti
 
   RecordProgress prog;
   prog.frames = last - first + 1;
+  prog.simFrames = last;
   auto step = [&]() {
     prog.stats = sim.advanceFrame();
     ++prog.simFrame;
@@ -196,6 +205,8 @@ std::vector<Template<D>> captureTemplates(const Recipe& recipe, const RecordOpti
       throw std::runtime_error("non-finite position or velocity at simulation frame " +
                                std::to_string(prog.stats.frame) + " (t = " + std::to_string(prog.stats.time) +
                                " s); recording stopped, nothing written");
+    if (options.simulationProgress && !options.simulationProgress(prog))
+      throw RecordAborted("recording interrupted, nothing written");
   };
   for (int i = 0; i < first; ++i) step();
   for (int f = first; f <= last; ++f) {

@@ -53,6 +53,10 @@ Recipe parseRecipe(const nlohmann::json& recipe, const std::string& text = "");
 // Reads a recipe file (SceneError naming the file on I/O or syntax errors).
 Recipe loadRecipe(const std::string& file);
 
+// The simulation frames recording the recipe advances (RecordProgress::
+// simFrames): to the last capture's last frame at the scene's frame rate.
+int recipeSimulationFrames(const Recipe& recipe);
+
 // Progress counts capture frames: the simulation frames from the first
 // capture's frame 0 to the last capture's last frame (with one capture, its
 // template frames).
@@ -60,6 +64,7 @@ struct RecordProgress {
   int frame = 0;            // capture frames done so far
   int frames = 0;           // capture frames in total
   int simFrame = 0;         // simulation frames advanced
+  int simFrames = 0;        // simulation frames to advance in all (to the last capture's last frame)
   size_t captured = 0;      // particles captured in the last frame (summed over the captures)
   FrameStats stats;         // of the last simulation frame (frame 0 before any step: default)
 };
@@ -71,6 +76,10 @@ struct RecordOptions {
   // Called after every captured frame; returning false aborts the recording
   // (nothing is written, recordRecipe throws RecordAborted).
   std::function<bool(const RecordProgress&)> progress;
+  // Called after every simulation frame, the frames before the first
+  // capture included (where `progress` is not), so that a caller can follow
+  // and abort a long pre-roll; returning false aborts as `progress` does.
+  std::function<bool(const RecordProgress&)> simulationProgress;
   bool keepTemplate = false;          // fill RecordedTemplate::tpl2/tpl3 with what was written
 };
 

@@ -7,6 +7,7 @@
 #include "io/stats_json.h"
 #include "io/template_file.h"
 #include "service/frame_encoding.h"
+#include "service/recipe_jobs.h"
 #include "control/instance.h"
 #include "sph/pipeline.h"
 #include "sph/limits.h"
@@ -359,6 +360,8 @@ double currentRssMb() {
 ServiceHub::ServiceHub(ServiceOptions options)
     : options_(std::move(options)), database_(options_.templatesDir), started_(std::chrono::steady_clock::now()) {
   if (options_.maxThreads <= 0) options_.maxThreads = std::max(1, int(std::thread::hardware_concurrency()));
+  recipeJobs_ = std::make_unique<RecipeJobs>(
+      RecipeJobsOptions{options_.recipesDir, options_.templatesDir, options_.maxThreads});
 }
 
 ServiceHub::~ServiceHub() {
@@ -400,6 +403,10 @@ const std::vector<ServiceHub::Route>& ServiceHub::routes() {
       {"GET", "/api/sessions/{id}/frames/{frame}", &ServiceHub::getFrame},
       {"POST", "/api/sessions/{id}/export", &ServiceHub::exportFrames},
       {"GET", "/api/exports/{file}", &ServiceHub::getExport},
+      {"GET", "/api/recipes", &ServiceHub::listRecipes},
+      {"POST", "/api/recipes/{name}/record", &ServiceHub::startRecipeJob},
+      {"GET", "/api/recipes/jobs/{id}", &ServiceHub::getRecipeJob},
+      {"DELETE", "/api/recipes/jobs/{id}", &ServiceHub::cancelRecipeJob},
   };
   return table;
 }
@@ -424,6 +431,8 @@ HttpResponse ServiceHub::handle(const HttpRequest& req) {
     try {
       return (this->*route.handler)(req, params);
     } catch (const ApiError& e) {
+      return errorResponse(e.status, e.what(), e.path);
+    } catch (const RecipeJobError& e) {
       return errorResponse(e.status, e.what(), e.path);
     } catch (const SceneError& e) {
       return errorResponse(422, e.what(), e.path);
@@ -1177,6 +1186,30 @@ HttpResponse ServiceHub::getExport(const HttpRequest&, const Params& p) {
   r.body.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
   r.headers.emplace_back("Content-Disposition", "attachment; filename=\"" + file + "\"");
   return r;
+}
+
+// ---- recipes: recording jobs (service/recipe_jobs.h) -----------------------------
+
+HttpResponse ServiceHub::listRecipes(const HttpRequest&, const Params&) {
+  return jsonResponse(recipeJobs_->list([this](const std::string& name) { return database_.contains(name); }));
+}
+
+HttpResponse ServiceHub::startRecipeJob(const HttpRequest& req, const Params& p) {
+  const json body = requireObject(parseBody(req, false));
+  onlyKeys(body, {"force"});
+  bool created = false;
+  const JobInfo job = recipeJobs_->start(p[0], getBool(body, "force", false), created);
+  HttpResponse r = jsonResponse(jobJson(job), created ? 202 : 200);
+  r.headers.emplace_back("Location", "/api/recipes/jobs/" + job.id);
+  return r;
+}
+
+HttpResponse ServiceHub::getRecipeJob(const HttpRequest&, const Params& p) {
+  return jsonResponse(jobJson(recipeJobs_->job(p[0])));
+}
+
+HttpResponse ServiceHub::cancelRecipeJob(const HttpRequest&, const Params& p) {
+  return jsonResponse(jobJson(recipeJobs_->cancel(p[0])));
 }
 
 }  // namespace fc::service

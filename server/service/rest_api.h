@@ -25,6 +25,8 @@
 
 namespace fc::service {
 
+class RecipeJobs;
+
 struct HttpRequest {
   std::string method;                          // "GET", "POST", ...
   std::string path;                            // percent-encoded, without the query
@@ -58,6 +60,8 @@ struct ServiceOptions {
   std::string templatesDir = "templates";
   std::string scenesDir = "scenes";
   std::string exportsDir = "exports";
+  // Recipes the editor can record (service/recipe_jobs.h); "": none.
+  std::string recipesDir;
   // The accuracy presets (draft, preview, final) that `flowclip bench
   // accuracy` chose from its Pareto front, with their measured figures.
   std::string presetsFile = "bench/accuracy/presets.json";
@@ -140,6 +144,10 @@ class ServiceHub {
   HttpResponse getFrame(const HttpRequest&, const Params&);
   HttpResponse exportFrames(const HttpRequest&, const Params&);
   HttpResponse getExport(const HttpRequest&, const Params&);
+  HttpResponse listRecipes(const HttpRequest&, const Params&);
+  HttpResponse startRecipeJob(const HttpRequest&, const Params&);
+  HttpResponse getRecipeJob(const HttpRequest&, const Params&);
+  HttpResponse cancelRecipeJob(const HttpRequest&, const Params&);
 
   std::shared_ptr<Session> requireSession(const std::string& id) const;
   // The live sessions, taken under the lock (their methods are then called without it).
@@ -170,6 +178,7 @@ class ServiceHub {
   static constexpr size_t kPreviewCacheSize = 4;
   std::mutex previewMutex_;
   std::map<std::string, PreviewSource> previews_;
+  std::unique_ptr<RecipeJobs> recipeJobs_;  // its worker records into database_'s directory
 };
 
 // JSON from a client, nested at most kMaxJsonDepth levels (deeper values
