@@ -68,6 +68,7 @@ window.addEventListener('pagehide', () => {
 async function start() {
   const params = new URLSearchParams(location.search);
   void editor.loadTemplates();
+  void editor.recipes.load();
   void editor.loadPresets();
   const scenes = await editor.loadScenes();
   const session = params.get('session');

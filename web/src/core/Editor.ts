@@ -8,12 +8,13 @@ import { FrameDecoder, type FrameInfo } from '../net/FrameDecoder';
 import { Stream, type ConnectionStatus, type StreamState } from '../net/Stream';
 import { Layer } from '@wire';
 import type {
-  EditJson, InstanceEditResponse, InstanceJson, ParametersJson, PresetsJson, SceneJson, SceneSummary, SessionState, SessionStatusName,
-  SettingsPatch, TemplateInfo, TransportArgs, TransportName,
+  EditJson, InstanceEditResponse, InstanceJson, ParametersJson, PresetsJson, RecipeInfo, RecipeJob, SceneJson, SceneSummary, SessionState,
+  SessionStatusName, SettingsPatch, TemplateInfo, TransportArgs, TransportName,
 } from '../net/types';
 import { AddInstanceCommand } from '../commands/AddInstanceCommand';
 import type { Command } from './Command';
 import { History } from './History';
+import { RecipeRecorder } from './RecipeRecorder';
 import { Signal } from './Signal';
 
 export interface SessionInfo {
@@ -87,6 +88,10 @@ export class Editor {
   readonly signals = {
     scenesChanged: new Signal<SceneSummary[]>(),
     templatesChanged: new Signal<TemplateInfo[]>(),
+    /** The server's recipes were (re-)read (GET /api/recipes). */
+    recipesChanged: new Signal<RecipeInfo[]>(),
+    /** A recording job this editor follows changed (state, progress). */
+    recipeJobChanged: new Signal<RecipeJob>(),
     /** The parameter declarations for the session's dimension arrived (GET /api/parameters). */
     parametersChanged: new Signal<ParametersJson | null>(),
     /** The accuracy presets arrived (GET /api/presets). */
@@ -181,8 +186,13 @@ export class Editor {
   /** Instances that steer no liquid when they start: name → reason. */
   readonly issues = new Map<string, string>();
 
+  /** Recipes and their recording jobs; a recorded template re-reads the templates and scenes. */
+  readonly recipes: RecipeRecorder;
+
   constructor(api = new Api('', tokenFromPage())) {
     this.api = api;
+    this.recipes = new RecipeRecorder(api, this.signals, () => Promise.all([this.loadTemplates(), this.loadScenes()]),
+      (e, what) => this.reportError(e, what));
     this.history.changed.add(() => this.signals.historyChanged.dispatch());
     this.history.failed.add(({ command, error, phase }) =>
       this.reportError(error, `${phase === 'execute' ? '' : phase + ' '}${command.name}`),

@@ -2,8 +2,8 @@
 // ApiError carrying the server's Error object (status, code, message, path),
 // or status 0 when the server could not be reached.
 import type {
-  EditJson, EditResultJson, InstanceEditResponse, InstanceJson, ParametersJson, PresetsJson, SceneJson, SceneSummary, SessionState, SettingsPatch,
-  TemplateInfo, TemplatePreviewJson, TransportArgs, TransportName,
+  EditJson, EditResultJson, InstanceEditResponse, InstanceJson, ParametersJson, PresetsJson, RecipeInfo, RecipeJob, SceneJson, SceneSummary,
+  SessionState, SettingsPatch, TemplateInfo, TemplatePreviewJson, TransportArgs, TransportName,
 } from './types';
 
 export class ApiError extends Error {
@@ -74,6 +74,20 @@ export class Api {
   }
   listTemplates() {
     return this.request<{ templates: TemplateInfo[] }>('GET', '/api/templates').then((r) => r.templates);
+  }
+  /** The recipes the server can record, with the templates each records. */
+  listRecipes() {
+    return this.request<{ recipes: RecipeInfo[] }>('GET', '/api/recipes').then((r) => r.recipes);
+  }
+  /** Starts recording a recipe in the background (or returns its queued or running job). */
+  recordRecipe(name: string, force = false) {
+    return this.request<RecipeJob>('POST', `/api/recipes/${enc(name)}/record`, force ? { force } : undefined);
+  }
+  recipeJob(id: string) {
+    return this.request<RecipeJob>('GET', `/api/recipes/jobs/${enc(id)}`);
+  }
+  cancelRecipeJob(id: string) {
+    return this.request<RecipeJob>('DELETE', `/api/recipes/jobs/${enc(id)}`);
   }
   /** Every parameter's declaration for scenes of that dimension (the inspector's fields). */
   parameters(dimension: 2 | 3) {

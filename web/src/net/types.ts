@@ -24,6 +24,40 @@ export interface TemplateInfo {
   error?: string;
 }
 
+/** GET /api/recipes: a recipe the server can record, and the templates it records. */
+export interface RecipeInfo {
+  name: string;
+  dimension?: 2 | 3;
+  templates?: { name: string; recorded: boolean }[];
+  /** The database has every one of its templates. */
+  recorded?: boolean;
+  /** Simulation frames a recording advances. */
+  frames?: number;
+  /** Wall time of this server's newest successful recording of it, s. */
+  last_seconds?: number;
+  /** Its queued or running job. */
+  job?: string;
+  error?: string;
+}
+
+export type RecipeJobState = 'queued' | 'running' | 'done' | 'failed' | 'cancelled';
+
+/** A recording job (POST /api/recipes/{name}/record, GET/DELETE /api/recipes/jobs/{id}). */
+export interface RecipeJob {
+  id: string;
+  recipe: string;
+  templates: string[];
+  dimension: 2 | 3;
+  force: boolean;
+  state: RecipeJobState;
+  progress: number;
+  frames_done: number;
+  frames: number;
+  cancel_requested: boolean;
+  elapsed_s: number;
+  error?: string;
+}
+
 export type SessionStatusName = 'paused' | 'playing' | 'stepping' | 'error';
 
 export interface FrameStatsJson {

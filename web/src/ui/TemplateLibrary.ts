@@ -4,8 +4,14 @@
 // "+" to instance it at the view centre, or drag it onto the viewport to
 // instance it where it is dropped (the viewport handles the drop). Templates
 // of the other dimension than the open scene's are shown but disabled.
+//
+// Under them, the recipes that record what is missing (the templates a listed
+// scene needs, or any template of the open scene's dimension when there is
+// none), each with a Record button; a recording shows its progress and can
+// be cancelled, and its templates join the list when it is done.
 import type { Editor } from '../core/Editor';
-import type { TemplateInfo } from '../net/types';
+import { jobActive } from '../core/RecipeRecorder';
+import type { RecipeInfo, RecipeJob, TemplateInfo } from '../net/types';
 import { el } from './dom';
 
 /** The drag-and-drop data type carrying a template name. */
@@ -16,19 +22,30 @@ const THUMB_W = 96, THUMB_H = 64;
 export class TemplateLibrary {
   readonly dom: HTMLElement;
   private readonly list: HTMLElement;
+  private readonly recipeBox: HTMLElement;
+  /** Rows of the recipes shown, by name (a job's progress updates its row in place). */
+  private readonly recipeRows = new Map<string, HTMLElement>();
   /** Thumbnails drawn once per template name and file size (a re-listing does not refetch). */
   private readonly thumbs = new Map<string, HTMLCanvasElement>();
 
   constructor(private readonly editor: Editor) {
     this.list = el('div', { className: 'library-list', testid: 'library-list' });
-    const refresh = el('button', { text: '⟳', title: 'Re-read the template database', attrs: { type: 'button' } });
-    refresh.addEventListener('click', () => void editor.loadTemplates());
+    const refresh = el('button', { text: '⟳', title: 'Re-read the template database and the recipes', attrs: { type: 'button' } });
+    refresh.addEventListener('click', () => {
+      void editor.loadTemplates();
+      void editor.recipes.load();
+    });
+    this.recipeBox = el('div', { className: 'library-recipes', testid: 'library-recipes' });
     this.dom = el('section', { className: 'panel library', testid: 'library' }, [
       el('h2', {}, ['Templates ', refresh]),
       this.list,
+      this.recipeBox,
     ]);
     editor.signals.templatesChanged.add((t) => this.render(t));
     editor.signals.sessionChanged.add(() => this.render(editor.templates));
+    editor.signals.scenesChanged.add(() => this.renderRecipes());
+    editor.signals.recipesChanged.add(() => this.renderRecipes());
+    editor.signals.recipeJobChanged.add((job) => this.updateJob(job));
   }
 
   private render(templates: TemplateInfo[]) {
@@ -38,8 +55,9 @@ export class TemplateLibrary {
     const usable = templates.filter((t) => !t.error && (dim === null || t.dimension === dim));
     if (usable.length === 0) {
       const what = dim === null ? 'No templates on the server.' : `No ${dim}D template on the server.`;
+      const recordable = this.editor.recipes.recipes.some((r) => !r.error && (dim === null || r.dimension === dim));
       const hint = el('div', { className: 'empty library-hint', testid: 'library-empty' }, [
-        `${what} Record one from a recipe on the server machine, e.g. `,
+        `${what} ${recordable ? 'Record one below, or' : 'Record one'} from a recipe on the server machine, e.g. `,
         el('code', { text: `flowclip record templates/recipes/${dim === 3 ? 'hand3d' : 'drop2d'}.json` }),
         ' (the recipes are in templates/recipes/), then ',
         el('button', { text: '⟳ re-read', attrs: { type: 'button' }, title: 'Re-read the template database' }),
@@ -48,6 +66,95 @@ export class TemplateLibrary {
       this.list.append(hint);
     }
     for (const t of templates) this.list.append(this.item(t, dim));
+    this.renderRecipes();
+  }
+
+  /** The recipes worth offering: they record a template a scene lacks, or fill an empty library, or are recording. */
+  private offeredRecipes(): { recipe: RecipeInfo; neededBy: string[] }[] {
+    const dim = this.editor.session?.dimension ?? null;
+    const neededBy = new Map<string, string[]>();
+    for (const s of this.editor.scenes)
+      for (const t of s.missing_templates ?? []) neededBy.set(t, [...(neededBy.get(t) ?? []), s.name]);
+    const empty = !this.editor.templates.some((t) => !t.error && (dim === null || t.dimension === dim));
+    const out: { recipe: RecipeInfo; neededBy: string[] }[] = [];
+    for (const r of this.editor.recipes.recipes) {
+      if (r.error) continue;
+      const scenes = [...new Set((r.templates ?? []).filter((t) => !t.recorded).flatMap((t) => neededBy.get(t.name) ?? []))];
+      const fills = empty && !r.recorded && (dim === null || r.dimension === dim);
+      const job = this.editor.recipes.jobs.get(r.name);
+      if (scenes.length > 0 || fills || jobActive(job) || job?.state === 'failed') out.push({ recipe: r, neededBy: scenes });
+    }
+    return out;
+  }
+
+  private renderRecipes() {
+    const offered = this.offeredRecipes();
+    this.recipeRows.clear();
+    this.recipeBox.replaceChildren();
+    if (offered.length === 0) return;
+    this.recipeBox.append(el('h3', { text: 'Record from a recipe' }));
+    for (const { recipe, neededBy } of offered) {
+      const row = this.recipeRow(recipe, neededBy);
+      this.recipeRows.set(recipe.name, row);
+      this.recipeBox.append(row);
+    }
+  }
+
+  private recipeRow(r: RecipeInfo, neededBy: string[]): HTMLElement {
+    const names = (r.templates ?? []).map((t) => t.name).join(', ');
+    const cost = `${r.frames ?? '?'} frames${r.last_seconds !== undefined ? `, last took ${fmt(r.last_seconds, 1)} s` : ''}`;
+    const why = neededBy.length ? `needed by ${neededBy.join(', ')}` : `records ${names}`;
+    const record = el('button', {
+      text: 'Record', testid: `recipe-record-${r.name}`, attrs: { type: 'button' },
+      title: `Simulate recipe ${r.name} on the server and add ${names} to the database (${cost})`,
+    });
+    record.addEventListener('click', () => void this.editor.recipes.record(r.name));
+    const cancel = el('button', { text: '✕', testid: `recipe-cancel-${r.name}`, title: 'Cancel the recording (nothing is written)', attrs: { type: 'button' } });
+    cancel.addEventListener('click', () => void this.editor.recipes.cancel(r.name));
+    const bar = el('progress', { className: 'recipe-progress', testid: `recipe-progress-${r.name}`, attrs: { max: '1', value: '0' } });
+    const status = el('div', { className: 'library-meta recipe-status', testid: `recipe-status-${r.name}` });
+    const row = el('div', { className: 'library-item recipe-item', testid: `recipe-${r.name}` }, [
+      el('div', { className: 'library-text' }, [
+        el('div', { className: 'library-name', text: `${r.name} (${r.dimension}D)` }),
+        el('div', { className: 'library-meta', text: `${why} · ${cost}`, title: `${why}; records ${names}; ${cost}` }),
+        bar,
+        status,
+      ]),
+      record,
+      cancel,
+    ]);
+    row.dataset['templates'] = names;
+    this.showJob(row, this.editor.recipes.jobs.get(r.name));
+    return row;
+  }
+
+  private updateJob(job: RecipeJob) {
+    const row = this.recipeRows.get(job.recipe);
+    if (row) this.showJob(row, job);
+    else if (jobActive(job) || job.state === 'failed') this.renderRecipes();
+  }
+
+  /** A row's Record / progress / Cancel for its job's state. */
+  private showJob(row: HTMLElement, job: RecipeJob | undefined) {
+    const active = jobActive(job);
+    const record = row.querySelector<HTMLButtonElement>('[data-testid^="recipe-record-"]')!;
+    const cancel = row.querySelector<HTMLButtonElement>('[data-testid^="recipe-cancel-"]')!;
+    const bar = row.querySelector<HTMLProgressElement>('progress')!;
+    const status = row.querySelector<HTMLElement>('.recipe-status')!;
+    record.hidden = active;
+    cancel.hidden = !active;
+    cancel.disabled = job?.cancel_requested ?? false;
+    bar.hidden = !active;
+    bar.value = job?.progress ?? 0;
+    row.dataset['state'] = job?.state ?? '';
+    row.dataset['framesDone'] = String(job?.frames_done ?? 0);
+    status.classList.toggle('error', job?.state === 'failed');
+    status.textContent = !job ? ''
+      : job.state === 'queued' ? 'queued (one recording at a time)'
+      : job.state === 'running' ? `${job.cancel_requested ? 'cancelling… ' : ''}frame ${job.frames_done}/${job.frames} · ${fmt(job.elapsed_s, 0)} s`
+      : job.state === 'failed' ? `failed: ${job.error ?? ''}`
+      : job.state === 'cancelled' ? 'cancelled, nothing written'
+      : `recorded in ${fmt(job.elapsed_s, 1)} s`;
   }
 
   private item(t: TemplateInfo, dim: 2 | 3 | null): HTMLElement {
