@@ -49,7 +49,9 @@ def test_an_edit_resimulates_the_frames_it_changes_by_itself(server, client):
     client.step(sid, FRAMES)
     st = client.wait_paused(sid, timeout=300)
     assert st["cache"]["valid"] == [[0, FRAMES]] and st["cache"]["stale"] == []
-    assert st["cache"]["checkpoints"] == [10, 20, 30, 40]
+    # Dense (the default): a checkpoint after every frame, memory allowing.
+    assert st["cache"]["checkpoint_dense"] is True
+    assert st["cache"]["checkpoints"] == list(range(1, FRAMES + 1))
     before = frames(client, sid, FRAMES)
 
     name = instance_name(client, sid)
@@ -131,6 +133,20 @@ def test_the_stream_reports_stale_ranges_then_valid_ones(server, client):
     running = [s for s in states if s["cache"]["simulating"]]
     assert running and all(s["cache"]["simulating"]["to"] == FRAMES for s in running)
     assert states[-1]["cache"]["valid"] == [[0, FRAMES]]
+    client.delete_session(sid)
+
+
+def test_sparse_checkpoints_are_every_k_frames(server, client):
+    sid = drop_session(client, checkpoint_every=10, checkpoint_dense=False)
+    client.step(sid, 25)
+    st = client.wait_paused(sid, timeout=300)
+    assert st["cache"]["checkpoint_dense"] is False
+    assert st["cache"]["checkpoints"] == [10, 20]
+    # An edit at 0.2 s (frame 13 on) re-simulates from frame 10: exactly a fresh run's frames.
+    client.update_instance(sid, instance_name(client, sid), {"attraction_weight": 2.0})
+    st = settled(client, sid)
+    assert st["frame"] == 25 and st["cache"]["checkpoints"] == [10, 20]
+    assert frames(client, sid, 25) == fresh_frames(client, client.session_scene(sid), 25)
     client.delete_session(sid)
 
 

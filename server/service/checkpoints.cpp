@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstdlib>
 #include <stdexcept>
 
 namespace fc::service {
@@ -13,8 +14,8 @@ namespace {
 constexpr size_t kWord = 4;
 }
 
-CheckpointStore::CheckpointStore(int every, size_t capBytes, bool compress)
-    : every_(std::max(1, every)), capBytes_(capBytes), compress_(compress) {}
+CheckpointStore::CheckpointStore(int every, size_t capBytes, bool compress, bool dense)
+    : every_(std::max(0, every)), capBytes_(capBytes), compress_(compress), dense_(dense) {}
 
 std::vector<uint8_t> CheckpointStore::compress(const std::vector<uint8_t>& raw) {
   const size_t n = raw.size(), words = n / kWord;
@@ -63,7 +64,22 @@ void CheckpointStore::put(int frame, const std::vector<uint8_t>& archive) {
   figures_.saveMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
 
+void CheckpointStore::erase(std::map<int, Entry>::iterator it) {
+  bytes_ -= it->second.bytes.size();
+  rawBytes_ -= it->second.rawSize;
+  entries_.erase(it);
+}
+
 void CheckpointStore::thin() {
+  // In-between checkpoints first, the farthest from the focus first.
+  while (bytes_ > capBytes_) {
+    auto far = entries_.end();
+    for (auto it = entries_.begin(); it != entries_.end(); ++it)
+      if (!onGrid(it->first) && (far == entries_.end() || std::abs(it->first - focus_) > std::abs(far->first - focus_)))
+        far = it;
+    if (far == entries_.end()) break;
+    erase(far);
+  }
   while (bytes_ > capBytes_ && !entries_.empty()) {
     if (entries_.size() == 1) {  // one checkpoint over the cap: none at all
       clear();
@@ -91,6 +107,11 @@ int CheckpointStore::newestAtOrBefore(int frame, std::vector<uint8_t>& archive) 
   const Entry& e = it->second;
   archive = e.compressed ? decompress(e.bytes, e.rawSize) : e.bytes;
   return it->first;
+}
+
+int CheckpointStore::newestFrameAtOrBefore(int frame) const {
+  auto it = entries_.upper_bound(frame);
+  return it == entries_.begin() ? 0 : std::prev(it)->first;
 }
 
 void CheckpointStore::dropFrom(int frame) {

@@ -838,7 +838,8 @@ HttpResponse ServiceHub::listSessions(const HttpRequest&, const Params&) {
 
 HttpResponse ServiceHub::createSession(const HttpRequest& req, const Params&) {
   const json body = requireObject(parseBody(req));
-  onlyKeys(body, {"scene", "name", "history_cap_mb", "playback_speed", "threads", "checkpoint_every"});
+  onlyKeys(body, {"scene", "name", "history_cap_mb", "playback_speed", "threads", "checkpoint_every",
+                  "checkpoint_dense"});
   if (!body.contains("scene")) throw ApiError(400, "\"scene\" is required: a scene name or an inline scene object", "scene");
   json scene;
   std::string sceneName;
@@ -871,6 +872,7 @@ HttpResponse ServiceHub::createSession(const HttpRequest& req, const Params&) {
   so.frameTimeout = options_.frameTimeout;
   so.checkpointEvery = int(getInt(body, "checkpoint_every", false, SessionOptions::kDefaultCheckpointEvery, 0, 100000,
                                   "frames between checkpoints; 0: none"));
+  so.denseCheckpoints = getBool(body, "checkpoint_dense", true);
 
   std::string id;
   {

@@ -9,6 +9,7 @@
 #include "io/instance_binding.h"
 #include "io/recipe.h"
 #include "service/checkpoints.h"
+#include "service/replay_layers.h"
 #include "service/edit_scope.h"
 #include "service/history_export.h"
 #include "sph/state_archive.h"
@@ -184,7 +185,8 @@ class SessionImpl final : public Session {
       : id_(std::move(id)),
         db_(database),
         options_(options),
-        checkpoints_(options.checkpointEvery, checkpointCap(options), options.compressCheckpoints) {
+        checkpoints_(options.checkpointEvery, checkpointCap(options), options.compressCheckpoints,
+                     options.denseCheckpoints) {
     setup_ = parseScene<D>(scene);
     control_ = parseSceneControl<D>(scene, setup_.phases);
     if (!control_.instances.empty()) bound_ = bindInstances<D>(control_.instances, db_);
@@ -734,6 +736,7 @@ class SessionImpl final : public Session {
     dropped_ = 0;
     replay_ = nullptr;
     layered_.reset();  // frame numbers restart: an old layered frame 0 must not match
+    layersTried_ = nullptr;
     FramePtr f = makeSnapshot(initialStats());
     live_ = f;
     recordLocked(f);
@@ -788,6 +791,18 @@ class SessionImpl final : public Session {
         computeFrame(lk);
         continue;
       }
+      if (layersDueLocked()) {
+        busy_ = true;
+        layersOfShownFrame(lk);
+        busy_ = false;
+        notifying_ = true;
+        lk.unlock();
+        notifyFrame();
+        lk.lock();
+        notifying_ = false;
+        idleCv_.notify_all();
+        continue;
+      }
       if (status_ == SessionStatus::Playing && replayPlaying_) {
         replayStep(lk);
         continue;
@@ -803,7 +818,7 @@ class SessionImpl final : public Session {
         idleCv_.notify_all();
         cv_.wait(lk, [&] {
           return stop_ || !ops_.empty() || status_ == SessionStatus::Playing || status_ == SessionStatus::Stepping ||
-                 resimulatingLocked();
+                 resimulatingLocked() || layersDueLocked();
         });
         continue;
       }
@@ -870,6 +885,7 @@ class SessionImpl final : public Session {
         if (!replay_) replayPlaying_ = false;
       }
     }
+    if (layersDueLocked()) layersOfShownFrame(lk);  // the frame goes out with its layers
     notifying_ = true;
     lk.unlock();
     notifyFrame();
@@ -881,6 +897,7 @@ class SessionImpl final : public Session {
 
   // Called with mutex_ released; returns with it held.
   void computeFrame(std::unique_lock<std::mutex>& lk) {
+    replayLayers_.unpark(*sim_);
     sim_->setFrameLimits({Clock::now() + options_.frameTimeout, &cancel_});
     FrameStats fs = sim_->advanceFrame();
     FramePtr snap;
@@ -956,6 +973,10 @@ class SessionImpl final : public Session {
 
   // Session thread: the simulation's state now, as the checkpoint of `frame`.
   void saveCheckpoint(int frame) {
+    {
+      std::lock_guard lk(mutex_);
+      checkpoints_.setFocus(replay_ ? replay_->frame : frame);
+    }
     StateArchive a;
     sim_->archiveState(a);
     checkpoints_.put(frame, a.bytes());
@@ -1050,6 +1071,8 @@ class SessionImpl final : public Session {
       resimFrom_ = at->frame;
     }
     std::lock_guard lk(mutex_);
+    if (layered_ && layered_->frame >= first) layered_.reset();  // of the timeline before the edit
+    layersTried_ = nullptr;
     staleFrom_ = std::min(staleFrom_, first);
     if (history_.empty() || staleFrom_ > history_.back()->frame) staleFrom_ = INT_MAX;
     resimTarget_ = std::max(resimTarget_, reached);
@@ -1062,6 +1085,7 @@ class SessionImpl final : public Session {
 
   void doReset() {
     cancel_ = false;
+    replayLayers_.unpark(*sim_);
     std::string failure;
     try {
       buildSimulation();
@@ -1137,10 +1161,7 @@ class SessionImpl final : public Session {
     wire::LayerFlags want;
     {
       std::lock_guard lk(mutex_);
-      want.control = layerDemand_[0] > 0;
-      want.repulsion = layerDemand_[1] > 0;
-      want.boundary = layerDemand_[2] > 0;
-      want.speed = layerDemand_[3] > 0;
+      want = wantedLayersLocked();
     }
     if (!want.control && !want.repulsion && !want.boundary && !want.speed) return;
     auto out = std::make_shared<LayeredFrame>();
@@ -1154,19 +1175,64 @@ class SessionImpl final : public Session {
     out->envelope.assign(layerBuilder_.GetBufferPointer(), layerBuilder_.GetBufferPointer() + layerBuilder_.GetSize());
     std::lock_guard lk(mutex_);
     layered_ = std::move(out);
+    layersTried_ = nullptr;  // a frame shown before may want its layers again
   }
 
+  // More layers wanted: the frame shown is encoded again (the loop sees it due).
   void doLayers() {
-    FrameStats stats;
-    {
-      std::lock_guard lk(mutex_);
-      stats = live_->stats;
+    std::lock_guard lk(mutex_);
+    layersTried_ = nullptr;
+  }
+
+  // With mutex_ held: the frame viewers see lacks layers a stream wants
+  // (and they were not tried for it yet; a stale frame is being replaced).
+  bool layersDueLocked() const {
+    // Speed alone comes from the recorded velocities (encodeSnapshot).
+    const wire::LayerFlags want = wantedLayersLocked();
+    if (!want.control && !want.repulsion && !want.boundary) return false;
+    const FramePtr& shown = replay_ ? replay_ : live_;
+    if (!shown || shown == layersTried_ || shown->frame >= staleFrom_) return false;
+    if (!layered_ || layered_->frame != shown->frame) return true;
+    const wire::LayerFlags& has = layered_->layers;
+    return (want.control && !has.control) || (want.repulsion && !has.repulsion) || (want.boundary && !has.boundary);
+  }
+
+  wire::LayerFlags wantedLayersLocked() const {
+    wire::LayerFlags want;
+    want.control = layerDemand_[0] > 0;
+    want.repulsion = layerDemand_[1] > 0;
+    want.boundary = layerDemand_[2] > 0;
+    want.speed = layerDemand_[3] > 0;
+    return want;
+  }
+
+  // With mutex_ held (released meanwhile): encodes the layers of the frame
+  // shown: the live one from the simulation as it is, a recorded one by
+  // taking the simulation back to it (replay_layers.h).
+  void layersOfShownFrame(std::unique_lock<std::mutex>& lk) {
+    const FramePtr shown = replay_ ? replay_ : live_;
+    const bool live = !replay_;
+    layersTried_ = shown;
+    lk.unlock();
+    try {
+      if (live) {
+        replayLayers_.unpark(*sim_);
+        encodeLayers(shown->stats);
+      } else if (replayLayers_.goTo(
+                     shown->frame, checkpoints_, [this]() -> Simulation<D>& { return *sim_; },
+                     [this] { buildSimulation(); }, {Clock::now() + options_.frameTimeout, &cancel_}) ==
+                 ReplayLayers<D>::Result::Ready) {
+        encodeLayers(shown->stats);
+      }
+    } catch (const std::exception&) {
+      // A checkpoint that does not load or a scene that does not build: the
+      // frame is shown without its layers; the live state is still parked.
     }
-    encodeLayers(stats);
-    notifyFrame();
+    lk.lock();
   }
 
   void doEdit(Op& op) {
+    replayLayers_.unpark(*sim_);  // edits apply to the live state
     EditResult r;
     r.id = op.id;
     r.kind = op.edit.kind;
@@ -1342,6 +1408,7 @@ class SessionImpl final : public Session {
       if (replay_ && replay_->frame == 0) replay_ = zero;
     }
     layered_.reset();
+    layersTried_ = nullptr;
     live_ = zero;
     resimFrom_ = 0;
     resimTarget_ = target > 0 ? target : -1;
@@ -1358,7 +1425,7 @@ class SessionImpl final : public Session {
   // ======== shared state (mutex_ held) ========
 
   bool idleLocked() const {
-    return !computing_ && !busy_ && !notifying_ && ops_.empty() && !resimulatingLocked() &&
+    return !computing_ && !busy_ && !notifying_ && ops_.empty() && !resimulatingLocked() && !layersDueLocked() &&
            (status_ == SessionStatus::Paused || status_ == SessionStatus::Error);
   }
 
@@ -1442,6 +1509,7 @@ class SessionImpl final : public Session {
             {"reached", reached},
             {"checkpoints", checkpointFrames_},
             {"checkpoint_every", checkpoints_.every()},
+            {"checkpoint_dense", checkpoints_.dense()},
             {"checkpoint_bytes", checkpointFigures_.bytes},
             {"checkpoint_raw_bytes", checkpointFigures_.rawBytes},
             {"checkpoint_cap", checkpoints_.capBytes()},
@@ -1509,6 +1577,7 @@ class SessionImpl final : public Session {
   std::unique_ptr<Simulation<D>> sim_;
   Control<D>* controlStage_ = nullptr;
   CheckpointStore checkpoints_;
+  ReplayLayers<D> replayLayers_;  // a recorded frame's layers (the live state parked meanwhile)
   Clock::time_point lastStart_{};
 
   // ---- shared, under mutex_ ----
@@ -1528,6 +1597,7 @@ class SessionImpl final : public Session {
   size_t pendingEdits_ = 0;
   int layerDemand_[4] = {0, 0, 0, 0};           // streams wanting control, repulsion, boundary, speed
   std::shared_ptr<const LayeredFrame> layered_;  // the newest frame with those layers
+  FramePtr layersTried_;  // the frame shown whose layers were last tried (not again)
   flatbuffers::FlatBufferBuilder layerBuilder_{1 << 16};  // session thread only
   uint64_t lastEditId_ = 0;
   std::map<uint64_t, EditResult> results_;

@@ -192,6 +192,10 @@ struct SessionOptions {
   // this many frames (0: none; an edit then re-simulates from frame 0),
   // within a quarter of historyCapBytes, compressed where that saves a tenth.
   int checkpointEvery = kDefaultCheckpointEvery;
+  // Dense: the frames between the every-K checkpoints are kept too, as
+  // memory allows (the farthest from the playhead dropped first), so that
+  // an edit's first changed frame is one frame's compute away.
+  bool denseCheckpoints = true;
   bool compressCheckpoints = true;
   static constexpr int kDefaultCheckpointEvery = 10;
   bool checkpointsEnabled() const { return checkpointEvery > 0; }

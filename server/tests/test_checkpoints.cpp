@@ -16,6 +16,7 @@
 #include <nlohmann/json.hpp>
 #include <omp.h>
 
+#include <algorithm>
 #include <climits>
 #include <memory>
 #include <random>
@@ -247,6 +248,38 @@ TEST(Checkpoints, StoreThinsTheOldestToStayUnderItsCap) {
   EXPECT_TRUE(out.empty());
   store.dropFrom(kept[1]);
   EXPECT_EQ(store.frames(), std::vector<int>{kept[0]});
+}
+
+// Dense: every frame is due; past the cap the in-between checkpoints go
+// first, the farthest from the focus first, and the every-K grid stays.
+TEST(Checkpoints, DenseStoreKeepsTheFramesNearestTheFocus) {
+  std::mt19937 rng(11);
+  std::vector<uint8_t> noise(10000);
+  for (auto& b : noise) b = uint8_t(rng());
+  service::CheckpointStore store(5, 200000, true, true);  // 20 checkpoints of 10 000 bytes
+  EXPECT_TRUE(store.dense());
+  store.setFocus(50);
+  for (int f = 1; f <= 60; ++f) {
+    ASSERT_TRUE(store.due(f)) << f;
+    store.put(f, noise);
+    EXPECT_LE(store.figures().bytes, 200000u) << "after frame " << f;
+  }
+  EXPECT_FALSE(store.due(0));
+  // The 12 grid frames and the 8 nearest 50 in between.
+  std::vector<int> expected;
+  for (int f = 5; f <= 60; f += 5) expected.push_back(f);
+  for (int f : {46, 47, 48, 49, 51, 52, 53, 54}) expected.push_back(f);
+  std::sort(expected.begin(), expected.end());
+  EXPECT_EQ(store.frames(), expected);
+  std::vector<uint8_t> out;
+  EXPECT_EQ(store.newestAtOrBefore(52, out), 52);
+  EXPECT_EQ(out, noise);
+  EXPECT_EQ(store.newestFrameAtOrBefore(44), 40);
+  EXPECT_EQ(store.newestFrameAtOrBefore(4), 0);
+  // No checkpoints at all (K = 0): nothing is due, dense or not.
+  service::CheckpointStore none(0, 200000, true, true);
+  EXPECT_FALSE(none.due(1));
+  EXPECT_FALSE(none.dense());
 }
 
 // Which frames an edit changes.

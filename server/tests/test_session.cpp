@@ -422,7 +422,11 @@ TEST(SessionResimulation, AnEditResimulatesTheFramesItChangesByItself) {
   ASSERT_TRUE(s->waitIdle(kResimWait));
   const std::vector<FramePtr> before = s->history();
   ASSERT_EQ(before.size(), 31u);
-  EXPECT_EQ(s->state()["cache"]["checkpoints"], json::array({10, 20, 30}));
+  // Dense (the default): every frame, memory allowing.
+  json every = json::array();
+  for (int f = 1; f <= 30; ++f) every.push_back(f);
+  EXPECT_EQ(s->state()["cache"]["checkpoints"], every);
+  EXPECT_TRUE(s->state()["cache"]["checkpoint_dense"].get<bool>());
   const EditResult r = resultOf(s->submit(Edit::fromJson(
       json{{"type", "update_instance"}, {"name", "blob"}, {"patch", {{"attraction_weight", 3}}}})));
   ASSERT_TRUE(r.accepted) << r.message;
@@ -541,6 +545,65 @@ TEST(SessionResimulation, AReplayingViewerSeesItsFrameReplaced) {
   ASSERT_TRUE(s->waitIdle(kResimWait));
   EXPECT_EQ(s->frame(20), f20);
   EXPECT_EQ(s->state()["cache"]["valid"], json::array({json::array({0, 20})}));
+}
+
+// The layers of a recorded frame (control and boundary particles, moving
+// bodies among them) are not in the history: a viewer scrubbing back gets
+// the very bytes the live run encoded for that frame (the simulation goes
+// back to it from a checkpoint, or from frame 0 without any), and the
+// simulation then carries on exactly as a run nobody scrubbed.
+TEST(SessionResimulation, RecordedFramesShowTheLayersOfTheLiveRun) {
+  for (const int every : {10, 0}) {
+    SCOPED_TRACE("checkpoint_every " + std::to_string(every));
+    Fixture fx;
+    SessionOptions o;
+    o.checkpointEvery = every;
+    auto s = createSession("e", "", sceneWithBlob(0.05), fx.db, o);
+    wire::LayerFlags layers;
+    layers.control = true;
+    layers.boundary = true;
+    std::mutex m;
+    std::map<int, std::vector<uint8_t>> live;
+    Session* raw = s.get();
+    s->subscribe({[&](const FramePtr& f) {
+                    const auto l = raw->layeredFrame();
+                    std::lock_guard lk(m);
+                    if (l && l->frame == f->frame && !live.count(f->frame)) live[f->frame] = l->envelope;
+                  },
+                  nullptr, nullptr});
+    s->demandLayers(layers, +1);
+    s->step(24);
+    ASSERT_TRUE(s->waitIdle(kResimWait));
+    {
+      std::lock_guard lk(m);
+      ASSERT_EQ(live.size(), 25u);  // frames 0..24, each with its layers
+    }
+    // Back and forth, onward from where the simulation is, back to frame 1
+    // (before any checkpoint) and to frame 0.
+    for (const int f : {12, 13, 17, 6, 1, 0, 23}) {
+      SCOPED_TRACE("frame " + std::to_string(f));
+      s->seek(f);
+      ASSERT_TRUE(s->waitIdle(kResimWait));
+      const auto l = s->layeredFrame();
+      ASSERT_NE(l, nullptr);
+      ASSERT_EQ(l->frame, f);
+      EXPECT_TRUE(l->layers.control && l->layers.boundary);
+      std::lock_guard lk(m);
+      EXPECT_TRUE(l->envelope == live[f]) << "the layered frame differs from the live run's";
+    }
+    // Live again: the next frames are a fresh run's, bit for bit.
+    s->seek(24);
+    s->step(6);
+    ASSERT_TRUE(s->waitIdle(kResimWait));
+    const std::vector<FramePtr> after = s->history();
+    const std::vector<FramePtr> reference = freshRun(sceneWithBlob(0.05), fx.db, 30);
+    ASSERT_EQ(after.size(), reference.size());
+    for (size_t f = 0; f < after.size(); ++f)
+      EXPECT_TRUE(sameParticles(*after[f], *reference[f])) << "frame " << f << " differs from a fresh run";
+    const auto l = s->layeredFrame();
+    ASSERT_NE(l, nullptr);
+    EXPECT_EQ(l->frame, 30);
+  }
 }
 
 // A settings change rebuilds the simulation at frame 0 with the new
