@@ -534,20 +534,33 @@ test('new users: scenes missing templates are marked, the empty 3D library says 
   expect(errors).toEqual([]);
 });
 
-test('layers the server sends with the newest frame only are marked on a replayed frame', async ({ page }) => {
+test('a replayed frame shows its control and boundary layers as the live run did', async ({ page }) => {
   const { errors } = await openDrop(page);
   await page.getByTestId('layer-boundary').check();
-  await page.evaluate(() => (window as any).flowclip.editor.transport('step', { frames: 6 }));
-  await expect.poll(() => readNumber(page.getByTestId('frame')), { timeout: 20_000 }).toBe(6);
-  const row = page.locator('label.layer').filter({ has: page.getByTestId('layer-boundary') });
-  await expect.poll(() => page.evaluate(() => (window as any).flowclip.viewport.boundary.count as number)).toBeGreaterThan(0);
-  await expect(row).not.toHaveClass(/unavailable/);
-  await page.evaluate(() => (window as any).flowclip.editor.setPlayhead(3));
-  await expect(page.getByTestId('frame')).toHaveAttribute('data-value', '3');
-  await expect(row).toHaveClass(/unavailable/);
-  await expect(row).toHaveAttribute('title', /Not in recorded frames/);
+  await page.getByTestId('layer-control').check();
+  const counts = () =>
+    page.evaluate(() => {
+      const { viewport } = (window as any).flowclip;
+      return { control: viewport.control.count as number, boundary: viewport.boundary.count as number };
+    });
+  // The instance starts at 0.2 s: frame 16 has control particles.
+  await page.evaluate(() => (window as any).flowclip.editor.transport('step', { frames: 16 }));
+  await expect.poll(() => readNumber(page.getByTestId('frame')), { timeout: 20_000 }).toBe(16);
+  await expect.poll(async () => (await counts()).control, { timeout: 20_000 }).toBeGreaterThan(0);
+  const live16 = await counts();
+  expect(live16.boundary).toBeGreaterThan(0);
+  await page.evaluate(() => (window as any).flowclip.editor.transport('step', { frames: 4 }));
+  await expect.poll(() => readNumber(page.getByTestId('frame')), { timeout: 20_000 }).toBe(20);
+  // Back to frame 16: the server re-computes its layers from a checkpoint.
+  await page.evaluate(() => (window as any).flowclip.editor.setPlayhead(16));
+  await expect(page.getByTestId('frame')).toHaveAttribute('data-value', '16');
+  await expect.poll(counts, { timeout: 20_000 }).toEqual(live16);
+  for (const key of ['boundary', 'control']) {
+    const row = page.locator('label.layer').filter({ has: page.getByTestId(`layer-${key}`) });
+    await expect(row).not.toHaveClass(/unavailable/);
+  }
   await page.getByTestId('live').click();
-  await expect(page.getByTestId('frame')).toHaveAttribute('data-value', '6');
-  await expect(row).not.toHaveClass(/unavailable/);
+  await expect(page.getByTestId('frame')).toHaveAttribute('data-value', '20');
+  await expect.poll(async () => (await counts()).control, { timeout: 20_000 }).toBeGreaterThan(0);
   await expectNoErrors(page, errors);
 });

@@ -19,7 +19,7 @@ export class LayerPanel {
       const sw = el('span', { className: 'swatch' });
       sw.style.background = swatch;
       const row = el('label', { className: 'layer', title }, [input, sw, label]);
-      // The server sends these layers with the frame it simulated last, not with recorded frames.
+      // A recorded frame far from any checkpoint comes without these layers (the server does not re-simulate that far).
       const flag = ({ control: Layer.Control, repulsion: Layer.Repulsion, boundary: Layer.Boundary } as Partial<Record<keyof LayerToggles, Layer>>)[key];
       if (flag !== undefined) {
         const update = () => {
@@ -29,7 +29,7 @@ export class LayerPanel {
           if (row.classList.contains('unavailable') === missing) return;
           row.classList.toggle('unavailable', missing);
           row.dataset['available'] = String(!missing);
-          row.title = missing ? `${title}. Not in recorded frames: shown on the newest simulated frame only` : title;
+          row.title = missing ? `${title}. Not on this recorded frame: too far from a checkpoint to re-simulate` : title;
         };
         editor.signals.frameDecoded.add(update);
         editor.signals.sessionView.add(update);
