@@ -1,5 +1,5 @@
 #pragma once
-// One simulation session (issue 5, "Sessions"): a scene simulated on its own
+// One simulation session: a scene simulated on its own
 // thread, driven from any thread by transport commands and edits, recording
 // every frame in a quantized replay history and publishing the newest frame
 // for streaming. No networking here: REST and WebSocket sit on top.
@@ -293,10 +293,9 @@ class Session {
   // path if a file cannot be written.
   virtual HistoryExport exportHistory(const std::string& h5Path, int firstFrame = -1, int lastFrame = -1) const = 0;
 
-  // Records a template from the history (issue 5, "templates: record from a
-  // session region over a frame range"): template frame k is history frame
-  // firstFrame + k; it holds the liquid particles (kinds Liquid and
-  // Temporary) whose recorded position lies in the closed box
+  // Records a template from a region of the history over a frame range:
+  // template frame k is history frame firstFrame + k; it holds the liquid
+  // particles (kinds Liquid and Temporary) whose recorded position lies in the closed box
   // [regionMin, regionMax] (world coordinates, which become the template's
   // own space), with their recorded positions, velocities and phases and the
   // mass the scene gives their phase. The header is the recipe capture's

@@ -1,4 +1,4 @@
-// The editor's browser benchmark (issue 6, "What must be measured"): decode +
+// The editor's browser benchmark: decode +
 // upload time per frame for about 100k and 300k liquid particles, 2D and 3D,
 // in headless Chromium with software GL (SwiftShader), and the bytes per frame
 // on the wire.
