@@ -33,6 +33,7 @@ struct ServeOptions {
   double maxBodyMb = 8;
   double historyCapMb = 256;
   int maxThreads = 0;
+  int recordThreads = 0;
   double frameTimeout = 120;
   double streamStall = 20, streamIdle = 60;
   int ioThreads = 2;
@@ -64,6 +65,7 @@ int serve(const ServeOptions& o, bool presetsGiven) {
   so.maxSessions = o.maxSessions;
   so.historyCapBytes = size_t(o.historyCapMb * 1024 * 1024);
   so.maxThreads = o.maxThreads;
+  so.recordThreads = o.recordThreads;
   so.frameTimeout = std::chrono::milliseconds(int64_t(o.frameTimeout * 1000));
   so.streamWriteStall = std::chrono::milliseconds(int64_t(o.streamStall * 1000));
   so.streamIdleTimeout = std::chrono::milliseconds(int64_t(o.streamIdle * 1000));
@@ -123,6 +125,9 @@ void addServeCommand(CLI::App& app) {
       ->check(CLI::Range(1.0, 1e6));
   cmd->add_option("--max-threads", o->maxThreads, "OpenMP threads per session, the ceiling of a request's \"threads\" "
                                                   "(default: the CPUs)")
+      ->check(CLI::Range(1, 1024));
+  cmd->add_option("--record-threads", o->recordThreads,
+                  "OpenMP threads of a recording started from the editor or REST (default: half the CPUs, at least 1)")
       ->check(CLI::Range(1, 1024));
   cmd->add_option("--frame-timeout", o->frameTimeout,
                   "a session whose frame runs longer than this many seconds goes to its error state (default 120)")

@@ -360,8 +360,9 @@ double currentRssMb() {
 ServiceHub::ServiceHub(ServiceOptions options)
     : options_(std::move(options)), database_(options_.templatesDir), started_(std::chrono::steady_clock::now()) {
   if (options_.maxThreads <= 0) options_.maxThreads = std::max(1, int(std::thread::hardware_concurrency()));
+  if (options_.recordThreads <= 0) options_.recordThreads = std::max(1, int(std::thread::hardware_concurrency()) / 2);
   recipeJobs_ = std::make_unique<RecipeJobs>(
-      RecipeJobsOptions{options_.recipesDir, options_.templatesDir, options_.maxThreads});
+      RecipeJobsOptions{options_.recipesDir, options_.templatesDir, options_.recordThreads});
 }
 
 ServiceHub::~ServiceHub() {

@@ -62,6 +62,9 @@ struct ServiceOptions {
   std::string exportsDir = "exports";
   // Recipes the editor can record (service/recipe_jobs.h); "": none.
   std::string recipesDir;
+  // OpenMP threads of a recording (0: half the CPUs, at least 1), so that
+  // sessions keep cores of their own while one records.
+  int recordThreads = 0;
   // The accuracy presets (draft, preview, final) that `flowclip bench
   // accuracy` chose from its Pareto front, with their measured figures.
   std::string presetsFile = "bench/accuracy/presets.json";
