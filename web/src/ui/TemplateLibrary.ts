@@ -44,7 +44,7 @@ export class TemplateLibrary {
     editor.signals.templatesChanged.add((t) => this.render(t));
     editor.signals.sessionChanged.add(() => this.render(editor.templates));
     editor.signals.scenesChanged.add(() => this.renderRecipes());
-    editor.signals.recipesChanged.add(() => this.renderRecipes());
+    editor.signals.recipesChanged.add(() => this.render(editor.templates)); // the empty hint mentions them too
     editor.signals.recipeJobChanged.add((job) => this.updateJob(job));
   }
 
@@ -151,7 +151,7 @@ export class TemplateLibrary {
     status.classList.toggle('error', job?.state === 'failed');
     status.textContent = !job ? ''
       : job.state === 'queued' ? 'queued (one recording at a time)'
-      : job.state === 'running' ? `${job.cancel_requested ? 'cancelling… ' : ''}frame ${job.frames_done}/${job.frames} · ${fmt(job.elapsed_s, 0)} s`
+      : job.state === 'running' ? `${job.cancel_requested ? 'cancelling… ' : ''}frame ${job.frames_done}/${job.frames} · ${fmt(job.elapsed_s, 1)} s`
       : job.state === 'failed' ? `failed: ${job.error ?? ''}`
       : job.state === 'cancelled' ? 'cancelled, nothing written'
       : `recorded in ${fmt(job.elapsed_s, 1)} s`;

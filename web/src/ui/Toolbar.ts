@@ -64,7 +64,7 @@ export class Toolbar {
         if (missing.length) {
           o.dataset['missing'] = missing.join(',');
           o.title = `Its instances need template${missing.length > 1 ? 's' : ''} ${missing.join(', ')}, not in the server's database: ` +
-            `record ${missing.length > 1 ? 'them' : 'it'} with \`flowclip record templates/recipes/NAME.json\``;
+            `record ${missing.length > 1 ? 'them' : 'it'} from the template library (Record) or with \`flowclip record templates/recipes/NAME.json\``;
         }
         this.picker.append(o);
       }
