@@ -25,7 +25,8 @@ export class RemoveInstanceCommand extends Command {
     const current = this.editor.instances.get(this.instanceName);
     if (!current) throw new Error(`no instance ${this.instanceName}`);
     this.removed = structuredClone(current);
-    await this.editor.api.removeInstance(sid, this.instanceName);
+    const res = await this.editor.api.removeInstance(sid, this.instanceName);
+    await this.editor.settleEdit(sid, res.edit); // 202: applied within a long frame
     this.editor.instanceRemoved(this.instanceName, sid);
   }
 

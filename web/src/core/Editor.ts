@@ -8,7 +8,7 @@ import { FrameDecoder, type FrameInfo } from '../net/FrameDecoder';
 import { Stream, type ConnectionStatus, type StreamState } from '../net/Stream';
 import { Layer } from '@wire';
 import type {
-  EditJson, InstanceEditResponse, InstanceJson, ParametersJson, PresetsJson, RecipeInfo, RecipeJob, SceneJson, SceneSummary, SessionState,
+  EditJson, EditPendingJson, InstanceEditResponse, InstanceJson, ParametersJson, PresetsJson, RecipeInfo, RecipeJob, SceneJson, SceneSummary, SessionState,
   SessionStatusName, SettingsPatch, TemplateInfo, TransportArgs, TransportName,
 } from '../net/types';
 import { AddInstanceCommand } from '../commands/AddInstanceCommand';
@@ -316,7 +316,8 @@ export class Editor {
     } catch (e) {
       this.reportError(e, 'read the session scene');
     }
-    let instances = sceneJson?.instances ?? [];
+    // The scene's instances may leave `name` out (it defaults to the template's).
+    let instances: InstanceJson[] = (sceneJson?.instances ?? []).map((i) => ({ ...i, name: i.name ?? i.template }));
     try {
       instances = await this.api.listInstances(state.id); // every key, defaults written
     } catch (e) {
@@ -337,8 +338,7 @@ export class Editor {
     this.signals.sessionChanged.dispatch(info);
     void this.loadParameters(state.dimension);
     // Moving bodies are boundary particles: show them in scenes that have some.
-    const bodies = sceneJson?.['bodies'];
-    if (Array.isArray(bodies) && bodies.length > 0 && !this.layers.boundary) this.setLayers({ boundary: true });
+    if ((sceneJson?.bodies?.length ?? 0) > 0 && !this.layers.boundary) this.setLayers({ boundary: true });
     this.connectStream(info);
     return info;
   }
@@ -487,21 +487,23 @@ export class Editor {
    * instance is read; a rejected edit throws like a 422.
    */
   async settleInstanceEdit(sid: string, name: string, res: InstanceEditResponse): Promise<InstanceJson> {
-    if (res.instance) return res.instance;
+    if ('instance' in res) return res.instance;
     await this.settleEdit(sid, res.edit);
     return this.api.getInstance(sid, name);
   }
 
   /** Waits for a pending edit (HTTP 202) to be applied; a rejected one throws like a 422. */
-  async settleEdit(sid: string, edit: EditJson): Promise<void> {
-    if (edit.accepted === true) return;
-    if (edit.accepted === false) throw new ApiError(422, 'unprocessable', edit.error?.message ?? 'edit rejected', edit.error?.path);
+  async settleEdit(sid: string, edit: EditJson | EditPendingJson): Promise<void> {
+    const settled = (e: EditJson | EditPendingJson): boolean => {
+      if (!('accepted' in e)) return false;
+      if (!e.accepted) throw new ApiError(422, 'unprocessable', e.error?.message ?? 'edit rejected', e.error?.path);
+      return true;
+    };
+    if (settled(edit)) return;
     const deadline = performance.now() + 60_000;
     for (;;) {
       const r = await this.api.getEdit(sid, edit.id);
-      const e = r.edit ?? r;
-      if (e.accepted === false) throw new ApiError(422, 'unprocessable', e.error?.message ?? 'edit rejected', e.error?.path);
-      if (e.accepted === true) return;
+      if (settled('edit' in r ? r.edit : r)) return;
       if (performance.now() > deadline) throw new Error(`edit ${edit.id} still pending after 60 s`);
       await new Promise((resolve) => setTimeout(resolve, 100));
     }
@@ -520,7 +522,7 @@ export class Editor {
   }
 
   frameRate(): number {
-    const fr = (this.session?.sceneJson?.['settings'] as { frame_rate?: number } | undefined)?.frame_rate;
+    const fr = this.session?.sceneJson?.settings?.frame_rate;
     return typeof fr === 'number' && fr > 0 ? fr : 60;
   }
 
@@ -655,12 +657,12 @@ export class Editor {
   previewPatch(name: string, patch: Record<string, unknown>): number {
     const current = this.instances.get(name);
     if (!current) return 0;
-    const next: InstanceJson = { ...current };
+    const next: Record<string, unknown> = { ...current };
     for (const [k, v] of Object.entries(patch)) {
       if (v === null) delete next[k];
       else next[k] = structuredClone(v);
     }
-    return this.setPreview(next);
+    return this.setPreview(next as InstanceJson);
   }
 
   clearPreview(name: string, token: number) {
@@ -1011,7 +1013,7 @@ export class Editor {
 
   /** The scene's duration × frame rate (where playback stops when the server does not say). */
   sceneEndFrame(): number {
-    const d = this.session?.sceneJson?.['duration'];
+    const d = this.session?.sceneJson?.duration;
     return Math.max(1, Math.round((typeof d === 'number' && d > 0 ? d : 10) * this.frameRate()));
   }
 

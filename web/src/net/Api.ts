@@ -1,10 +1,11 @@
-// REST client of `flowclip serve` (proto/openapi.yaml). Every failure is an
-// ApiError carrying the server's Error object (status, code, message, path),
-// or status 0 when the server could not be reached.
-import type {
-  EditJson, EditResultJson, InstanceEditResponse, InstanceJson, ParametersJson, PresetsJson, RecipeInfo, RecipeJob, SceneJson, SceneSummary,
-  SessionState, SettingsPatch, TemplateInfo, TemplatePreviewJson, TransportArgs, TransportName,
-} from './types';
+// REST client of `flowclip serve`. Its routes, parameters, bodies and answers
+// are typed from proto/openapi.yaml (`paths` of the generated `@openapi`,
+// scripts/wire.mjs): a route, parameter or field the contract does not have
+// fails the editor's type check. Every failure is an ApiError carrying the
+// server's Error object (status, code, message, path), or status 0 when the
+// server could not be reached.
+import type { paths } from '@openapi';
+import type { InstanceInputJson, InstanceJson, SceneJson, SettingsPatch, TransportArgs, TransportName } from './types';
 
 export class ApiError extends Error {
   constructor(
@@ -24,6 +25,42 @@ export class ApiError extends Error {
   }
 }
 
+// ----------------------------------------------- the contract's routes ---
+
+type Method = 'get' | 'post' | 'patch' | 'delete';
+type Route = keyof paths;
+/** The routes of the contract that have method M. */
+type RouteWith<M extends Method> = { [P in Route]: M extends keyof paths[P] ? P : never }[Route];
+type Operation<P extends Route, M extends Method> = M extends keyof paths[P] ? paths[P][M] : never;
+
+type JsonOf<R> = R extends { content: { 'application/json': infer J } } ? J : never;
+/** The JSON of the operation's 2xx answers (a union when it has several, e.g. 201 applied | 202 pending). */
+type Answer<O> = O extends { responses: infer R } ? JsonOf<R[Extract<keyof R, 200 | 201 | 202 | 203 | 204>]> : never;
+
+type PathArgs<O> = O extends { parameters: { path: infer P } } ? { path: P } : { path?: undefined };
+type QueryArgs<O> = O extends { parameters: { query?: infer Q } } ? { query?: Q } : { query?: undefined };
+type BodyArgs<O> = O extends { requestBody: { content: { 'application/json': infer B } } }
+  ? { body: B }
+  : O extends { requestBody?: { content: { 'application/json': infer B } } }
+    ? { body?: B }
+    : { body?: undefined };
+/** Path parameters, query and JSON body of the operation, as the contract declares them. */
+type Args<O> = PathArgs<O> & QueryArgs<O> & BodyArgs<O>;
+/** The arguments may be left out when none is required. */
+type ArgList<O> = Record<string, never> extends Args<O> ? [args?: Args<O>] : [args: Args<O>];
+
+/** "/api/sessions/{id}/instances/{name}" with its parameters percent-encoded, plus the query string. */
+function url(route: string, path: Record<string, unknown> = {}, query: Record<string, unknown> = {}): string {
+  const filled = route.replace(/\{(\w+)\}/g, (_, k: string) => {
+    if (path[k] === undefined) throw new Error(`${route}: path parameter ${k} is missing`);
+    return encodeURIComponent(String(path[k]));
+  });
+  const q = new URLSearchParams();
+  for (const [k, v] of Object.entries(query)) if (v !== undefined) q.set(k, String(v));
+  const qs = q.toString();
+  return qs ? `${filled}?${qs}` : filled;
+}
+
 export class Api {
   /** `base`: the server's origin ('' = the page's); `token`: the server's --token, if any. */
   constructor(
@@ -31,6 +68,15 @@ export class Api {
     readonly token: string | null = null,
   ) {}
 
+  /** An operation of the contract: `call('get', '/api/sessions/{id}', { path: { id } })`. */
+  call<M extends Method, P extends RouteWith<M>>(
+    method: M, route: P, ...[args]: ArgList<Operation<P, M>>
+  ): Promise<Answer<Operation<P, M>>> {
+    const a = (args ?? {}) as { path?: Record<string, unknown>; query?: Record<string, unknown>; body?: unknown };
+    return this.request(method.toUpperCase(), url(route, a.path, a.query), a.body);
+  }
+
+  /** A raw request (any path, untyped answer); `call` is the typed one. */
   async request<T>(method: string, path: string, body?: unknown): Promise<T> {
     const headers: Record<string, string> = {};
     if (body !== undefined) headers['Content-Type'] = 'application/json';
@@ -67,86 +113,82 @@ export class Api {
   }
 
   health() {
-    return this.request<{ status: string; version: string; sessions: number; rss_mb?: number }>('GET', '/api/health');
+    return this.call('get', '/api/health');
   }
   listScenes() {
-    return this.request<{ scenes: SceneSummary[] }>('GET', '/api/scenes').then((r) => r.scenes);
+    return this.call('get', '/api/scenes').then((r) => r.scenes);
   }
   listTemplates() {
-    return this.request<{ templates: TemplateInfo[] }>('GET', '/api/templates').then((r) => r.templates);
+    return this.call('get', '/api/templates').then((r) => r.templates);
   }
   /** The recipes the server can record, with the templates each records. */
   listRecipes() {
-    return this.request<{ recipes: RecipeInfo[] }>('GET', '/api/recipes').then((r) => r.recipes);
+    return this.call('get', '/api/recipes').then((r) => r.recipes);
   }
   /** Starts recording a recipe in the background (or returns its queued or running job). */
   recordRecipe(name: string, force = false) {
-    return this.request<RecipeJob>('POST', `/api/recipes/${enc(name)}/record`, force ? { force } : undefined);
+    return this.call('post', '/api/recipes/{name}/record', { path: { name }, body: force ? { force } : undefined });
   }
   recipeJob(id: string) {
-    return this.request<RecipeJob>('GET', `/api/recipes/jobs/${enc(id)}`);
+    return this.call('get', '/api/recipes/jobs/{id}', { path: { id } });
   }
   cancelRecipeJob(id: string) {
-    return this.request<RecipeJob>('DELETE', `/api/recipes/jobs/${enc(id)}`);
+    return this.call('delete', '/api/recipes/jobs/{id}', { path: { id } });
   }
   /** Every parameter's declaration for scenes of that dimension (the inspector's fields). */
   parameters(dimension: 2 | 3) {
-    return this.request<ParametersJson>('GET', `/api/parameters?dimension=${dimension}`);
+    return this.call('get', '/api/parameters', { query: { dimension } });
   }
   /** The accuracy presets the study chose (draft, preview, final) with their measured figures. */
   presets() {
-    return this.request<PresetsJson>('GET', '/api/presets');
+    return this.call('get', '/api/presets');
   }
   templatePreview(name: string, maxPoints = 1500) {
-    return this.request<TemplatePreviewJson>('GET', `/api/templates/${enc(name)}/preview?max=${maxPoints}`);
+    return this.call('get', '/api/templates/{name}/preview', { path: { name }, query: { max: maxPoints } });
   }
   getScene(name: string) {
-    return this.request<SceneJson>('GET', `/api/scenes/${enc(name)}`);
+    return this.call('get', '/api/scenes/{name}', { path: { name } });
   }
   /** Saves the session's current scene (every accepted edit) as NAME.json in the server's scene directory. */
   saveScene(session: string, name: string, force = false) {
-    return this.request<{ name: string; path: string }>('POST', '/api/scenes', { name, session, force });
+    return this.call('post', '/api/scenes', { body: { name, session, force } });
   }
-  /** An edit's result: 200 applied or rejected (`accepted`, `error`), 202 `{pending: true}` not yet. */
+  /** An edit's result: 200 applied or rejected (`accepted`, `error`), 202 pending, alone or as `{edit}`. */
   getEdit(id: string, edit: number) {
-    return this.request<EditResultJson>('GET', `/api/sessions/${enc(id)}/edits/${edit}`);
+    return this.call('get', '/api/sessions/{id}/edits/{edit_id}', { path: { id, edit_id: edit } });
   }
   patchSettings(id: string, patch: SettingsPatch) {
-    return this.request<{ edit: EditJson }>('PATCH', `/api/sessions/${enc(id)}/settings`, patch);
+    return this.call('patch', '/api/sessions/{id}/settings', { path: { id }, body: patch });
   }
   createSession(scene: string | SceneJson, options: { name?: string; playback_speed?: number } = {}) {
-    return this.request<SessionState>('POST', '/api/sessions', { scene, ...options });
+    return this.call('post', '/api/sessions', { body: { scene, ...options } });
   }
   deleteSession(id: string) {
-    return this.request<{ deleted: string }>('DELETE', `/api/sessions/${enc(id)}`);
+    return this.call('delete', '/api/sessions/{id}', { path: { id } });
   }
   getSession(id: string) {
-    return this.request<SessionState>('GET', `/api/sessions/${enc(id)}`);
+    return this.call('get', '/api/sessions/{id}', { path: { id } });
   }
   getSessionScene(id: string) {
-    return this.request<SceneJson>('GET', `/api/sessions/${enc(id)}/scene`);
+    return this.call('get', '/api/sessions/{id}/scene', { path: { id } });
   }
   transport(id: string, command: TransportName, args: TransportArgs = {}) {
-    return this.request<SessionState>('POST', `/api/sessions/${enc(id)}/transport`, { command, ...args });
+    return this.call('post', '/api/sessions/{id}/transport', { path: { id }, body: { command, ...args } });
   }
   listInstances(id: string) {
-    return this.request<{ instances: InstanceJson[] }>('GET', `/api/sessions/${enc(id)}/instances`).then(
-      (r) => r.instances,
-    );
+    return this.call('get', '/api/sessions/{id}/instances', { path: { id } }).then((r) => r.instances);
   }
   getInstance(id: string, name: string) {
-    return this.request<InstanceJson>('GET', `/api/sessions/${enc(id)}/instances/${enc(name)}`);
+    return this.call('get', '/api/sessions/{id}/instances/{name}', { path: { id, name } });
   }
-  /** JSON merge patch (RFC 7396) of one instance. */
-  patchInstance(id: string, name: string, patch: Partial<InstanceJson>) {
-    return this.request<InstanceEditResponse>('PATCH', `/api/sessions/${enc(id)}/instances/${enc(name)}`, patch);
+  /** JSON merge patch (RFC 7396) of one instance (null removes a key). */
+  patchInstance(id: string, name: string, patch: Partial<InstanceJson> | Record<string, unknown>) {
+    return this.call('patch', '/api/sessions/{id}/instances/{name}', { path: { id, name }, body: patch });
   }
-  addInstance(id: string, instance: Partial<InstanceJson> & { template: string }) {
-    return this.request<InstanceEditResponse>('POST', `/api/sessions/${enc(id)}/instances`, instance);
+  addInstance(id: string, instance: InstanceInputJson) {
+    return this.call('post', '/api/sessions/{id}/instances', { path: { id }, body: instance });
   }
   removeInstance(id: string, name: string) {
-    return this.request<{ edit: unknown }>('DELETE', `/api/sessions/${enc(id)}/instances/${enc(name)}`);
+    return this.call('delete', '/api/sessions/{id}/instances/{name}', { path: { id, name } });
   }
 }
-
-const enc = encodeURIComponent;

@@ -1,226 +1,70 @@
-// JSON shapes of the REST API (proto/openapi.yaml), as far as the editor reads them.
+// The REST API's JSON shapes under the names the editor uses. Every one is a
+// schema of proto/openapi.yaml: `@openapi` is generated from it at build time
+// (scripts/wire.mjs, openapi-typescript), so that a field renamed or removed
+// in the contract fails the editor's type check.
+import type { components } from '@openapi';
 
-export type Vec = number[];
+type Schemas = components['schemas'];
 
-export interface SceneSummary {
-  name: string;
-  dimension: 2 | 3 | null;
-  instances: number;
-  error?: string;
-  /** Templates its instances name that the server's database lacks. */
-  missing_templates?: string[];
-}
+export type Vec = Schemas['Vec'];
 
-export interface TemplateInfo {
-  name: string;
-  dimension?: 2 | 3;
-  frames?: number;
-  frame_rate?: number;
-  duration?: number;
-  avg_particles?: number;
-  region_min?: Vec;
-  region_max?: Vec;
-  bytes?: number;
-  error?: string;
-}
-
+export type SceneSummary = Schemas['SceneSummary'];
+export type TemplateInfo = Schemas['Template'];
 /** GET /api/recipes: a recipe the server can record, and the templates it records. */
-export interface RecipeInfo {
-  name: string;
-  dimension?: 2 | 3;
-  templates?: { name: string; recorded: boolean }[];
-  /** The database has every one of its templates. */
-  recorded?: boolean;
-  /** Simulation frames a recording advances. */
-  frames?: number;
-  /** Wall time of this server's newest successful recording of it, s. */
-  last_seconds?: number;
-  /** Its queued or running job. */
-  job?: string;
-  error?: string;
-}
-
-export type RecipeJobState = 'queued' | 'running' | 'done' | 'failed' | 'cancelled';
-
+export type RecipeInfo = Schemas['Recipe'];
 /** A recording job (POST /api/recipes/{name}/record, GET/DELETE /api/recipes/jobs/{id}). */
-export interface RecipeJob {
-  id: string;
-  recipe: string;
-  templates: string[];
-  dimension: 2 | 3;
-  force: boolean;
-  state: RecipeJobState;
-  progress: number;
-  frames_done: number;
-  frames: number;
-  cancel_requested: boolean;
-  elapsed_s: number;
-  error?: string;
+export type RecipeJob = Schemas['RecipeJob'];
+export type RecipeJobState = RecipeJob['state'];
+
+export type SessionState = Schemas['State'];
+export type SessionStatusName = SessionState['status'];
+export type FrameStatsJson = Schemas['FrameStats'];
+
+export type TransformKey = Schemas['TransformKey'];
+/** An instance as the server returns it (named). */
+export type InstanceJson = Schemas['Instance'];
+/** An instance as a request or a scene writes it (`name` defaults to the template's). */
+export type InstanceInputJson = Schemas['InstanceInput'];
+
+/**
+ * An instance's value by key name. The inspector and the timeline read the
+ * instance parameters by the names GET /api/parameters declares, which the
+ * contract's Instance lists too; named fields read as `inst.start`.
+ */
+export function instanceValue(inst: InstanceJson, key: string): unknown {
+  return (inst as Record<string, unknown>)[key];
 }
 
-export type SessionStatusName = 'paused' | 'playing' | 'stepping' | 'error';
-
-export interface FrameStatsJson {
-  frame: number;
-  time: number;
-  wall_ms?: number;
-  liquid_particles?: number;
-  temporary_particles?: number;
-  [key: string]: unknown;
-}
-
-export interface SessionState {
-  id: string;
-  name: string;
-  dimension: 2 | 3;
-  status: SessionStatusName;
-  frame: number;
-  time: number;
-  playback_speed: number;
-  shown: { live: boolean; frame: number };
-  history: { first: number | null; last: number | null; frames: number; bytes: number; cap: number; dropped: number };
-  stats: FrameStatsJson;
-  particles: { liquid: number; temporary: number; boundary: number };
-  instances: number;
-  pending_edits: number;
-  steps_left: number;
-  computing?: boolean;
-  memory: Record<string, number>;
-  error?: { message: string; frame: number };
-  /** Recorded frames against the current scene (inclusive ranges); absent from servers without re-simulation. */
-  cache?: {
-    valid: [number, number][];
-    stale: [number, number][];
-    simulating: { from: number; to: number; frame: number } | null;
-    checkpoints?: number[];
-    checkpoint_every?: number;
-    checkpoint_bytes?: number;
-  };
-  /** Where playback stops: the scene's duration × frame rate. */
-  end_frame?: number;
-}
-
-export interface TransformKey {
-  time?: number;
-  translation: Vec;
-  rotation?: number | Vec;
-  scale?: number | Vec;
-  reflect?: boolean[];
-}
-
-export interface InstanceJson {
-  name: string;
-  template: string;
-  phase?: string;
-  transform?: TransformKey[];
-  start?: number;
-  crop_begin?: number;
-  crop_end?: number;
-  speed?: number;
-  reverse?: boolean;
-  falloff_width?: number;
-  [key: string]: unknown;
-}
-
-export interface EditJson {
-  id: number;
-  type: string;
-  /** Absent while pending (HTTP 202: the session is inside a long frame). */
-  accepted?: boolean;
-  pending?: boolean;
-  frame?: number;
-  instance?: string;
-  error?: { path: string; message: string };
-}
-
-/** GET .../edits/{id}: the Edit itself, or {edit: {pending}} while it waits. */
-export type EditResultJson = EditJson & { edit?: EditJson };
-
+/** An edit's result: applied (`accepted`) or rejected (`error`). */
+export type EditJson = Schemas['Edit'];
+/** An edit the session has not applied yet (HTTP 202: it is inside a long frame). */
+export type EditPendingJson = Schemas['EditPending'];
+/** GET .../edits/{id}: the Edit itself, or, while it waits, the pending edit (alone or as {edit}). */
+export type EditResultJson = EditJson | EditPendingJson | Schemas['EditPendingResponse'];
 /** An accepted instance edit carries the instance; a pending one (202) does not. */
-export interface InstanceEditResponse {
-  edit: EditJson;
-  instance?: InstanceJson;
-}
+export type InstanceEditResponse = Schemas['InstanceEditResponse'] | Schemas['EditPendingResponse'];
+/** A settings or remove edit: applied, or pending (202). */
+export type EditResponse = Schemas['EditResponse'] | Schemas['EditPendingResponse'];
 
-export interface SceneJson {
-  name?: string;
-  dimension: 2 | 3;
-  particle_radius?: number;
-  domain?: { min: Vec; max: Vec };
-  phases?: { name: string; color?: number[] }[];
-  instances?: InstanceJson[];
-  [key: string]: unknown;
-}
+export type SceneJson = Schemas['Scene'];
 
-export type TransportName = 'play' | 'pause' | 'step' | 'reset' | 'seek' | 'speed';
-
-export interface TransportArgs {
-  frames?: number;
-  frame?: number;
-  speed?: number;
-  /** play: the frame to stop at. */
-  until?: number;
-}
+export type TransportRequest = Schemas['TransportRequest'];
+export type TransportName = TransportRequest['command'];
+export type TransportArgs = Omit<TransportRequest, 'command'>;
 
 /** One parameter's declaration (GET /api/parameters): the server's ParamSpec. */
-export interface ParamSpecJson {
-  name: string;
-  unit: string;
-  min: number;
-  max: number;
-  default: number | boolean;
-  type: 'number' | 'integer' | 'boolean';
-  help: string;
-}
-
-export interface RegisteredPartJson {
-  help: string;
-  params: ParamSpecJson[];
-}
-
-export interface ParametersJson {
-  dimension: 2 | 3;
-  instance: ParamSpecJson[];
-  control: ParamSpecJson[];
-  settings: ParamSpecJson[];
-  solvers: Record<string, RegisteredPartJson>;
-  effects: Record<string, RegisteredPartJson>;
-}
+export type ParamSpecJson = Schemas['ParamSpec'];
+export type RegisteredPartJson = Schemas['RegisteredParts'][string];
+export type ParametersJson = Schemas['Parameters'];
 
 /** GET /api/templates/{name}/preview: one frame's positions, flattened (dimension numbers each). */
-export interface TemplatePreviewJson {
-  name: string;
-  dimension: 2 | 3;
-  frame: number;
-  frames: number;
-  time: number;
-  particles: number;
-  stride: number;
-  region_min: Vec;
-  region_max: Vec;
-  positions: number[];
-}
+export type TemplatePreviewJson = Schemas['TemplatePreview'];
 
 /** PATCH /api/sessions/{id}/settings: merge patches of the scene's objects. */
-export interface SettingsPatch {
-  settings?: Record<string, unknown>;
-  solver?: Record<string, unknown>;
-  control?: Record<string, unknown>;
-}
+export type SettingsPatch = Schemas['SettingsPatch'];
 
-/** One accuracy preset of `flowclip bench accuracy` (GET /api/presets): the scene solver and settings values it sets, with the cost and error measured at that point of the study. */
-export interface AccuracyPresetJson {
-  name: string;
-  description?: string;
-  solver: Record<string, number | string>;
-  settings: Record<string, number>;
-  cost: Record<string, number>;
-  error: Record<string, number>;
-}
+/** GET /api/presets: the accuracy presets of `flowclip bench accuracy`, with their measured cost and error. */
+export type PresetsJson = Schemas['Presets'];
+export type AccuracyPresetJson = Schemas['AccuracyPreset'];
 
-export interface PresetsJson {
-  presets: AccuracyPresetJson[];
-  source: string | null;
-  /** Set when the server has no presets file (its path). */
-  missing?: string;
-}
+export type HealthJson = Schemas['Health'];

@@ -13,7 +13,7 @@ import { SetInstanceTransformCommand } from '../commands/SetInstanceTransformCom
 import { SetInstanceValuesCommand } from '../commands/SetInstanceValuesCommand';
 import { SetSceneSettingsCommand } from '../commands/SetSceneSettingsCommand';
 import { addKeyAt, editTrack, evaluateTrack, keyIndexAt, removeKeyAt, type FullKey } from '../core/TransformTrack';
-import type { AccuracyPresetJson, InstanceJson, ParametersJson, ParamSpecJson, SettingsPatch, TransformKey } from '../net/types';
+import { instanceValue, type AccuracyPresetJson, type InstanceJson, type ParametersJson, type ParamSpecJson, type SettingsPatch, type TransformKey } from '../net/types';
 import { el } from './dom';
 import { checkboxField, formatNumber, numberField, paramField, selectField, type Field } from './fields';
 
@@ -231,7 +231,7 @@ export class Inspector {
     this.keyInfo.dataset['keys'] = String(keys.length);
     this.keyInfo.dataset['here'] = String(at >= 0);
     this.removeKey.disabled = at < 0;
-    for (const key of ['start', 'crop_begin', 'crop_end', 'speed', 'reverse'])
+    for (const key of ['start', 'crop_begin', 'crop_end', 'speed', 'reverse'] as const)
       this.fields.get(key)?.show(key === 'crop_end' && (inst.crop_end === undefined || inst.crop_end < 0) ? null : inst[key]);
     const phases = (e.session?.sceneJson?.phases ?? []).map((p) => p.name);
     const phase = this.fields.get('phase')!;
@@ -239,14 +239,15 @@ export class Inspector {
     if ([...select.options].map((o) => o.value).join('|') !== phases.join('|'))
       select.replaceChildren(...phases.map((n) => el('option', { text: n, attrs: { value: n } })));
     phase.show(inst.phase ?? phases[0] ?? '');
-    for (const [key, f] of this.fields) if (key.startsWith('param.')) f.show(inst[key.slice(6)]);
+    for (const [key, f] of this.fields) if (key.startsWith('param.')) f.show(instanceValue(inst, key.slice(6)));
   }
 
   private setValue(key: string, value: unknown): Promise<void> | void {
     const inst = this.selectedInstance();
     if (!inst) return;
-    if (JSON.stringify(inst[key] ?? null) === JSON.stringify(value)) return;
-    return this.editor.execute(new SetInstanceValuesCommand(this.editor, inst.name, { [key]: value }, { [key]: inst[key] })).then(() => this.update());
+    const old = instanceValue(inst, key);
+    if (JSON.stringify(old ?? null) === JSON.stringify(value)) return;
+    return this.editor.execute(new SetInstanceValuesCommand(this.editor, inst.name, { [key]: value }, { [key]: old })).then(() => this.update());
   }
 
   private editTransform(change: (k: FullKey) => void): Promise<void> | void {

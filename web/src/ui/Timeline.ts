@@ -16,7 +16,7 @@
 // data-testid and read data-* values.
 import './timeline.css';
 import type { Editor } from '../core/Editor';
-import type { InstanceJson, TemplateInfo } from '../net/types';
+import { instanceValue, type InstanceJson, type TemplateInfo } from '../net/types';
 import { SetInstanceValuesCommand, type InstanceValues } from '../commands/SetInstanceValuesCommand';
 import { SetInstanceTransformCommand } from '../commands/SetInstanceTransformCommand';
 import { moveKey } from '../core/TransformTrack';
@@ -267,7 +267,7 @@ export class Timeline {
   /** 0 to the latest of the instances' ends, the simulated time and the scene's duration, plus a margin. */
   private fitView() {
     let end = this.editor.lastFrame() / this.sceneFrameRate();
-    const sceneDuration = this.editor.session?.sceneJson?.['duration'];
+    const sceneDuration = this.editor.session?.sceneJson?.duration;
     if (typeof sceneDuration === 'number' && sceneDuration > 0) end = Math.max(end, sceneDuration);
     for (const inst of this.editor.instances.values()) {
       const t = this.timing(inst);
@@ -358,7 +358,7 @@ export class Timeline {
       if (!timing0 || this.flight) return;
       const dragPart: DragPart = partName === 'left' ? 'left' : partName === 'right' ? 'right' : 'body';
       const old: InstanceValues = {};
-      for (const k of keysOf(dragPart, timing0.reverse)) old[k] = inst[k];
+      for (const k of keysOf(dragPart, timing0.reverse)) old[k] = instanceValue(inst, k);
       this.dom.setPointerCapture(e.pointerId);
       this.drag = {
         kind: 'edit', part: dragPart, instance: inst.name, pointerId: e.pointerId, x0: e.clientX, moved: false,
