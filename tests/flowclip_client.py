@@ -15,9 +15,15 @@ Headless use, e.g. simulate the drop scene for a second and export it::
 
 Three parts:
   FlowClipServer  starts `flowclip serve --port 0 ...` and stops it with SIGINT
-  Client          one method per REST endpoint; errors raise ApiError
+  Client          one method per REST operation; errors raise ApiError
   Stream          the WebSocket: decodes Envelope messages into dicts / numpy
                   arrays and sends Subscribe, Transport and Edit messages
+
+Routes are not written here: each method names its operation of
+proto/openapi.yaml by operationId (`self.op("getSession", id=sid)`), and
+OPERATIONS, read from the spec at import, gives its method and path.
+tests/test_service_openapi.py checks that every operation of the spec has a
+method here and that every operationId named here is in the spec.
 
 The flatbuffers code is generated at build time (`flatc --python`, see
 server/CMakeLists.txt) into BUILD/generated/python, BUILD being the directory
@@ -42,10 +48,23 @@ from urllib.parse import quote
 import flatbuffers
 import numpy as np
 import requests
+import yaml
 from websockets.sync.client import connect
 
 ROOT = Path(__file__).resolve().parent.parent
 FLOWCLIP_BIN = Path(os.environ.get("FLOWCLIP_BIN", ROOT / "build" / "flowclip"))
+OPENAPI_SPEC = ROOT / "proto" / "openapi.yaml"
+HTTP_METHODS = ("get", "put", "post", "delete", "patch", "head", "options")
+
+
+def load_operations(spec_path=OPENAPI_SPEC) -> dict:
+    """operationId -> (METHOD, path template) of every operation of the REST contract."""
+    spec = yaml.load(Path(spec_path).read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+    return {op["operationId"]: (method.upper(), path) for path, item in spec["paths"].items()
+            for method, op in item.items() if method in HTTP_METHODS}
+
+
+OPERATIONS = load_operations()
 
 for _generated in (FLOWCLIP_BIN.parent / "generated" / "python", ROOT / "build" / "generated" / "python"):
     if (_generated / "flowclip" / "wire").is_dir():
@@ -232,7 +251,7 @@ class ApiError(Exception):
 
 
 class Client:
-    """One method per endpoint of proto/openapi.yaml. Methods return the decoded JSON body.
+    """One method per operation of proto/openapi.yaml. Methods return the decoded JSON body.
 
     `observers` are called as observer(method, path_template, response) after every
     request (the tests validate each response against the spec that way).
@@ -270,51 +289,64 @@ class Client:
             return r.json()
         return r.content
 
+    @staticmethod
+    def route(operation_id):
+        """(METHOD, path template) of an operation of proto/openapi.yaml."""
+        try:
+            return OPERATIONS[operation_id]
+        except KeyError:
+            raise KeyError(f"{operation_id!r} is not an operationId of {OPENAPI_SPEC}") from None
+
+    def op(self, operation_id, body=None, **kw):
+        """`call` of the operation named by its operationId; `kw`: path parameters, params, headers."""
+        method, template = self.route(operation_id)
+        return self.call(method, template, body, **kw)
+
     # service, templates, scenes
     def health(self):
-        return self.call("GET", "/api/health")
+        return self.op("health")
 
     def presets(self):
         """The accuracy presets (draft, preview, final) with their measured cost and error."""
-        return self.call("GET", "/api/presets")
+        return self.op("presets")
 
     def parameters(self, dimension=2):
         """Every parameter's declaration (name, unit, min, max, default, type, help)."""
-        return self.call("GET", "/api/parameters", params={"dimension": dimension})
+        return self.op("parameters", params={"dimension": dimension})
 
     def templates(self):
-        return self.call("GET", "/api/templates")["templates"]
+        return self.op("listTemplates")["templates"]
 
     def template(self, name):
-        return self.call("GET", "/api/templates/{name}", name=name)
+        return self.op("getTemplate", name=name)
 
     def template_preview(self, name, frame=None, max_points=None):
         """One frame's positions (flattened, every k-th particle, at most max_points) for a thumbnail."""
         query = {k: v for k, v in (("frame", frame), ("max", max_points)) if v is not None}
-        return self.call("GET", "/api/templates/{name}/preview", name=name, params=query)
+        return self.op("previewTemplate", name=name, params=query)
 
     def delete_template(self, name):
-        return self.call("DELETE", "/api/templates/{name}", name=name)
+        return self.op("deleteTemplate", name=name)
 
     def record_template(self, sid, name, region_min, region_max, first_frame, last_frame, force=False):
         body = {"name": name, "region_min": list(region_min), "region_max": list(region_max),
                 "first_frame": first_frame, "last_frame": last_frame, "force": force}
-        return self.call("POST", "/api/sessions/{id}/templates", body, id=sid)
+        return self.op("recordTemplate", body, id=sid)
 
     # recipes: background recording jobs
     def recipes(self):
         """The recipes the server can record, with their templates and whether each is recorded."""
-        return self.call("GET", "/api/recipes")["recipes"]
+        return self.op("listRecipes")["recipes"]
 
     def record_recipe(self, name, force=None):
         """Starts (or returns the running) recording job of recipe `name`."""
-        return self.call("POST", "/api/recipes/{name}/record", None if force is None else {"force": force}, name=name)
+        return self.op("recordRecipe", None if force is None else {"force": force}, name=name)
 
     def recipe_job(self, job_id):
-        return self.call("GET", "/api/recipes/jobs/{id}", id=job_id)
+        return self.op("getRecipeJob", id=job_id)
 
     def cancel_recipe_job(self, job_id):
-        return self.call("DELETE", "/api/recipes/jobs/{id}", id=job_id)
+        return self.op("cancelRecipeJob", id=job_id)
 
     def wait_recipe_job(self, job_id, until=lambda job: job["state"] in ("done", "failed", "cancelled"),
                         timeout=600.0, poll=0.05):
@@ -330,34 +362,34 @@ class Client:
             time.sleep(poll)
 
     def scenes(self):
-        return self.call("GET", "/api/scenes")["scenes"]
+        return self.op("listScenes")["scenes"]
 
     def scene(self, name):
-        return self.call("GET", "/api/scenes/{name}", name=name)
+        return self.op("getScene", name=name)
 
     def save_scene(self, name, sid, force=False):
-        return self.call("POST", "/api/scenes", {"name": name, "session": sid, "force": force})
+        return self.op("saveScene", {"name": name, "session": sid, "force": force})
 
     # sessions
     def sessions(self):
-        return self.call("GET", "/api/sessions")["sessions"]
+        return self.op("listSessions")["sessions"]
 
     def create_session(self, scene, **options):
         """scene: a scene name or an inline scene object; options: name, history_cap_mb,
         playback_speed, threads."""
-        return self.call("POST", "/api/sessions", {"scene": scene, **options})
+        return self.op("createSession", {"scene": scene, **options})
 
     def session(self, sid):
-        return self.call("GET", "/api/sessions/{id}", id=sid)
+        return self.op("getSession", id=sid)
 
     def delete_session(self, sid):
-        return self.call("DELETE", "/api/sessions/{id}", id=sid)
+        return self.op("deleteSession", id=sid)
 
     def stats(self, sid):
-        return self.call("GET", "/api/sessions/{id}/stats", id=sid)["frames"]
+        return self.op("sessionStats", id=sid)["frames"]
 
     def session_scene(self, sid):
-        return self.call("GET", "/api/sessions/{id}/scene", id=sid)
+        return self.op("sessionScene", id=sid)
 
     def wait_paused(self, sid, timeout=30.0, settle=0.15):
         """Polls the state until the session is paused (or in error) with nothing pending and its
@@ -376,44 +408,44 @@ class Client:
             time.sleep(0.02)
 
     # edits
-    def _edit(self, method, template, body=None, **path):
-        result = self.call(method, template, body, **path)
+    def _edit(self, operation_id, body=None, **path):
+        """An edit operation; a pending answer (202) is polled (getEdit) until the edit is applied."""
+        result = self.op(operation_id, body, **path)
         deadline = time.monotonic() + 60
-        while result["edit"].get("pending"):  # 202: not applied within 10 s
+        while result["edit"].get("pending"):  # 202: not applied within 3 s
             if time.monotonic() > deadline:
                 raise TimeoutError(f"edit {result['edit']['id']} still pending")
             time.sleep(0.1)
-            r = self.request("GET", "/api/sessions/{id}/edits/{edit_id}", id=path["id"],
-                             edit_id=result["edit"]["id"])
+            r = self.request(*self.route("getEdit"), id=path["id"], edit_id=result["edit"]["id"])
             if r.status_code == 200:
                 result = {**result, "edit": r.json()}
         return result
 
     def instances(self, sid):
-        return self.call("GET", "/api/sessions/{id}/instances", id=sid)["instances"]
+        return self.op("listInstances", id=sid)["instances"]
 
     def instance(self, sid, name):
-        return self.call("GET", "/api/sessions/{id}/instances/{name}", id=sid, name=name)
+        return self.op("getInstance", id=sid, name=name)
 
     def add_instance(self, sid, instance):
-        return self._edit("POST", "/api/sessions/{id}/instances", instance, id=sid)
+        return self._edit("addInstance", instance, id=sid)
 
     def update_instance(self, sid, name, patch):
-        return self._edit("PATCH", "/api/sessions/{id}/instances/{name}", patch, id=sid, name=name)
+        return self._edit("updateInstance", patch, id=sid, name=name)
 
     def remove_instance(self, sid, name):
-        return self._edit("DELETE", "/api/sessions/{id}/instances/{name}", id=sid, name=name)
+        return self._edit("removeInstance", id=sid, name=name)
 
     def update_settings(self, sid, settings=None, solver=None, control=None):
         body = {k: v for k, v in (("settings", settings), ("solver", solver), ("control", control)) if v is not None}
-        return self._edit("PATCH", "/api/sessions/{id}/settings", body, id=sid)
+        return self._edit("patchSettings", body, id=sid)
 
     def edit(self, sid, edit_id):
-        return self.call("GET", "/api/sessions/{id}/edits/{edit_id}", id=sid, edit_id=edit_id)
+        return self.op("getEdit", id=sid, edit_id=edit_id)
 
     # transport
     def transport(self, sid, command, **args):
-        return self.call("POST", "/api/sessions/{id}/transport", {"command": command, **args}, id=sid)
+        return self.op("transport", {"command": command, **args}, id=sid)
 
     def play(self, sid, until=None):
         return self.transport(sid, "play", **({} if until is None else {"until": until}))
@@ -437,18 +469,17 @@ class Client:
     def frame(self, sid, n="latest", binary=False):
         """A recorded frame: the REST JSON, or with binary=True the decoded Envelope{Frame}."""
         if binary:
-            return decode(self.call("GET", "/api/sessions/{id}/frames/{frame}", id=sid, frame=n,
-                                    params={"format": "binary"}))
-        return self.call("GET", "/api/sessions/{id}/frames/{frame}", id=sid, frame=n)
+            return decode(self.op("getFrame", id=sid, frame=n, params={"format": "binary"}))
+        return self.op("getFrame", id=sid, frame=n)
 
     def export(self, sid, name, first_frame=None, last_frame=None, force=False):
         body = {"name": name, "force": force}
         body.update({k: v for k, v in (("first_frame", first_frame), ("last_frame", last_frame)) if v is not None})
-        return self.call("POST", "/api/sessions/{id}/export", body, id=sid)
+        return self.op("exportFrames", body, id=sid)
 
     def download(self, file):
         """An exported file's bytes (NAME.h5 or NAME.xdmf)."""
-        return self.call("GET", "/api/exports/{file}", file=file)
+        return self.op("getExport", file=file)
 
 
 # --------------------------------------------------------------- WebSocket ---
@@ -458,7 +489,8 @@ class Stream:
     messages skipped by the wait_* helpers are kept in `skipped`."""
 
     def __init__(self, base_url, sid, token=None, token_as_subprotocol=False, origin=None, timeout=10.0):
-        uri = re.sub(r"^http", "ws", base_url.rstrip("/")) + f"/api/sessions/{quote(sid, safe='')}/stream"
+        path = Client.route("stream")[1].format(id=quote(sid, safe=""))
+        uri = re.sub(r"^http", "ws", base_url.rstrip("/")) + path
         headers, protocols = {}, None
         if token is not None and token_as_subprotocol:
             protocols = [f"flowclip-token.{token}"]

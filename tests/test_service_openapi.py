@@ -1,14 +1,86 @@
 """proto/openapi.yaml against the server: a scripted tour of every endpoint, each response validated
 against the spec's schema for its operation and status; every operation of the spec is exercised.
-(Every other service test validates its responses the same way, through the `client` fixture.)"""
+(Every other service test validates its responses the same way, through the `client` fixture.)
+
+And against its consumers, without a server: the route table of server/service/rest_api.cpp holds
+exactly the spec's operations, the Python client has a method for each operation and names no
+other, and the shipped scene files are Scenes of the spec. (The editor's consumer check is its type
+check: web/src/net is typed from the spec, so `make web` fails on a renamed field or route.)"""
 
 from __future__ import annotations
 
+import ast
+import json
+import re
+
 import pytest
 
-from flowclip_client import ApiError, FlowClipServer, decode
+from flowclip_client import OPERATIONS, ROOT, ApiError, Client, FlowClipServer, Stream, decode
 from openapi_check import OpenApiChecker
 from service_helpers import drop_scene_without_instances
+
+# Operations served outside rest_api.cpp's table: the WebSocket upgrade (service/http_server.cpp).
+NOT_IN_ROUTE_TABLE = {"stream"}
+
+
+def _shape(path):
+    """"/api/sessions/{id}/edits/{edit}" -> "/api/sessions/{}/edits/{}": parameter names may differ."""
+    return re.sub(r"\{[^}]*\}", "{}", path)
+
+
+def test_server_route_table_is_the_spec():
+    source = (ROOT / "server" / "service" / "rest_api.cpp").read_text()
+    table = re.search(r"ServiceHub::routes\(\) \{(.*?)\n\}", source, re.S)
+    assert table, "ServiceHub::routes() not found in server/service/rest_api.cpp"
+    routes = re.findall(r'\{\s*"([A-Z]+)",\s*"([^"]+)",\s*&ServiceHub::\w+\s*\}', table.group(1))
+    assert len(routes) >= 20, f"the route table's entries did not parse: {routes}"
+    served = {(method, _shape(path)) for method, path in routes}
+    assert len(served) == len(routes), "a route is in the table twice"
+    spec = {(method, _shape(path)) for op, (method, path) in OPERATIONS.items() if op not in NOT_IN_ROUTE_TABLE}
+    assert not served - spec, f"routes of rest_api.cpp missing from proto/openapi.yaml: {sorted(served - spec)}"
+    assert not spec - served, f"operations of proto/openapi.yaml rest_api.cpp does not route: {sorted(spec - served)}"
+    (_, stream) = OPERATIONS["stream"]
+    assert stream.endswith("/stream") and '"/stream"' in (ROOT / "server" / "service" / "http_server.cpp").read_text()
+
+
+def _operations_named_by_the_client():
+    """operationIds the client's source names: op("X"), _edit("X"), route("X")."""
+    tree = ast.parse((ROOT / "tests" / "flowclip_client.py").read_text())
+    named = {}
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                and node.func.attr in ("op", "_edit", "route") and node.args
+                and isinstance(node.args[0], ast.Constant) and isinstance(node.args[0].value, str)):
+            named.setdefault(node.args[0].value, node.lineno)
+    return named
+
+
+def test_python_client_has_a_method_per_operation():
+    named = _operations_named_by_the_client()
+    unknown = {op: line for op, line in named.items() if op not in OPERATIONS}
+    assert not unknown, f"tests/flowclip_client.py names operationIds proto/openapi.yaml lacks (line): {unknown}"
+    missing = sorted(set(OPERATIONS) - set(named))
+    assert not missing, f"operations of proto/openapi.yaml without a method in tests/flowclip_client.py: {missing}"
+    # Routes come from the spec: no path literal in the client's methods.
+    for cls in (Client, Stream):
+        for name, member in vars(cls).items():
+            code = getattr(member, "__code__", None) or getattr(getattr(member, "__func__", None), "__code__", None)
+            literals = [c for c in (code.co_consts if code else ()) if isinstance(c, str) and c.startswith("/api/")]
+            assert not literals, f"{cls.__name__}.{name} writes a route by hand: {literals}"
+
+
+def test_operation_ids_are_unique():
+    spec = OpenApiChecker().spec
+    ids = [op["operationId"] for item in spec["paths"].values() for m, op in item.items() if m != "parameters"]
+    assert len(ids) == len(set(ids)) == len(OPERATIONS)
+
+
+def test_shipped_scenes_are_scenes_of_the_spec(openapi):
+    validator = openapi._validator("/components/schemas/Scene")
+    scenes = sorted((ROOT / "scenes").rglob("*.json"))
+    assert scenes
+    for path in scenes:
+        validator.validate(json.loads(path.read_text()))
 
 
 def test_spec_is_a_valid_openapi_document(openapi):
