@@ -1,6 +1,8 @@
 """Smoke test of the edit-and-see benchmark (tools/bench_cache.py, `make bench-cache`): its quick
-run writes a report whose figures are all there, finite and positive, and in which the late edit
-re-simulates fewer frames with checkpoints than without (it restarts from a later frame)."""
+run writes a report whose figures are all there, finite and positive, in which every edit
+re-simulates from the checkpoint just before its first changed frame (dense checkpoints, the
+default) or from the every-K one before it (sparse), and the late edit re-simulates fewer frames
+with checkpoints than without (it restarts from a later frame)."""
 
 from __future__ import annotations
 
@@ -47,18 +49,19 @@ def test_quick_benchmark_report(tmp_path):
         assert key in markdown
         assert scene["scene"]["dimension"] == (3 if key.endswith("3d") else 2)
         assert positive(scene["mean_frame_ms"])
-        ck = scene["checkpoints"]
-        for figure in ("stored_bytes", "raw_bytes", "stored_bytes_per_particle", "raw_bytes_per_particle",
-                       "fluid_particles_mean", "compression_ratio"):
-            assert positive(ck[figure]), (key, figure, ck[figure])
-        assert ck["raw_bytes"] >= ck["stored_bytes"]
-        assert ck["count"] == frames // every
-        assert positive(ck["save_ms"]["median"]) and positive(ck["restore_ms"]["median"])
+        for kind, count in (("checkpoints", frames), ("sparse_checkpoints", frames // every)):
+            ck = scene[kind]
+            for figure in ("stored_bytes", "raw_bytes", "stored_bytes_per_particle", "raw_bytes_per_particle",
+                           "fluid_particles_mean", "compression_ratio"):
+                assert positive(ck[figure]), (key, kind, figure, ck[figure])
+            assert ck["raw_bytes"] >= ck["stored_bytes"]
+            assert ck["count"] == count, (key, kind, ck["frames"])
+            assert positive(ck["save_ms"]["median"]) and positive(ck["restore_ms"]["median"])
 
         assert [e["label"] for e in scene["edits"]] == ["start", "middle", "end"]
         for e in scene["edits"]:
             assert 0 <= e["edit_frame"] <= frames
-            for mode in ("checkpoints", "no_checkpoints"):
+            for mode in ("checkpoints", "sparse", "no_checkpoints"):
                 m = e[mode]
                 for figure in ("first_updated_frame_ms", "done_ms"):
                     assert positive(m[figure]["median"]), (key, e["label"], mode, figure)
@@ -66,7 +69,9 @@ def test_quick_benchmark_report(tmp_path):
                 assert m["to"] == frames and 0 <= m["from"] < max(e["edit_frame"], 1)
                 assert m["frames_simulated"] == m["to"] - m["from"] > 0
             assert e["no_checkpoints"]["from"] == 0, "without checkpoints every edit re-simulates from frame 0"
-            assert e["checkpoints"]["from"] == (e["edit_frame"] - 1) // every * every, \
+            assert e["checkpoints"]["from"] == max(e["edit_frame"] - 1, 0), \
+                "with dense checkpoints the re-simulation restarts from the frame before the first changed one"
+            assert e["sparse"]["from"] == (e["edit_frame"] - 1) // every * every, \
                 "the re-simulation restarts from the newest checkpoint before the first changed frame"
 
         # The late edit: checkpoints make it re-simulate fewer frames than a run from frame 0.

@@ -4,11 +4,13 @@ changes, how long the session takes to re-simulate the frames the edit made stal
 checkpoints behind that cost in memory and time.
 
 For each scene (drop2d, 2D, and a 3D tank with an instance of a template recorded here from a
-coarse 3D dam break) two identical sessions are simulated for --seconds, paused, each with a live
-stream subscribed: one with checkpoints every K frames (--checkpoint-every, default 10), one
-without (checkpoint_every=0: every edit re-simulates from frame 0). Then, for an edit at the
-start, the middle and the end of that stretch (t = 0, seconds/2, seconds - 0.05), the instance's
-transform track is changed from time t on, first on one session, then on the other, and each is
+coarse 3D dam break) three identical sessions are simulated for --seconds, paused, each with a
+live stream subscribed: the default (a checkpoint every K frames, --checkpoint-every, default 10,
+and dense: every frame in between too, memory allowing), sparse (every K frames only,
+checkpoint_dense=false) and none (checkpoint_every=0: every edit re-simulates from frame 0).
+Then, for an edit at the start, the middle and the end of that stretch (t = 0, seconds/2,
+seconds - 0.05), the instance's transform track is changed from time t on, on each session in
+turn, and each is
 put back to the original scene (the same edit undone) before the next edit, so that the edits are
 comparable. Each edit measures:
 
@@ -22,7 +24,7 @@ and the checkpoints' stored and raw bytes per fluid particle, save and restore m
 reports them. Targets (checked against the session's mean frame compute time, stats wall_ms):
 
   first frame   the first updated frame reaches the viewer within one frame's compute time
-                + 100 ms (with checkpoints)
+                + 100 ms (the default checkpoints)
   late edit     the edit at the end re-simulates at most K frames plus the frames from its first
                 changed frame on (in frames; and in time, at the mean frame time + 100 ms)
 
@@ -133,6 +135,11 @@ class Viewer:
         self.stream.close()
 
 
+def cache_stale(m) -> bool:
+    c = (m.get("state") or {}).get("cache") or {}
+    return m["type"] == "state" and bool(c.get("stale"))
+
+
 def cache_done(m) -> bool:
     c = (m.get("state") or {}).get("cache") or {}
     return m["type"] == "state" and "stale" in c and not c["stale"] and c.get("simulating") is None
@@ -210,9 +217,9 @@ class Bench:
     def __init__(self, server, api, threads):
         self.server, self.api, self.threads = server, api, threads
 
-    def start(self, scene, every, frames, label):
+    def start(self, scene, every, frames, label, dense=True):
         api = self.api
-        sid = api.create_session(scene, threads=self.threads, checkpoint_every=every)["id"]
+        sid = api.create_session(scene, threads=self.threads, checkpoint_every=every, checkpoint_dense=dense)["id"]
         viewer = Viewer(self.server, sid)
         t0 = time.monotonic()
         api.step(sid, frames)
@@ -244,7 +251,11 @@ class Bench:
         first = edit["frame"]
         i_first, t_first, _ = viewer.wait_for(
             mark, lambda m: m["type"] == "frame" and m["frame"] >= first, what=f"frame >= {first}")
-        i_done, t_done, done_msg = viewer.wait_for(i_first, cache_done, what="state with the cache valid")
+        # Frames and states travel separately: the final state may come before the last frames.
+        # The edit's own state (stale frames) first, then the first one with none.
+        i_stale, _, _ = viewer.wait_for(mark, cache_stale, what="state with stale frames")
+        i_done, t_done, done_msg = viewer.wait_for(i_stale, cache_done, what="state with the cache valid")
+        i_done = max(i_done, i_first)
         st = settled(api, sid)
         seen = viewer.between(mark, i_done + 1)
         running = [m["state"]["cache"]["simulating"] for _, m in seen
@@ -274,7 +285,7 @@ class Bench:
         }
 
 
-def checkpoint_figures(sess, every) -> dict:
+def checkpoint_figures(sess, every, dense) -> dict:
     st = sess["state"]
     cache = st["cache"]
     by_frame = {f["frame"]: f for f in sess["stats"]}
@@ -283,7 +294,7 @@ def checkpoint_figures(sess, every) -> dict:
     count = len(cache["checkpoints"])
     mean_fluid = statistics.mean(fluid) if fluid else None
     per = (lambda b: b / count / mean_fluid) if count and mean_fluid else (lambda b: None)
-    return {"every": every, "count": count, "frames": cache["checkpoints"],
+    return {"every": every, "dense": dense, "count": count, "frames": cache["checkpoints"],
             "stored_bytes": cache["checkpoint_bytes"], "raw_bytes": cache.get("checkpoint_raw_bytes"),
             "memory_checkpoint_bytes": st["memory"].get("checkpoint_bytes"),
             "history_bytes": st["memory"]["history_bytes"],
@@ -303,46 +314,50 @@ def run_scene(bench, key, scene, args, frames, extra=None) -> dict:
     k0 = {"time": 0.0, **inst["transform"][0]}
     original = [k0]
     delta = args.delta
-    log(f"[{key}] {dim}D, {frames} frames, threads={args.threads}: two sessions "
-        f"(checkpoint_every={args.checkpoint_every} and 0)")
-    ck = bench.start(scene, args.checkpoint_every, frames, f"checkpoint_every={args.checkpoint_every}")
+    K = args.checkpoint_every
+    log(f"[{key}] {dim}D, {frames} frames, threads={args.threads}: three sessions "
+        f"(checkpoint_every={K} dense, {K} sparse, and 0)")
+    ck = bench.start(scene, K, frames, f"checkpoint_every={K}, dense")
+    sparse = bench.start(scene, K, frames, f"checkpoint_every={K}, sparse", dense=False)
     nock = bench.start(scene, 0, frames, "checkpoint_every=0")
+    sessions = (("checkpoints", ck), ("sparse", sparse), ("no_checkpoints", nock))
+    mode_label = {"checkpoints": f"K={K}+dense", "sparse": f"K={K}", "no_checkpoints": "K=0"}
     seconds = frames / FRAME_RATE
     edit_times = [("start", 0.0), ("middle", round(seconds / 2, 4)), ("end", round(seconds - 0.05, 4))]
-    results = {label: {"time": t, "checkpoints": [], "no_checkpoints": []} for label, t in edit_times}
-    restore_ms, save_ms = [ck["state"]["cache"]["checkpoint_save_ms"]], []
+    results = {label: {"time": t, **{mode: [] for mode, _ in sessions}} for label, t in edit_times}
+    restore_ms = {"checkpoints": [], "sparse": []}
+    save_ms = {mode: [sess["state"]["cache"]["checkpoint_save_ms"]] for mode, sess in sessions[:2]}
     for rep in range(args.repeat):
         for label, t in edit_times:
             keys = edit_keys(k0, t, dim, delta)
-            for mode, sess in (("checkpoints", ck), ("no_checkpoints", nock)):
+            for mode, sess in sessions:
                 r = bench.edit(sess, name, keys)
                 results[label][mode].append(r)
-                if mode == "checkpoints":
+                if mode in restore_ms:
                     if r["from"]:
-                        restore_ms.append(r["restore_ms"])
-                    save_ms.append(r["save_ms"])
-                log(f"  edit at {t:.2f} s ({label}, frame {r['edit_frame']}), "
-                    f"{'K=' + str(args.checkpoint_every) if mode == 'checkpoints' else 'K=0 '}, "
+                        restore_ms[mode].append(r["restore_ms"])
+                    save_ms[mode].append(r["save_ms"])
+                log(f"  edit at {t:.2f} s ({label}, frame {r['edit_frame']}), {mode_label[mode]}, "
                     f"rep {rep + 1}/{args.repeat}: first updated frame {r['first_updated_frame_ms']:.0f} ms, "
                     f"done {r['done_ms'] / 1e3:.2f} s, re-simulated {r['from']}..{r['to']} "
                     f"({r['frames_simulated']} frames)  [load {loadavg()}]")
                 back = bench.edit(sess, name, original)  # undo: the original scene again
-                if mode == "checkpoints" and back["from"]:
-                    restore_ms.append(back["restore_ms"])
+                if mode in restore_ms and back["from"]:
+                    restore_ms[mode].append(back["restore_ms"])
                 if back["final_frame"] != frames:
                     raise RuntimeError(f"session at frame {back['final_frame']} after the undo")
     mean_ms = ck["mean_frame_ms"]
-    K = args.checkpoint_every
     edits = []
     for label, t in edit_times:
-        rc, r0 = results[label]["checkpoints"], results[label]["no_checkpoints"]
+        rc = results[label]["checkpoints"]
         first_frame = rc[0]["edit_frame"]
         fields = ("first_updated_frame_ms", "done_ms", "answer_ms", "resim_mean_frame_ms")
         expected = frame_of(max(t, inst.get("start", 0.0)))
         e = {"label": label, "time": t, "edit_frame": first_frame, "expected_frame": expected,
              "answered_earlier_than_expected": first_frame < expected,
              "keys": edit_keys(k0, t, dim, delta)}
-        for mode, rs in (("checkpoints", rc), ("no_checkpoints", r0)):
+        for mode, _ in sessions:
+            rs = results[label][mode]
             e[mode] = {f: summary(r[f] for r in rs) for f in fields}
             e[mode].update({f: rs[0][f] for f in ("from", "to", "frames_simulated", "frames_before_first_updated")})
             e[mode]["updated_frames_streamed"] = summary(r["updated_frames_streamed"] for r in rs)
@@ -378,10 +393,12 @@ def run_scene(bench, key, scene, args, frames, extra=None) -> dict:
                   "particles": ck["state"]["particles"], "frames": frames},
         "initial": {mode: {"simulate_s": s["simulate_s"], "mean_frame_ms": s["mean_frame_ms"],
                            "median_frame_ms": s["median_frame_ms"]}
-                    for mode, s in (("checkpoints", ck), ("no_checkpoints", nock))},
+                    for mode, s in sessions},
         "mean_frame_ms": mean_ms,
-        "checkpoints": {**checkpoint_figures(ck, K), "save_ms": summary(save_ms),
-                        "restore_ms": summary(restore_ms)},
+        "checkpoints": {**checkpoint_figures(ck, K, True), "save_ms": summary(save_ms["checkpoints"]),
+                        "restore_ms": summary(restore_ms["checkpoints"])},
+        "sparse_checkpoints": {**checkpoint_figures(sparse, K, False), "save_ms": summary(save_ms["sparse"]),
+                               "restore_ms": summary(restore_ms["sparse"])},
         "edits": edits,
         "edits_answered_earlier_than_expected": [e["label"] for e in edits if e["answered_earlier_than_expected"]],
         "targets": {"first_frame": {"met": all(e["first_frame_target"]["met"] for e in edits),
@@ -390,7 +407,7 @@ def run_scene(bench, key, scene, args, frames, extra=None) -> dict:
     }
     if extra:
         out.update(extra)
-    for sess in (ck, nock):
+    for _, sess in sessions:
         sess["viewer"].close()
         api.delete_session(sess["sid"])
     return out
@@ -463,8 +480,9 @@ def markdown(report) -> str:
         report["command"],
         "```",
         "",
-        f"Each scene: {s['frames']} frames ({s['seconds']:g} s) simulated in two identical sessions, paused, "
-        f"each with a live stream subscribed: one with a checkpoint every {K} frames, one without "
+        f"Each scene: {s['frames']} frames ({s['seconds']:g} s) simulated in three identical sessions, paused, "
+        f"each with a live stream subscribed: the default (a checkpoint every {K} frames and, dense, every frame "
+        f"in between as memory allows), sparse (every {K} frames only, `checkpoint_dense: false`) and none "
         f"(`checkpoint_every: 0`, every edit re-simulates from frame 0). Each edit changes the instance's "
         f"transform track from time t on (at t = 0 the first key moves {s['delta_m']} m along x; later, "
         f"the key is repeated at t and moved {s['delta_m']} m at t + 0.05 s) and is undone before the next "
@@ -481,7 +499,7 @@ def markdown(report) -> str:
         "Targets:",
         "",
         f"- **first frame**: the first updated frame within one frame's compute time + "
-        f"{FIRST_FRAME_ALLOWANCE_MS:.0f} ms (with checkpoints).",
+        f"{FIRST_FRAME_ALLOWANCE_MS:.0f} ms (the default checkpoints).",
         f"- **late edit**: the edit at the end re-simulates at most K = {K} frames plus the frames from "
         f"its first changed frame on; in time, at most those frames at the mean frame compute time + "
         f"{FIRST_FRAME_ALLOWANCE_MS:.0f} ms.",
@@ -522,14 +540,16 @@ def markdown(report) -> str:
         lines += [desc, ""]
         ini = sc["initial"]
         lines += [f"First run: {fmt(ini['checkpoints']['simulate_s'], 1)} s for {scn['frames']} frames with "
-                  f"checkpoints, {fmt(ini['no_checkpoints']['simulate_s'], 1)} s without; frame compute time "
-                  f"{fmt(sc['mean_frame_ms'], 1)} ms (mean; median {fmt(ini['checkpoints']['median_frame_ms'], 1)} ms).",
+                  f"dense checkpoints, {fmt(ini['sparse']['simulate_s'], 1)} s with sparse ones, "
+                  f"{fmt(ini['no_checkpoints']['simulate_s'], 1)} s without; frame compute time "
+                  f"{fmt(sc['mean_frame_ms'], 1)} ms (mean; median {fmt(ini['checkpoints']['median_frame_ms'], 1)} ms), "
+                  f"plus {rng(sc['checkpoints']['save_ms'], 2)} ms a frame to save its checkpoint when dense.",
                   ""]
         lines += ["| edit at | first changed frame | K | re-simulated | first updated frame ms | done ms "
                   "| frames to simulate before it | beyond those at the mean frame time, ms | first frame target |",
                   "|---|---|---|---|---|---|---|---|---|"]
         for e in sc["edits"]:
-            for mode, kk in (("checkpoints", K), ("no_checkpoints", 0)):
+            for mode, kk in (("checkpoints", f"{K} + dense"), ("sparse", K), ("no_checkpoints", 0)):
                 m = e[mode]
                 tgt = ""
                 beyond = ""
@@ -555,9 +575,28 @@ def markdown(report) -> str:
                   f"budget is K + {lt['frames_after']} = {lt['budget_frames']} frames: {yes(lt['frames_met'])}. "
                   f"In time: done in {fmt(lt['done_ms'])} ms (without checkpoints {fmt(lt['done_ms_without_checkpoints'])} ms) "
                   f"against {fmt(lt['budget_ms'])} ms: {yes(lt['time_met'])}.", ""]
-        ck = sc["checkpoints"]
-        lines += ["| checkpoints | |", "|---|---|",
-                  f"| every | {ck['every']} frames ({ck['count']} held: {ck['frames']}) |",
+        for ck in (sc["checkpoints"], sc["sparse_checkpoints"]):
+            lines += checkpoint_table(ck)
+    lines += [f"Whole run: {fmt(report['run_s'], 0)} s. Figures in [cache.json](cache.json).", ""]
+    return "\n".join(lines)
+
+
+def held(frames: list) -> str:
+    """Frame numbers as ranges: [1, 2, 3, 10] -> "1–3, 10"."""
+    out, i = [], 0
+    while i < len(frames):
+        j = i
+        while j + 1 < len(frames) and frames[j + 1] == frames[j] + 1:
+            j += 1
+        out.append(str(frames[i]) if i == j else f"{frames[i]}–{frames[j]}")
+        i = j + 1
+    return ", ".join(out)
+
+
+def checkpoint_table(ck) -> list:
+    kind = f"every {ck['every']} frames" + (" and every frame in between (dense)" if ck["dense"] else " (sparse)")
+    return ["| checkpoints, " + kind + " | |", "|---|---|",
+                  f"| held | {ck['count']}: {held(ck['frames'])} |",
                   f"| stored (compressed) | {fmt(ck['stored_bytes'] / 2**20, 2)} MB, "
                   f"**{fmt(ck['stored_bytes_per_particle'], 1)} bytes per fluid particle** |",
                   f"| raw | {fmt(ck['raw_bytes'] / 2**20, 2)} MB, {fmt(ck['raw_bytes_per_particle'], 1)} bytes per "
@@ -568,8 +607,6 @@ def markdown(report) -> str:
                   f"| save ms (`checkpoint_save_ms`) | {rng(ck['save_ms'], 2)} |",
                   f"| restore ms (`checkpoint_restore_ms`) | {rng(ck['restore_ms'], 2)} |",
                   ""]
-    lines += [f"Whole run: {fmt(report['run_s'], 0)} s. Figures in [cache.json](cache.json).", ""]
-    return "\n".join(lines)
 
 
 # ------------------------------------------------------------------ main ---
