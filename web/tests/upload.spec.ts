@@ -8,7 +8,7 @@
 // toggled. Then: colours reused frame to frame equal colours looked up anew,
 // a repeated frame uploads positions only, and an empty layer uploads nothing.
 import { expect, test } from '@playwright/test';
-import { openEditor, readNumber } from './helpers';
+import { getJson, openEditor, readNumber } from './helpers';
 
 test('GPU buffers equal the decoded particles after every render; only changed data is uploaded', async ({ page }) => {
   const errors = await openEditor(page);
@@ -91,6 +91,16 @@ test('GPU buffers equal the decoded particles after every render; only changed d
   // (Playback may already have stopped at the scene's end: pause through the hub either way.)
   await page.evaluate(() => (window as any).flowclip.editor.pause());
   await expect(page.getByTestId('session-status')).toHaveAttribute('data-value', 'paused');
+  // Where playback stopped depends on the machine's speed: show a recorded
+  // frame that has temporary particles (the drop instance's) for the check.
+  const sid = await page.evaluate(() => (window as any).flowclip.editor.session.id as string);
+  const stats = await getJson(page.request, new URL(`/api/sessions/${sid}/stats`, page.url()).href);
+  const withTemporary = (stats.frames as { frame: number; temporary_particles?: number }[])
+    .filter((s) => (s.temporary_particles ?? 0) > 0);
+  expect(withTemporary.length, 'no recorded frame has temporary particles').toBeGreaterThan(0);
+  const shown = withTemporary[withTemporary.length - 1]!.frame;
+  await page.evaluate((n) => (window as any).flowclip.editor.setPlayhead(n), shown);
+  await expect(frame).toHaveAttribute('data-value', String(shown));
   await page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
 
   const r = await page.evaluate(async () => {
