@@ -7,7 +7,7 @@ cd "$(dirname "$0")/.."
 
 APT_PACKAGES=(build-essential cmake ninja-build pkg-config libeigen3-dev libhdf5-dev
   libflatbuffers-dev flatbuffers-compiler libboost-dev nlohmann-json3-dev
-  libgtest-dev libbenchmark-dev libcli11-dev chromium python3-venv
+  libgtest-dev libcli11-dev chromium python3-venv
   clang libclang-rt-14-dev libomp-14-dev)
 # clang, libclang-rt-14-dev (libFuzzer, ASan and UBSan runtimes) and
 # libomp-14-dev (clang's OpenMP) build the fuzz targets (docs/fuzzing.md).
@@ -16,7 +16,7 @@ APT_PACKAGES=(build-essential cmake ninja-build pkg-config libeigen3-dev libhdf5
 if [ -n "${FLOWCLIP_HEADLESS:-}" ]; then
   APT_PACKAGES=(build-essential cmake ninja-build pkg-config libeigen3-dev libhdf5-dev
     libflatbuffers-dev flatbuffers-compiler libboost-dev nlohmann-json3-dev
-    libgtest-dev libbenchmark-dev libcli11-dev)
+    libgtest-dev libcli11-dev)
 fi
 
 missing=()
