@@ -6,9 +6,9 @@
 #include "io/obj_mesh.h"
 #include "io/template_database.h"
 
-#include "sph/emitters.h"
+#include "sph/emitters/nozzle.h"
 #include "sph/pipeline.h"
-#include "sph/sampling.h"
+#include "sph/sampling/lattice.h"
 #include "sph/limits.h"
 #include "sph/settings.h"
 

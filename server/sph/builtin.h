@@ -1,6 +1,8 @@
 #pragma once
 // Factories of the built-in solvers and effects; sph/registry.cpp puts them
-// in the registries. Each is defined in the file named after its method.
+// in the registries. Each is defined in the file named after its method, in
+// the folder of its family: sph/pressure/dfsph.cpp, sph/viscosity/xsph.cpp,
+// sph/surface_tension/akinci2013.cpp.
 #include "sph/pipeline.h"
 
 namespace fc {

@@ -1,7 +1,8 @@
 #include "sph/simulation.h"
 
-#include "sph/emitters.h"
-#include "sph/sampling.h"
+#include "sph/emitters/nozzle.h"
+#include "sph/sampling/boundary.h"
+#include "sph/sampling/lattice.h"
 #include "sph/settings.h"
 #include <omp.h>
 #include <algorithm>

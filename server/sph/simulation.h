@@ -5,7 +5,7 @@
 #include "core/neighborhood_search.h"
 #include "sph/particles.h"
 #include "sph/pipeline.h"
-#include "sph/rigid_bodies.h"
+#include "sph/bodies/rigid_bodies.h"
 #include "sph/setup.h"
 #include <array>
 #include <atomic>
@@ -29,7 +29,7 @@ struct InstanceFrameStats {
   size_t repulsionParticles = 0; // its repulsion layer's particles (0 when repulsion is off)
 };
 
-// A body's state at the end of a frame (sph/rigid_bodies.h).
+// A body's state at the end of a frame (sph/bodies/rigid_bodies.h).
 struct BodyFrameStats {
   std::string name;
   std::array<double, 3> position{};     // m, centre

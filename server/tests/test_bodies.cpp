@@ -1,4 +1,4 @@
-// Moving bodies (sph/rigid_bodies.h): a body of half the liquid's density
+// Moving bodies (sph/bodies/rigid_bodies.h): a body of half the liquid's density
 // floats about half submerged; a dropped body does not tunnel through the
 // floor; a kinematic blade turns the liquid its way; a scene without bodies
 // has no body stage; bad body input is a SceneError naming the key.

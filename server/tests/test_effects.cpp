@@ -293,7 +293,7 @@ const json kSmallSteps = {{"dt_max", 0.0005}};
 // viscosity effect (same phase viscosity, effect not named) the vortex keeps
 // its energy: the decay comes from the effect, and an effect the scene does
 // not name does nothing. Accuracy of the standard operator with two particle
-// spacings per support radius (see viscosity_standard.cpp): measured 1.15x
+// spacings per support radius (see sph/viscosity/standard.cpp): measured 1.15x
 // the analytic rate over the first 0.1 s, 1.30x over 0.05-0.35 s as the
 // particle arrangement loses its lattice order; bounds 25 % and 40 %.
 TEST(EffectsViscosity, TaylorGreenDecayRate) {
@@ -338,7 +338,7 @@ TEST(EffectsViscosity, TaylorGreenDecayScalesWithViscosity) {
 // approximates nu ∇²v = -2 nu k^2 v. Measured as Σ a·v / Σ (-2 nu k^2) v·v
 // over particles at least 2 support radii from every wall (full kernel
 // support), and over all particles: 1.31 and 1.26 (the coarse-lattice
-// anisotropy documented in viscosity_standard.cpp), bound 35 %. It must
+// anisotropy documented in sph/viscosity/standard.cpp), bound 35 %. It must
 // dissipate (Σ m a·v < 0), conserve momentum in the interior, and leave a
 // rigid rotation untouched.
 TEST(EffectsViscosity, StandardOperatorMatchesLaplacianOnLattice) {

@@ -1,8 +1,8 @@
-// Emitters (sph/emitters.cpp): an inflow delivers liquid at its nozzle's
+// Emitters (sph/emitters/nozzle.cpp): an inflow delivers liquid at its nozzle's
 // rate and rest density, opens and closes with its window, never stacks
 // particles, and a honey jet buckles where a water jet does not.
 #include "io/scene.h"
-#include "sph/emitters.h"
+#include "sph/emitters/nozzle.h"
 #include "sph/simulation.h"
 
 #include <gtest/gtest.h>

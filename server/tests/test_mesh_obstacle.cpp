@@ -5,7 +5,7 @@
 #include "io/obj_mesh.h"
 #include "io/scene.h"
 #include "physics_checks.h"
-#include "sph/sampling.h"
+#include "sph/sampling/boundary.h"
 #include "sph/simulation.h"
 
 #include <gtest/gtest.h>

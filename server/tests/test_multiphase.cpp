@@ -285,7 +285,7 @@ TEST(Multiphase, LightPhaseUnderHeavyRises) {
   // Full inversion: the two centres trade places (measured: exactly).
   EXPECT_GT(s.comY[0] - s.comY[1], 0.8 * (start.comY[1] - start.comY[0]));
   // No energy from nowhere: the liquid as a whole only sinks as it overturns
-  // (the warm-started density solve launched it by 0.1 m, see dfsph.cpp).
+  // (the warm-started density solve launched it by 0.1 m, see sph/pressure/dfsph.cpp).
   EXPECT_LT(highestTotal - startTotal, 2 * r) << "rise of the liquid's centre of mass, m";
   // Bounded density error: the solver's average at exit near its tolerance
   // (0.05 %; the first frame starts from zero pressure), every particle

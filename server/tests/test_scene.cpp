@@ -3,7 +3,7 @@
 #include "io/scene.h"
 #include "sph/limits.h"
 #include "sph/pipeline.h"
-#include "sph/sampling.h"
+#include "sph/sampling/lattice.h"
 #include "sph/settings.h"
 
 #include <gtest/gtest.h>

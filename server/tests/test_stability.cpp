@@ -11,7 +11,7 @@
 #include "control/control.h"
 #include "io/recipe.h"
 #include "io/scene.h"
-#include "sph/sampling.h"
+#include "sph/sampling/lattice.h"
 #include "sph/simulation.h"
 #include "tests/physics_checks.h"
 

@@ -1,7 +1,7 @@
-#include "sph/rigid_bodies.h"
+#include "sph/bodies/rigid_bodies.h"
 
 #include "core/transform.h"
-#include "sph/sampling.h"
+#include "sph/sampling/boundary.h"
 #include "sph/simulation.h"
 #include "core/neighborhood_search.h"
 #include <omp.h>

@@ -42,7 +42,7 @@
 //
 // Accuracy: the spatial operator is the paper's, and with the project's two
 // particle spacings per support radius it is anisotropic (see
-// viscosity_standard.cpp and docs/physics/viscosity.md): on the resting lattice it gives
+// standard.cpp and docs/physics/viscosity.md): on the resting lattice it gives
 // 0.65× ν∂²u/∂y² for a shear flow u(y), 1.09× for the longitudinal part;
 // plane Poiseuille flow comes out with ν_eff = 0.72 ν.
 // Equation numbers of [WKBB18] are not cited: the text of the paper was not

@@ -1,4 +1,4 @@
-#include "sph/emitters.h"
+#include "sph/emitters/nozzle.h"
 
 #include "sph/simulation.h"
 

@@ -7,7 +7,7 @@
 // gives 0.65x ν∇²v for v = (y², 0) but 1.09x for v = (x², 0) (whose
 // continuum answer includes 2∇(∇·v)), and a Taylor-Green vortex decays about
 // 1.2x faster than ν predicts. A single calibration factor cannot fix that;
-// the implicit viscosity solver (viscosity_weiler2018.cpp) is the accurate one.
+// the implicit viscosity solver (weiler2018.cpp) is the accurate one.
 #include "sph/builtin.h"
 #include <algorithm>
 #include <cmath>

@@ -1,6 +1,5 @@
 #pragma once
-// Regular particle sampling shared by the simulation and by scene validation
-// (which must count particles before creating them).
+// Boundary sampling of solid surfaces (walls, obstacles, bodies).
 #include "core/aabb.h"
 #include "core/mesh_sdf.h"
 #include <algorithm>
@@ -11,44 +10,6 @@
 
 namespace fc {
 
-// Points of a lattice with the given spacing filling box, inset by half a
-// spacing from each face (so a block touching a wall starts one particle
-// radius away from it).
-template <int D>
-VecI<D> latticeDims(const AABB<D>& box, Real spacing) {
-  VecI<D> n;
-  for (int d = 0; d < D; ++d)
-    n[d] = std::max(0, int(std::floor(box.size()[d] / spacing + Real(1e-4))));
-  return n;
-}
-
-template <int D>
-size_t latticeCount(const AABB<D>& box, Real spacing) {
-  if (box.empty()) return 0;
-  const VecI<D> n = latticeDims(box, spacing);
-  size_t c = 1;
-  for (int d = 0; d < D; ++d) c *= size_t(n[d]);
-  return c;
-}
-
-template <int D, class F>
-void forEachLatticePoint(const AABB<D>& box, Real spacing, F&& f) {
-  if (box.empty()) return;
-  const VecI<D> n = latticeDims(box, spacing);
-  // Centre the lattice in the box.
-  Vec<D> origin;
-  for (int d = 0; d < D; ++d) origin[d] = box.min[d] + Real(0.5) * (box.size()[d] - (n[d] - 1) * spacing);
-  VecI<D> i = VecI<D>::Zero();
-  if ((n.array() <= 0).any()) return;
-  while (true) {
-    f(Vec<D>(origin + spacing * i.template cast<Real>()));
-    int d = 0;
-    while (d < D && ++i[d] == n[d]) i[d++] = 0;
-    if (d == D) break;
-  }
-}
-
-// Boundary sampling of solid surfaces (walls, obstacles, bodies).
 // Per-axis coordinates of a box shell lattice: the two faces, evenly spaced
 // points between them (spacing close to `spacing`, faces hit exactly), and
 // `extra` further layers beyond each face.
@@ -118,7 +79,7 @@ void sampleSphereShell(const Vec<D>& c, Real radius, Real spacing, int layers, s
 // Boundary samples of a closed triangle mesh, `layers` deep, as a box is
 // sampled: layer l on the surface offset `radius + l·spacing` into the solid
 // (one particle radius behind the surface, where the fluid lattice would
-// continue, then a spacing deeper per layer). sph/mesh_sampling.cpp says how.
+// continue, then a spacing deeper per layer). sph/sampling/mesh_boundary.cpp says how.
 // Returns the lattice points examined.
 size_t sampleMeshShell(const MeshSdf& mesh, Real radius, Real spacing, int layers, std::vector<Vec3>& out);
 

@@ -1,4 +1,4 @@
-// Boundary sampling of mesh obstacles (declared in sph/sampling.h).
+// Boundary sampling of mesh obstacles (declared in sph/sampling/boundary.h).
 //
 // Layer l lies on the offset surface at depth t = r + l·s inside the solid
 // (s = 2r), as for box obstacles: one particle radius behind the surface,
@@ -32,7 +32,7 @@
 // Cost: one exact distance query (a BVH descent) per lattice point within
 // two grid cells of a layer, a few per projected point; linear in the
 // surface area over s².
-#include "sph/sampling.h"
+#include "sph/sampling/boundary.h"
 
 #include <omp.h>
 
