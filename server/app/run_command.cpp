@@ -1,7 +1,6 @@
 // `flowclip run SCENE.json`: simulate a scene headless, with a progress line,
 // optional HDF5 export of every frame and a JSON stats file.
 #include "app/commands.h"
-#include "io/staged_files.h"
 #include "io/frame_export.h"
 #include "io/instance_binding.h"
 #include "io/scene.h"
@@ -21,6 +20,8 @@
 #include <vector>
 
 namespace fc::app {
+
+using namespace fc::cli;
 
 namespace {
 
@@ -253,11 +254,6 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
 }
 
 }  // namespace
-
-void writeJsonAtomically(const std::string& path, const nlohmann::json& j) {
-  // Hidden staging name and fsync (io/staged_files.h): a crash leaves the old file or the new one.
-  publishFile(path, j.dump(1, ' ', false, nlohmann::json::error_handler_t::replace) + "\n", true);
-}
 
 void addRunCommand(CLI::App& app) {
   auto opt = std::make_shared<RunOptions>();

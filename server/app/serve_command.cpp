@@ -14,6 +14,8 @@
 
 namespace fc::app {
 
+using namespace fc::cli;
+
 namespace {
 
 namespace fs = std::filesystem;

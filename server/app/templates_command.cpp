@@ -16,6 +16,8 @@
 
 namespace fc::app {
 
+using namespace fc::cli;
+
 namespace {
 
 struct RecordCliOptions {

@@ -1,9 +1,9 @@
-// What `flowclip bench accuracy` measures (io/accuracy_metrics.h): the
+// What `flowclip bench accuracy` measures (bench/accuracy_metrics.h): the
 // Martin & Moyce reference as committed, the surge front and compression of
 // exported frames, the RMS against the reference, Pareto fronts and the
 // preset rule.
-#include "io/accuracy_metrics.h"
-#include "io/exported_frames.h"
+#include "bench/accuracy_metrics.h"
+#include "bench/exported_frames.h"
 #include "io/frame_export.h"
 #include "tests/hdf5_test_util.h"
 

@@ -3,7 +3,10 @@
 // evaluated once per frame (the paper) and at every substep
 // (control.forces_every_substep). Each run is a child `flowclip run --stats`
 // process, so that peak RSS is that run's alone.
-#include "app/commands.h"
+#include "bench/commands.h"
+#include "cli/exit_codes.h"
+#include "cli/json_file.h"
+#include "cli/process.h"
 #include "io/scene.h"
 #include "io/template_database.h"
 #include <nlohmann/json.hpp>
@@ -20,7 +23,9 @@
 #include <string>
 #include <vector>
 
-namespace fc::app {
+namespace fc::bench {
+
+using namespace fc::cli;
 
 namespace {
 
@@ -462,4 +467,4 @@ void addBenchControlCommand(CLI::App& bench) {
   });
 }
 
-}  // namespace fc::app
+}  // namespace fc::bench

@@ -7,7 +7,9 @@
 // publishes two prepared 100k-particle frames alternately as fast as the
 // streams take them, so the figures are the network path's (encode, write,
 // loopback, client read), not the solver's.
-#include "app/commands.h"
+#include "bench/commands.h"
+#include "cli/exit_codes.h"
+#include "cli/process.h"
 #include "io/scene.h"
 #include "sph/simulation.h"
 #include "service/http_server.h"
@@ -30,7 +32,9 @@
 #include <random>
 #include <thread>
 
-namespace fc::app {
+namespace fc::bench {
+
+using namespace fc::cli;
 
 namespace {
 
@@ -388,4 +392,4 @@ void addBenchServiceCommand(CLI::App& bench) {
   });
 }
 
-}  // namespace fc::app
+}  // namespace fc::bench

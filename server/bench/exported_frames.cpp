@@ -1,4 +1,4 @@
-#include "io/exported_frames.h"
+#include "bench/exported_frames.h"
 
 #include "io/hdf5_util.h"
 

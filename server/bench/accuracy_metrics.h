@@ -3,7 +3,7 @@
 // (docs/benchmarks/accuracy.md): the liquid's surge front, compression and volume per exported
 // frame, the surge front against Martin & Moyce (1952), and the Pareto front
 // and presets of a set of (cost, error) points.
-#include "io/exported_frames.h"
+#include "bench/exported_frames.h"
 #include <string>
 #include <vector>
 

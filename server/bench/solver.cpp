@@ -1,36 +1,25 @@
-// `flowclip bench solver`: each (scene, solver) pair runs in its own child
-// process (`flowclip run --stats`), so that peak RSS is that run's alone.
-// `flowclip bench templates`: the template database. `bench control` lives in
-// bench_control.cpp, `bench accuracy` in bench_accuracy.cpp.
-#include "app/commands.h"
-#include "io/template_database.h"
-#include "io/template_file.h"
+// `flowclip bench solver`: the pressure solvers on the reference dam breaks
+// (scenes/bench). Each (scene, solver) pair runs in its own child process
+// (`flowclip run --stats`), so that peak RSS is that run's alone.
+#include "bench/commands.h"
+#include "cli/exit_codes.h"
+#include "cli/json_file.h"
+#include "cli/process.h"
 #include <nlohmann/json.hpp>
-#include <sys/wait.h>
 #include <unistd.h>
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <memory>
 #include <sstream>
+#include <string>
 #include <vector>
 
-namespace fc::app {
+namespace fc::bench {
 
-int runChild(const std::vector<std::string>& args) {
-  const pid_t pid = fork();
-  if (pid < 0) return -1;
-  if (pid == 0) {
-    std::vector<char*> argv;
-    for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
-    argv.push_back(nullptr);
-    execv(argv[0], argv.data());
-    _exit(127);
-  }
-  int status = 0;
-  waitpid(pid, &status, 0);
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
+using namespace fc::cli;
 
 namespace {
 
@@ -151,53 +140,11 @@ int benchSolver(const BenchOptions& opt) {
   return worst;
 }
 
-// One template: storage on disk, load (read + decode) and repulsion-layer
-// time per million particle-frames, memory once loaded.
-template <int D>
-void benchTemplate(TemplateDatabase& db, const TemplateEntry& e) {
-  const TemplateFileStats st = templateFileStats(db.pathFor(e.name));
-  auto lt = db.load<D>(e.name);
-  const double mpf = double(lt->accel.particleFrames()) / 1e6;
-  const double particlesMb = double(TemplateAccel<D>::templateBytes(lt->templ())) / 1e6;
-  const double accelMb = double(lt->accel.memoryBytes()) / 1e6;
-  const double repulsionAvg =
-      lt->accel.frames.empty() ? 0.0 : double(lt->accel.repulsionParticleFrames()) / double(lt->accel.frames.size());
-  std::printf("%-14s %3d %7zu %10.1f %10.1f %10.2f %12.3f %12.3f %10.1f %10.1f\n", e.name.c_str(), D, st.frames,
-              st.avgParticles, repulsionAvg, st.bytesPerParticleFrame, mpf > 0 ? lt->readSeconds / mpf : 0.0,
-              mpf > 0 ? lt->buildSeconds / mpf : 0.0, particlesMb + accelMb,
-              mpf > 0 ? (particlesMb + accelMb) / mpf : 0.0);
-  std::fflush(stdout);
-}
-
-int benchTemplates(const std::string& dir) {
-  TemplateDatabase db(dir);
-  const auto entries = db.list();
-  if (entries.empty()) {
-    std::fprintf(stderr, "error: no templates in '%s' (make templates records the 2D ones)\n", db.directory().c_str());
-    return BadInput;
-  }
-  std::printf("%-14s %3s %7s %10s %10s %10s %12s %12s %10s %10s\n", "template", "dim", "frames", "particles",
-              "repulsion", "B/p-frame", "read s/Mpf", "layer s/Mpf", "memory MB", "MB/Mpf");
-  int worst = Ok;
-  for (const auto& e : entries) {
-    if (!e.error.empty()) {
-      std::printf("%-14s unreadable: %s\n", e.name.c_str(), e.error.c_str());
-      worst = Failure;
-      continue;
-    }
-    if (e.dimension == 2) benchTemplate<2>(db, e);
-    else benchTemplate<3>(db, e);
-  }
-  return worst;
-}
-
 }  // namespace
 
-void addBenchCommand(CLI::App& app) {
-  CLI::App* bench = app.add_subcommand("bench", "benchmarks that print their figures");
-  bench->require_subcommand(1);
+void addBenchSolverCommand(CLI::App& bench) {
   auto opt = std::make_shared<BenchOptions>();
-  CLI::App* solver = bench->add_subcommand("solver", "pressure solvers on the reference dam breaks (scenes/bench)");
+  CLI::App* solver = bench.add_subcommand("solver", "pressure solvers on the reference dam breaks (scenes/bench)");
   solver->add_option("--scenes", opt->scenes, "scene files (default: scenes/bench/*.json)")->delimiter(',');
   solver->add_option("--solvers", opt->solvers, "solvers to compare")->delimiter(',');
   solver->add_option("--seconds", opt->seconds, "simulated seconds per run")->check(CLI::PositiveNumber);
@@ -207,26 +154,6 @@ void addBenchCommand(CLI::App& app) {
     const int code = benchSolver(*opt);
     if (code != Ok) throw ExitCode(code);
   });
-
-  auto templatesDir = std::make_shared<std::string>("templates");
-  CLI::App* tpl = bench->add_subcommand(
-      "templates", "every template of the database: bytes per particle-frame, load and repulsion-layer time, memory");
-  tpl->add_option("--templates", *templatesDir, "template directory (default: templates)");
-  tpl->callback([templatesDir] {
-    int code = Ok;
-    try {
-      code = benchTemplates(*templatesDir);
-    } catch (const std::exception& e) {
-      std::fprintf(stderr, "error: %s\n", e.what());
-      code = Failure;
-    }
-    if (code != Ok) throw ExitCode(code);
-  });
-
-  addBenchControlCommand(*bench);
-  addBenchServiceCommand(*bench);
-  addBenchScenesCommand(*bench);
-  addBenchAccuracyCommand(*bench);
 }
 
-}  // namespace fc::app
+}  // namespace fc::bench

@@ -15,10 +15,13 @@
 //     where an instance plays.
 // Writes accuracy.csv, accuracy.md, surge_fronts.csv, presets.json and the
 // plots (tools/plot_accuracy.py).
-#include "app/commands.h"
+#include "bench/accuracy_metrics.h"
+#include "bench/commands.h"
+#include "bench/exported_frames.h"
+#include "cli/exit_codes.h"
+#include "cli/json_file.h"
+#include "cli/process.h"
 #include "control/instance.h"
-#include "io/accuracy_metrics.h"
-#include "io/exported_frames.h"
 #include "io/scene.h"
 #include "sph/builtin.h"
 #include "sph/settings.h"
@@ -38,7 +41,9 @@
 #include <sstream>
 #include <thread>
 
-namespace fc::app {
+namespace fc::bench {
+
+using namespace fc::cli;
 
 namespace {
 
@@ -922,4 +927,4 @@ void addBenchAccuracyCommand(CLI::App& bench) {
   });
 }
 
-}  // namespace fc::app
+}  // namespace fc::bench

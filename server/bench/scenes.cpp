@@ -5,7 +5,10 @@
 // repulsion and temporary particles per frame (over the frames with an
 // active instance), simulation and control ms per frame, control share,
 // memory and template storage.
-#include "app/commands.h"
+#include "bench/commands.h"
+#include "cli/exit_codes.h"
+#include "cli/json_file.h"
+#include "cli/process.h"
 #include "io/scene.h"
 #include "io/template_database.h"
 #include <nlohmann/json.hpp>
@@ -16,7 +19,9 @@
 #include <map>
 #include <set>
 
-namespace fc::app {
+namespace fc::bench {
+
+using namespace fc::cli;
 
 namespace {
 
@@ -196,4 +201,4 @@ void addBenchScenesCommand(CLI::App& bench) {
   });
 }
 
-}  // namespace fc::app
+}  // namespace fc::bench

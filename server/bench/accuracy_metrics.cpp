@@ -1,4 +1,4 @@
-#include "io/accuracy_metrics.h"
+#include "bench/accuracy_metrics.h"
 
 #include "sph/phase.h"
 
