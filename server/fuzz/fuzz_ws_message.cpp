@@ -11,12 +11,13 @@
 // Every message the server would send back must pass the server's own
 // verifier and carry valid UTF-8 (clients decode flatbuffers strings as
 // UTF-8). The same bytes also go through the client-side frame decoder
-// (wire::decodeFrame, used by tests and tools), whose documented failure is
+// (wire::decodeFrame, tests/support/frame_decoding.h), whose documented failure is
 // std::invalid_argument.
 #include "fuzz_support.h"
 #include "service/frame_encoding.h"
 #include "service/rest_api.h"
 #include "service/session.h"
+#include "tests/support/frame_decoding.h"
 
 #include <cmath>
 #include <cstdint>

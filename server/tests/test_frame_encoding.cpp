@@ -4,6 +4,7 @@
 // malformed buffers without crashing, client messages parse or fail with a
 // message naming the field.
 #include "service/frame_encoding.h"
+#include "tests/support/frame_decoding.h"
 
 #include "control/control.h"
 #include "sph/simulation.h"

@@ -7,6 +7,7 @@
 #include "service/frame_encoding.h"
 #include "control/instance.h"
 #include "tests/hdf5_test_util.h"
+#include "tests/support/frame_decoding.h"
 #include "tests/test_fixtures.h"
 
 #include <gtest/gtest.h>
