@@ -1,8 +1,10 @@
 // One simulation session: see session.h. Long because SessionImpl's thread
 // owns the simulation and every transition of its state (transport, edits,
-// re-simulation, history) happens under one lock in one place; checkpoints
-// (checkpoints.h), edit scopes (edit_scope.h) and exports (history_export.h)
-// live in their own files.
+// re-simulation, history) happens under one lock in one place. What does not
+// need that lock lives in its own file: recorded frames (frame_snapshot.h),
+// edit parsing (edit.h), edit scopes (edit_scope.h), checkpoints
+// (checkpoints.h), layers of recorded frames (replay_layers.h) and exports
+// (history_export.h).
 #include "service/session.h"
 
 #include "control/control.h"
@@ -12,6 +14,7 @@
 #include "service/replay_layers.h"
 #include "service/edit_scope.h"
 #include "service/history_export.h"
+#include "service/history_template.h"
 #include "sph/state_archive.h"
 
 #include <omp.h>
@@ -31,42 +34,6 @@ namespace fc::service {
 
 using nlohmann::json;
 
-// ---------------------------------------------------------------- snapshots ---
-
-namespace {
-// libstdc++ keeps strings of up to 15 characters inside the object.
-size_t heapBytes(const std::string& s) { return s.capacity() > 15 ? s.capacity() + 1 : 0; }
-// make_shared's control block next to the object.
-constexpr size_t kSharedOverhead = 16;
-}  // namespace
-
-size_t FrameSnapshot::bytes() const {
-  size_t b = sizeof(FrameSnapshot) + kSharedOverhead;
-  b += (positions.capacity() + velocities.capacity()) * sizeof(uint16_t) + kind.capacity() + phase.capacity();
-  b += stats.instances.capacity() * sizeof(InstanceFrameStats);
-  for (const auto& i : stats.instances) b += heapBytes(i.name);
-  b += instances.capacity() * sizeof(InstanceSnapshot);
-  for (const auto& i : instances) b += heapBytes(i.name) + heapBytes(i.templateName);
-  return b;
-}
-
-size_t FrameSnapshot::estimateBytes(int dimension, size_t particles, size_t instances) {
-  return sizeof(FrameSnapshot) + kSharedOverhead + particles * (2 * size_t(dimension) * sizeof(uint16_t) + 2) +
-         instances * (sizeof(InstanceFrameStats) + sizeof(InstanceSnapshot));
-}
-
-// -------------------------------------------------------------------- edits ---
-
-const char* editKindName(EditKind kind) {
-  switch (kind) {
-    case EditKind::AddInstance: return "add_instance";
-    case EditKind::UpdateInstance: return "update_instance";
-    case EditKind::RemoveInstance: return "remove_instance";
-    case EditKind::Settings: return "settings";
-  }
-  return "?";
-}
-
 const char* statusName(SessionStatus status) {
   switch (status) {
     case SessionStatus::Paused: return "paused";
@@ -75,72 +42,6 @@ const char* statusName(SessionStatus status) {
     case SessionStatus::Error: return "error";
   }
   return "?";
-}
-
-namespace {
-const std::vector<std::string> kSettingsKeys = {"settings", "solver", "control"};
-
-std::string joined(const std::vector<std::string>& v) {
-  std::string s;
-  for (const auto& x : v) s += (s.empty() ? "" : ", ") + x;
-  return s;
-}
-
-void onlyKeys(const json& j, const std::vector<std::string>& allowed, const std::string& type) {
-  for (const auto& [k, v] : j.items())
-    if (std::find(allowed.begin(), allowed.end(), k) == allowed.end())
-      throw SceneError(k, "unknown key for a " + type + " edit (accepted: " + joined(allowed) + ")");
-}
-
-const json& requiredMember(const json& j, const std::string& key, json::value_t type, const std::string& what) {
-  auto it = j.find(key);
-  if (it == j.end()) throw SceneError(key, "required: " + what);
-  if (it->type() != type)
-    throw SceneError(key, std::string("must be ") + (type == json::value_t::object ? "an object" : "a string") +
-                              ", got " + it->type_name());
-  return *it;
-}
-}  // namespace
-
-Edit Edit::fromJson(const json& j) {
-  if (!j.is_object()) throw SceneError("", std::string("an edit must be a JSON object, got ") + j.type_name());
-  const std::string kinds = "add_instance, update_instance, remove_instance or settings";
-  const std::string type = requiredMember(j, "type", json::value_t::string, kinds).get<std::string>();
-  Edit e;
-  if (type == "add_instance") {
-    onlyKeys(j, {"type", "instance"}, type);
-    e.kind = EditKind::AddInstance;
-    e.payload = requiredMember(j, "instance", json::value_t::object, "the instance object");
-  } else if (type == "update_instance") {
-    onlyKeys(j, {"type", "name", "patch"}, type);
-    e.kind = EditKind::UpdateInstance;
-    e.instance = requiredMember(j, "name", json::value_t::string, "the instance's name").get<std::string>();
-    e.payload = requiredMember(j, "patch", json::value_t::object, "a JSON merge patch of the instance");
-  } else if (type == "remove_instance") {
-    onlyKeys(j, {"type", "name"}, type);
-    e.kind = EditKind::RemoveInstance;
-    e.instance = requiredMember(j, "name", json::value_t::string, "the instance's name").get<std::string>();
-  } else if (type == "settings") {
-    onlyKeys(j, {"type", "settings", "solver", "control"}, type);
-    e.kind = EditKind::Settings;
-    e.payload = json::object();
-    for (const auto& k : kSettingsKeys)
-      if (j.contains(k)) e.payload[k] = requiredMember(j, k, json::value_t::object, "");
-    if (e.payload.empty()) throw SceneError("", "a settings edit needs at least one of " + joined(kSettingsKeys));
-  } else {
-    throw SceneError("type", "unknown edit type '" + type + "' (expected " + kinds + ")");
-  }
-  return e;
-}
-
-json EditResult::toJson() const {
-  json j = {{"id", id}, {"type", editKindName(kind)}, {"accepted", accepted}};
-  if (!instance.empty()) j["instance"] = instance;
-  if (accepted)
-    j["frame"] = frame;
-  else
-    j["error"] = {{"path", path}, {"message", message}};
-  return j;
 }
 
 // ------------------------------------------------------------------ session ---
@@ -397,29 +298,9 @@ class SessionImpl final : public Session {
   TemplateEntry recordTemplate(TemplateDatabase& db, const std::string& name, const std::vector<double>& regionMin,
                                const std::vector<double>& regionMax, int firstFrame, int lastFrame,
                                bool force) const override {
-    checkTemplateName(name);
-    for (const auto* r : {&regionMin, &regionMax}) {
-      const char* key = r == &regionMin ? "region_min" : "region_max";
-      if (r->size() != size_t(D))
-        throw std::invalid_argument(std::string(key) + " must have " + std::to_string(D) + " values (dimension " +
-                                    std::to_string(D) + "), got " + std::to_string(r->size()));
-      for (int d = 0; d < D; ++d)
-        if (!std::isfinite((*r)[size_t(d)]))
-          throw std::invalid_argument(std::string(key) + "[" + std::to_string(d) + "] must be finite");
-    }
-    for (int d = 0; d < D; ++d)
-      if (!(regionMin[size_t(d)] < regionMax[size_t(d)]))
-        throw std::invalid_argument("region_max[" + std::to_string(d) + "] must be greater than region_min[" +
-                                    std::to_string(d) + "]");
-    if (firstFrame > lastFrame)
-      throw std::invalid_argument("the first frame (" + std::to_string(firstFrame) + ") is after the last frame (" +
-                                  std::to_string(lastFrame) + ")");
-    if (!force && db.contains(name))
-      throw DatabaseError("template '" + name + "' already exists ('" + db.pathFor(name) +
-                          "'); use force to overwrite it");
-
+    checkTemplateRequest(D, db, name, regionMin, regionMax, firstFrame, lastFrame, force);
     std::vector<FramePtr> frames;
-    SceneInfo info;
+    RecordedScene info;
     std::string recipe;
     {
       std::lock_guard lk(mutex_);
@@ -434,34 +315,8 @@ class SessionImpl final : public Session {
       info = info_;
       recipe = sceneShared_.dump();
     }
-    // A frame-rate edit in or after the range: the frames are not 1/frameRate apart.
-    const double dt = 1 / info.frameRate;
-    for (size_t k = 1; k < frames.size(); ++k)
-      if (std::abs(frames[k]->time - frames[k - 1]->time - dt) > 1e-3 * dt)
-        throw std::invalid_argument("frames " + std::to_string(firstFrame) + " to " + std::to_string(lastFrame) +
-                                    " were not all recorded at the scene's frame rate (" +
-                                    std::to_string(info.frameRate) + " frames/s): a settings edit changed it");
-
-    Template<D> tpl;
-    TemplateHeader& h = tpl.header;
-    h.name = name;
-    h.dimension = D;
-    h.frameRate = info.frameRate;
-    h.particleRadius = info.particleRadius;
-    h.supportRadius = info.supportRadius;
-    h.restDensity = double(info.phases.at(0).restDensity);  // as the recipe capture
-    h.regionMin = regionMin;
-    h.regionMax = regionMax;
-    h.recipe = std::move(recipe);
-    h.createdBy = createdBy();
-    captureFrames(frames, regionMin, regionMax, info.phaseMass, tpl.frames);
-    size_t captured = 0;
-    for (const auto& f : tpl.frames) captured += f.size();
-    if (captured == 0)
-      throw std::invalid_argument("no liquid particle lies in the region (region_min, region_max) in frames " +
-                                  std::to_string(firstFrame) + " to " + std::to_string(lastFrame));
-    publishTemplate<D>(db.directory(), tpl, force, "force");
-    return db.entry(name);
+    return recordTemplateFromFrames<D>(db, name, regionMin, regionMax, frames, info, std::move(recipe), createdBy(),
+                                       force);
   }
 
   json sceneJson() const override {
@@ -544,140 +399,7 @@ class SessionImpl final : public Session {
                                   std::to_string(history_.back()->frame) + " are kept";
   }
 
-  // One template frame per history frame: the liquid particles (Liquid and
-  // Temporary) whose dequantized position lies in the closed box [lo, hi].
-  // Frames in parallel; counted first so that nothing allocates in a
-  // parallel region.
-  static void captureFrames(const std::vector<FramePtr>& frames, const std::vector<double>& lo,
-                            const std::vector<double>& hi, const std::vector<Real>& phaseMass,
-                            std::vector<TemplateFrame<D>>& out) {
-    const long nf = long(frames.size());
-    auto inside = [&](const FrameSnapshot& f, size_t i) {
-      if (f.kind[i] != uint8_t(ParticleKind::Liquid) && f.kind[i] != uint8_t(ParticleKind::Temporary)) return false;
-      for (int d = 0; d < D; ++d) {
-        const double x = f.position(i, d);
-        if (x < lo[size_t(d)] || x > hi[size_t(d)]) return false;
-      }
-      return true;
-    };
-    std::vector<size_t> counts(size_t(nf), 0);
-#pragma omp parallel for schedule(dynamic, 1)
-    for (long k = 0; k < nf; ++k) {
-      const FrameSnapshot& f = *frames[size_t(k)];
-      size_t c = 0;
-      for (size_t i = 0; i < f.particles(); ++i) c += inside(f, i);
-      counts[size_t(k)] = c;
-    }
-    out.assign(size_t(nf), TemplateFrame<D>{});
-    for (long k = 0; k < nf; ++k) {
-      TemplateFrame<D>& t = out[size_t(k)];
-      t.x.resize(counts[size_t(k)]);
-      t.v.resize(counts[size_t(k)]);
-      t.mass.resize(counts[size_t(k)]);
-      t.phase.resize(counts[size_t(k)]);
-    }
-    const size_t phases = phaseMass.size();
-#pragma omp parallel for schedule(dynamic, 1)
-    for (long k = 0; k < nf; ++k) {
-      const FrameSnapshot& f = *frames[size_t(k)];
-      TemplateFrame<D>& t = out[size_t(k)];
-      size_t j = 0;
-      for (size_t i = 0; i < f.particles(); ++i) {
-        if (!inside(f, i)) continue;
-        for (int d = 0; d < D; ++d) {
-          t.x[j][d] = Real(f.position(i, d));
-          t.v[j][d] = Real(f.velocity(i, d));
-        }
-        t.phase[j] = f.phase[i];
-        t.mass[j] = f.phase[i] < phases ? phaseMass[f.phase[i]] : Real(0);
-        ++j;
-      }
-    }
-  }
-
-  FramePtr makeSnapshot(const FrameStats& fs) const {
-    auto s = std::make_shared<FrameSnapshot>();
-    s->dimension = D;
-    s->frame = fs.frame;
-    s->time = fs.time;
-    for (int d = 0; d < D; ++d) {
-      s->domainMin[size_t(d)] = double(setup_.domain.min[d]);
-      s->domainMax[size_t(d)] = double(setup_.domain.max[d]);
-    }
-    const auto& f = sim_->fluid;
-    const long n = long(f.size());
-    s->positions.resize(size_t(n) * D);
-    std::array<double, D> lo, scale;
-    for (int d = 0; d < D; ++d) {
-      lo[size_t(d)] = s->domainMin[size_t(d)];
-      scale[size_t(d)] = FrameSnapshot::kQuantizationLevels / (s->domainMax[size_t(d)] - s->domainMin[size_t(d)]);
-    }
-    uint16_t* q = s->positions.data();
-#pragma omp parallel for schedule(static) if (n >= 16384)
-    for (long i = 0; i < n; ++i)
-      for (int d = 0; d < D; ++d) {
-        const double v = (double(f.x[size_t(i)][d]) - lo[size_t(d)]) * scale[size_t(d)];
-        q[size_t(i) * D + size_t(d)] = uint16_t(std::lround(std::clamp(v, 0.0, FrameSnapshot::kQuantizationLevels)));
-      }
-    // Velocities: the frame's largest |v| per axis is the box (see FrameSnapshot).
-    double vmax[D] = {};
-#pragma omp parallel for schedule(static) reduction(max : vmax[:D]) if (n >= 16384)
-    for (long i = 0; i < n; ++i)
-      for (int d = 0; d < D; ++d) vmax[d] = std::max(vmax[d], std::abs(double(f.v[size_t(i)][d])));
-    double vscale[D];
-    for (int d = 0; d < D; ++d) {
-      s->velocityMax[size_t(d)] = vmax[d];
-      vscale[d] = vmax[d] > 0 ? 1 / vmax[d] : 0;  // an axis at rest: every value 32768
-    }
-    s->velocities.resize(size_t(n) * D);
-    uint16_t* qv = s->velocities.data();
-#pragma omp parallel for schedule(static) if (n >= 16384)
-    for (long i = 0; i < n; ++i)
-      for (int d = 0; d < D; ++d) {
-        const double u = (double(f.v[size_t(i)][d]) * vscale[d] + 1) * 0.5 * FrameSnapshot::kQuantizationLevels;
-        qv[size_t(i) * D + size_t(d)] = uint16_t(std::lround(std::clamp(u, 0.0, FrameSnapshot::kQuantizationLevels)));
-      }
-    s->kind = f.kind;
-    s->phase = f.phase;
-    s->stats = fs;
-    s->instances.reserve(bound_.size());
-    const bool fromStats = fs.instances.size() == bound_.size();
-    for (size_t i = 0; i < bound_.size(); ++i) {
-      const BoundInstance<D>& b = bound_[i];
-      const Template<D>& tpl = b.templ();
-      InstanceSnapshot is;
-      is.name = b.spec.name;
-      is.templateName = b.spec.templateName;
-      is.phase = b.spec.phase;
-      if (fromStats) {
-        is.active = fs.instances[i].active;
-        is.templateFrame = fs.instances[i].templateFrame;
-        is.fidelity = fs.instances[i].fidelity;
-      } else {
-        is.active = b.spec.time.active(fs.time, tpl.duration());
-        is.templateFrame = is.active ? int(b.spec.time.frameAt(fs.time, tpl.header.frameRate, tpl.frameCount())) : -1;
-      }
-      Eigen::Matrix<double, D, D> m;
-      Eigen::Matrix<double, D, 1> t;
-      b.spec.transform.evaluate(fs.time, m, t);
-      const Eigen::Matrix<double, D, 1> c = b.centre().template cast<double>();
-      t -= m * c;
-      for (int k = 0; k < 4; ++k) is.toWorld[size_t(k * 5)] = 1;
-      for (int col = 0; col < D; ++col) {
-        for (int row = 0; row < D; ++row) is.toWorld[size_t(col * 4 + row)] = m(row, col);
-        is.toWorld[size_t(12 + col)] = t[col];
-      }
-      const AABB<D> region = tpl.region();
-      for (int d = 0; d < D; ++d) {
-        is.regionMin[size_t(d)] = double(region.min[d]);
-        is.regionMax[size_t(d)] = double(region.max[d]);
-      }
-      is.falloffWidth = b.spec.params.get("falloff_width");
-      s->instances.push_back(std::move(is));
-    }
-    s->byteSize = s->bytes();
-    return s;
-  }
+  FramePtr makeSnapshot(const FrameStats& fs) const { return snapshotOf<D>(*sim_, setup_.domain, bound_, fs); }
 
   FrameStats initialStats() const {
     FrameStats fs;
@@ -904,8 +626,8 @@ class SessionImpl final : public Session {
     if (fs.finite) {
       snap = makeSnapshot(fs);
       encodeLayers(fs);
-      if (checkpoints_.due(fs.frame)) saveCheckpoint(fs.frame);
     }
+    const bool save = fs.finite && !fs.cancelled && checkpoints_.due(fs.frame);
     lk.lock();
     computing_ = false;
     bool frameChanged = false, stateChanged = false;
@@ -928,7 +650,6 @@ class SessionImpl final : public Session {
       // the same: the recorded snapshots stay (no viewer sees a change).
       const FramePtr kept = resim && fs.frame < staleFrom_ ? findFrame(fs.frame) : nullptr;
       if (kept) snap = kept;
-      publishCheckpointsLocked();
       live_ = snap;
       storeLocked(snap);
       publishCountsLocked();
@@ -958,13 +679,21 @@ class SessionImpl final : public Session {
         }
       }
     }
-    if (!frameChanged && !stateChanged) {
+    if (!frameChanged && !stateChanged && !save) {
       idleCv_.notify_all();
       return;
     }
     notifying_ = true;  // idle only once the listeners have heard of it
     lk.unlock();
     if (frameChanged) notifyFrame();
+    // After the frame went out (its latency does not include the save), before
+    // the state that lists the checkpoints.
+    if (save) {
+      saveCheckpoint(fs.frame);
+      std::lock_guard g(mutex_);
+      publishCheckpointsLocked();
+      fitMemoryLocked();
+    }
     if (stateChanged) notifyState();
     lk.lock();
     notifying_ = false;
@@ -1277,7 +1006,7 @@ class SessionImpl final : public Session {
       names.push_back(control_.instances[i].name);
     }
     throw SceneError("name", "no instance named '" + name + "' (the scene has " +
-                                 (names.empty() ? std::string("none") : joined(names)) + ")");
+                                 (names.empty() ? std::string("none") : joinedNames(names)) + ")");
   }
 
   // Validates fully, then applies; throws (changing nothing) when invalid.
@@ -1345,8 +1074,8 @@ class SessionImpl final : public Session {
       throw SceneError("", std::string("a settings edit must be an object, got ") + payload.type_name());
     json candidate = scene_;
     for (const auto& [k, v] : payload.items()) {
-      if (std::find(kSettingsKeys.begin(), kSettingsKeys.end(), k) == kSettingsKeys.end())
-        throw SceneError(k, "cannot be changed by a settings edit (it may change " + joined(kSettingsKeys) + ")");
+      if (std::find(settingsEditKeys().begin(), settingsEditKeys().end(), k) == settingsEditKeys().end())
+        throw SceneError(k, "cannot be changed by a settings edit (it may change " + joinedNames(settingsEditKeys()) + ")");
       if (!v.is_object())
         throw SceneError(k, std::string("must be an object (a merge patch of the scene's \"") + k + "\"), got " +
                                 v.type_name());
@@ -1618,13 +1347,7 @@ class SessionImpl final : public Session {
   CheckpointStore::Figures checkpointFigures_;
   std::vector<int> checkpointFrames_;
   json sceneShared_;
-  struct SceneInfo {
-    std::string sceneName;
-    double particleRadius = 0, supportRadius = 0, frameRate = 0;
-    std::vector<Phase> phases;
-    std::vector<Real> phaseMass;  // Simulation::particleMass per phase
-    std::vector<double> domainMin, domainMax;
-  } info_;
+  RecordedScene info_;
   std::string errorMessage_;
   int errorFrame_ = -1;
   size_t liquid_ = 0, temporary_ = 0, boundary_ = 0, instances_ = 0, simBytes_ = 0;
