@@ -1,4 +1,5 @@
 #include "io/recipe.h"
+#include "io/json_access.h"
 #include "io/staged_files.h"
 #include "io/template_database.h"
 #include "io/template_file.h"
@@ -15,72 +16,52 @@ namespace fc {
 
 namespace {
 
-double finiteNumber(const nlohmann::json& j, const std::string& path) {
-  if (!j.is_number()) throw SceneError(path, "expected a number, got " + std::string(j.type_name()));
-  const double v = j.get<double>();
-  if (!std::isfinite(v)) throw SceneError(path, "must be finite");
-  return v;
-}
+using namespace json_access;
 
 std::vector<double> vectorOf(const nlohmann::json& j, int dim, const std::string& path) {
-  if (!j.is_array()) throw SceneError(path, "expected an array of " + std::to_string(dim) + " numbers");
+  expectType(j.is_array(), j, path, dim == 2 ? "an array of 2 numbers" : "an array of 3 numbers");
   if (int(j.size()) != dim)
-    throw SceneError(path, "expected " + std::to_string(dim) + " numbers (dimension " + std::to_string(dim) +
-                               "), got " + std::to_string(j.size()));
+    fail(path, "expected " + std::to_string(dim) + " numbers (dimension " + std::to_string(dim) + "), got " +
+                   std::to_string(j.size()));
   std::vector<double> v;
-  for (int d = 0; d < dim; ++d) v.push_back(finiteNumber(j[d], path + "[" + std::to_string(d) + "]"));
+  for (int d = 0; d < dim; ++d) v.push_back(getNumber(j[d], indexPath(path, size_t(d))));
   return v;
 }
 
 constexpr size_t kMaxCaptures = 256;
+constexpr double kMaxCaptureSeconds = 3600;
 
 // One capture object; `p` is its key path ("capture" or "capture[i]").
 CaptureSpec parseCapture(const nlohmann::json& c, int dim, const std::string& p) {
-  if (!c.is_object()) throw SceneError(p, "expected an object {name, region, frames | seconds}");
-  for (auto it = c.begin(); it != c.end(); ++it) {
-    const std::string& k = it.key();
-    if (k != "name" && k != "region" && k != "frames" && k != "seconds" && k != "start")
-      throw SceneError(p + "." + k, "unknown key (expected name, region, frames, seconds, start)");
-  }
+  expectType(c.is_object(), c, p, "an object {name, region, frames | seconds}");
+  checkKeys(c, p, {"name", "region", "frames", "seconds", "start"});
   CaptureSpec s;
-  if (!c.contains("name")) throw SceneError(p + ".name", "missing (the template name)");
-  if (!c["name"].is_string()) throw SceneError(p + ".name", "expected a string");
-  s.name = c["name"].get<std::string>();
+  const std::string np = keyPath(p, "name");
+  s.name = getString(required(c, p, "name", "the template name"), np);
   if (!isValidTemplateName(s.name))
-    throw SceneError(p + ".name", "invalid template name '" + s.name +
-                                      "': 1 to 64 characters among A-Z a-z 0-9 _ -");
-  if (!c.contains("region")) throw SceneError(p + ".region", "missing (the capture box {min, max})");
-  const nlohmann::json& r = c["region"];
-  if (!r.is_object()) throw SceneError(p + ".region", "expected an object {min, max}");
-  for (auto it = r.begin(); it != r.end(); ++it)
-    if (it.key() != "min" && it.key() != "max")
-      throw SceneError(p + ".region." + it.key(), "unknown key (expected min, max)");
-  if (!r.contains("min")) throw SceneError(p + ".region.min", "missing");
-  if (!r.contains("max")) throw SceneError(p + ".region.max", "missing");
-  s.regionMin = vectorOf(r["min"], dim, p + ".region.min");
-  s.regionMax = vectorOf(r["max"], dim, p + ".region.max");
+    fail(np, "invalid template name '" + s.name + "': 1 to 64 characters among A-Z a-z 0-9 _ -");
+  const std::string rp = keyPath(p, "region");
+  const nlohmann::json& r = expectObject(required(c, p, "region", "the capture box {min, max}"), rp);
+  checkKeys(r, rp, {"min", "max"});
+  s.regionMin = vectorOf(required(r, rp, "min", "lower corner, m"), dim, keyPath(rp, "min"));
+  s.regionMax = vectorOf(required(r, rp, "max", "upper corner, m"), dim, keyPath(rp, "max"));
   for (int d = 0; d < dim; ++d)
     if (!(s.regionMin[d] < s.regionMax[d]))
-      throw SceneError(p + ".region.max[" + std::to_string(d) + "]",
-                       "must be greater than region.min[" + std::to_string(d) + "]");
+      fail(indexPath(keyPath(rp, "max"), size_t(d)), "must be greater than region.min[" + std::to_string(d) + "]");
   const bool hasF = c.contains("frames"), hasS = c.contains("seconds");
-  if (hasF && hasS) throw SceneError(p + ".seconds", "give either frames or seconds, not both");
-  if (!hasF && !hasS) throw SceneError(p + ".frames", "missing (give frames or seconds)");
+  if (hasF && hasS) fail(keyPath(p, "seconds"), "give either frames or seconds, not both");
+  if (!hasF && !hasS) fail(keyPath(p, "frames"), "missing (give frames or seconds)");
   if (hasF) {
-    const auto& f = c["frames"];
-    if (!f.is_number_integer()) throw SceneError(p + ".frames", "expected an integer");
-    const long long n = f.get<long long>();
-    if (n < 1 || n > 1000000) throw SceneError(p + ".frames", "must be in [1, 1000000], got " + std::to_string(n));
-    s.frames = int(n);
+    s.frames = int(integerField(c, p, "frames", kRequired, {1, 1000000}));
   } else {
-    const double v = finiteNumber(c["seconds"], p + ".seconds");
-    if (!(v > 0) || v > 3600) throw SceneError(p + ".seconds", "must be in (0, 3600]");
+    const std::string sp = keyPath(p, "seconds");
+    const double v = getNumber(c["seconds"], sp);
+    if (!(v > 0) || v > kMaxCaptureSeconds)
+      fail(sp, formatNumber(v) + " is outside the allowed range (0, " + formatNumber(kMaxCaptureSeconds) + "] s");
     s.seconds = v;
   }
-  if (c.contains("start")) {
-    s.start = finiteNumber(c["start"], p + ".start");
-    if (s.start < 0 || s.start > 3600) throw SceneError(p + ".start", "must be in [0, 3600]");
-  }
+  if (c.contains("start"))
+    s.start = numberField(c, p, "start", kRequired, {0, kMaxCaptureSeconds, "s"});
   return s;
 }
 

@@ -2,6 +2,7 @@
 
 #include "core/text.h"
 #include "core/transform.h"
+#include "io/json_access.h"
 #include "io/json_text.h"
 #include "io/obj_mesh.h"
 #include "io/template_database.h"
@@ -25,9 +26,7 @@
 namespace fc {
 
 using nlohmann::json;
-
-SceneError::SceneError(std::string p, const std::string& msg)
-    : std::runtime_error(p.empty() ? msg : p + ": " + msg), path(std::move(p)), message(msg) {}
+using namespace json_access;
 
 namespace {
 
@@ -60,12 +59,7 @@ double toJsonNumber(Real v) {
     return v;
 }
 
-std::string fmt(double v) {
-  std::ostringstream s;
-  s.precision(12);
-  s << v;
-  return s.str();
-}
+std::string fmt(double v) { return formatNumber(v); }
 std::string fmt(float v) { return fmt(shortest(v)); }
 
 std::string interval(Real lo, Real hi) {
@@ -77,13 +71,6 @@ std::string interval(Real lo, Real hi) {
   return s;
 }
 
-std::string joinNames(const std::vector<std::string>& names) {
-  if (names.empty()) return "(none registered)";
-  std::string out;
-  for (size_t i = 0; i < names.size(); ++i) out += (i ? ", " : "") + names[i];
-  return out;
-}
-
 template <int D>
 std::string fmtVec(const Vec<D>& v) {
   std::string s = "(";
@@ -91,78 +78,15 @@ std::string fmtVec(const Vec<D>& v) {
   return s + ")";
 }
 
-std::string key(const std::string& path, const std::string& k) { return path.empty() ? k : path + "." + k; }
-std::string at(const std::string& path, size_t i) { return path + "[" + std::to_string(i) + "]"; }
-
 const char* axisName(int d) { return d == 0 ? "x" : d == 1 ? "y" : "z"; }
 
-[[noreturn]] void fail(const std::string& path, const std::string& msg) { throw SceneError(path, msg); }
-
 // ------------------------------------------------------- typed accessors ---
-// The offending value as written, shortened: a misplaced object can be large.
-std::string brief(const json& j) {
-  std::string s = j.dump();
-  return s.size() <= 60 ? s : s.substr(0, 57) + "...";
-}
-
-void expectType(bool ok, const json& j, const std::string& path, const char* expected) {
-  if (!ok) fail(path, std::string("expected ") + expected + ", got " + j.type_name() + " " + brief(j));
-}
-
-const json& expectObject(const json& j, const std::string& path) {
-  expectType(j.is_object(), j, path, "an object");
-  return j;
-}
-
-const json& expectArray(const json& j, const std::string& path) {
-  expectType(j.is_array(), j, path, "an array");
-  return j;
-}
-
-// Unknown keys are errors so that a typo never falls back to a default.
-void checkKeys(const json& obj, const std::string& path, const std::vector<std::string>& allowed) {
-  for (auto it = obj.begin(); it != obj.end(); ++it) {
-    if (std::find(allowed.begin(), allowed.end(), it.key()) == allowed.end())
-      fail(key(path, it.key()), "unknown key; expected one of: " + joinNames(allowed));
-  }
-}
-
-const json* member(const json& obj, const std::string& k) {
-  auto it = obj.find(k);
-  return it == obj.end() ? nullptr : &*it;
-}
-
-const json& required(const json& obj, const std::string& path, const std::string& k, const std::string& what) {
-  const json* m = member(obj, k);
-  if (!m) fail(key(path, k), "missing required key (" + what + ")");
-  return *m;
-}
-
-double getNumber(const json& j, const std::string& path) {
-  expectType(j.is_number(), j, path, "a number");
-  const double v = j.get<double>();
-  if (!std::isfinite(v)) fail(path, "value is not finite");
-  return v;
-}
-
 // A number stored as Real must also be finite once narrowed to it.
 Real getReal(const json& j, const std::string& path) {
   const double v = getNumber(j, path);
   if (std::abs(v) > double(std::numeric_limits<Real>::max()))
     fail(path, fmt(v) + " does not fit in a " + realName());
   return Real(v);
-}
-
-// JSON has one number type, so 3.0 is accepted as the integer 3.
-double getInteger(const json& j, const std::string& path) {
-  const double v = getNumber(j, path);
-  if (v != std::floor(v)) fail(path, "expected an integer, got " + brief(j));
-  return v;
-}
-
-std::string getString(const json& j, const std::string& path) {
-  expectType(j.is_string(), j, path, "a string");
-  return j.get<std::string>();
 }
 
 template <int D>
@@ -172,31 +96,23 @@ Vec<D> getVec(const json& j, const std::string& path) {
     fail(path, "expected " + std::to_string(D) + " components (the scene is " + std::to_string(D) + "D), got " +
                    std::to_string(j.size()));
   Vec<D> v;
-  for (int d = 0; d < D; ++d) v[d] = getReal(j[size_t(d)], at(path, size_t(d)));
+  for (int d = 0; d < D; ++d) v[d] = getReal(j[size_t(d)], indexPath(path, size_t(d)));
   return v;
 }
 
 // Physical ranges (sph/limits.h): the message gives the range and what it is for.
-std::string rangeText(const PhysicalRange& r) {
-  return "[" + fmt(r.min) + ", " + fmt(r.max) + "]" + (r.unit[0] ? std::string(" ") + r.unit : std::string());
-}
 double inRange(double v, const std::string& path, const PhysicalRange& r) {
-  if (!r.contains(v)) fail(path, fmt(v) + " is outside the physical range " + rangeText(r) + " (" + r.help + ")");
-  return v;
+  return checkBounds(v, path, boundsOf(r, "physical"));
 }
 template <int D>
 void normInRange(const Vec<D>& v, const std::string& path, const PhysicalRange& r) {
   const double n = double(v.template cast<double>().norm());
   if (!r.contains(n))
-    fail(path, "magnitude " + fmt(n) + " is outside the physical range " + rangeText(r) + " (" + r.help + ")");
+    fail(path, "magnitude " + fmt(n) + " is outside the physical range " + rangeText(boundsOf(r)) + " (" + r.help + ")");
 }
 template <int D>
 void componentsInRange(const Vec<D>& v, const std::string& path, const PhysicalRange& r) {
-  for (int d = 0; d < D; ++d) inRange(double(v[d]), at(path, size_t(d)), r);
-}
-
-std::string rangeText(const ParamSpec& s) {
-  return "[" + fmt(s.min) + ", " + fmt(s.max) + "]" + (s.unit.empty() ? "" : " " + s.unit);
+  for (int d = 0; d < D; ++d) inRange(double(v[d]), indexPath(path, size_t(d)), r);
 }
 
 // Reads one declared parameter into values, checking its JSON type and range.
@@ -204,15 +120,12 @@ void readParam(const json& j, const std::string& path, const ParamSpec& spec, Pa
   double v = 0;
   switch (spec.type) {
     case ParamType::Boolean:
-      expectType(j.is_boolean(), j, path, "true or false");
-      values.set(spec.name, j.get<bool>() ? 1 : 0);
+      values.set(spec.name, getBool(j, path) ? 1 : 0);
       return;
     case ParamType::Integer: v = getInteger(j, path); break;
     case ParamType::Number: v = getNumber(j, path); break;
   }
-  if (v < spec.min || v > spec.max)
-    fail(path, fmt(v) + " is outside the allowed range " + rangeText(spec) + (spec.help.empty() ? "" : " (" + spec.help + ")"));
-  values.set(spec.name, v);
+  values.set(spec.name, checkBounds(v, path, boundsOf(spec)));
 }
 
 // Params of a solver, effect or the settings block: every key other than the
@@ -226,9 +139,9 @@ ParamValues parseParams(const json& obj, const std::string& path, const ParamSpe
     if (!spec) {
       std::vector<std::string> names = reserved;
       for (const auto& s : specs) names.push_back(s.name);
-      fail(key(path, it.key()), "unknown parameter of " + owner + "; expected one of: " + joinNames(names));
+      fail(keyPath(path, it.key()), "unknown parameter of " + owner + "; expected one of: " + joinNames(names));
     }
-    readParam(it.value(), key(path, it.key()), *spec, values);
+    readParam(it.value(), keyPath(path, it.key()), *spec, values);
   }
   return values;
 }
@@ -257,10 +170,10 @@ json vecToJson(const Vec<D>& v) {
 // ------------------------------------------------------------ sections ---
 template <int D>
 AABB<D> parseBox(const json& obj, const std::string& path) {
-  AABB<D> box(getVec<D>(required(obj, path, "min", "lower corner, m"), key(path, "min")),
-              getVec<D>(required(obj, path, "max", "upper corner, m"), key(path, "max")));
-  componentsInRange<D>(box.min, key(path, "min"), limits::kCoordinate);
-  componentsInRange<D>(box.max, key(path, "max"), limits::kCoordinate);
+  AABB<D> box(getVec<D>(required(obj, path, "min", "lower corner, m"), keyPath(path, "min")),
+              getVec<D>(required(obj, path, "max", "upper corner, m"), keyPath(path, "max")));
+  componentsInRange<D>(box.min, keyPath(path, "min"), limits::kCoordinate);
+  componentsInRange<D>(box.max, keyPath(path, "max"), limits::kCoordinate);
   for (int d = 0; d < D; ++d)
     if (!(box.min[d] < box.max[d]))
       fail(path, std::string("min must be less than max on every axis, but along ") + axisName(d) + " min[" +
@@ -277,31 +190,31 @@ std::vector<Phase> parsePhases(const json* j) {
   if (j->size() > kMaxPhases) fail(path, "at most " + std::to_string(kMaxPhases) + " phases are supported");
   std::vector<Phase> phases;
   for (size_t i = 0; i < j->size(); ++i) {
-    const std::string p = at(path, i);
+    const std::string p = indexPath(path, i);
     const json& o = expectObject((*j)[i], p);
     checkKeys(o, p, {"name", "rest_density", "viscosity", "color"});
     Phase ph;
-    ph.name = getString(required(o, p, "name", "string referenced by fluid_blocks[].phase"), key(p, "name"));
-    if (ph.name.empty()) fail(key(p, "name"), "must not be empty");
+    ph.name = getString(required(o, p, "name", "string referenced by fluid_blocks[].phase"), keyPath(p, "name"));
+    if (ph.name.empty()) fail(keyPath(p, "name"), "must not be empty");
     for (size_t k = 0; k < i; ++k)
-      if (phases[k].name == ph.name) fail(key(p, "name"), "duplicate phase name '" + ph.name + "' (also " + at(path, k) + ")");
+      if (phases[k].name == ph.name) fail(keyPath(p, "name"), "duplicate phase name '" + ph.name + "' (also " + indexPath(path, k) + ")");
     if (const json* m = member(o, "rest_density")) {
-      ph.restDensity = getReal(*m, key(p, "rest_density"));
-      if (ph.restDensity <= 0) fail(key(p, "rest_density"), fmt(ph.restDensity) + " kg/m^3 must be > 0");
-      inRange(ph.restDensity, key(p, "rest_density"), limits::kRestDensity);
+      ph.restDensity = getReal(*m, keyPath(p, "rest_density"));
+      if (ph.restDensity <= 0) fail(keyPath(p, "rest_density"), fmt(ph.restDensity) + " kg/m^3 must be > 0");
+      inRange(ph.restDensity, keyPath(p, "rest_density"), limits::kRestDensity);
     }
     if (const json* m = member(o, "viscosity")) {
-      ph.viscosity = getReal(*m, key(p, "viscosity"));
-      if (ph.viscosity < 0) fail(key(p, "viscosity"), fmt(ph.viscosity) + " m^2/s must be >= 0");
-      inRange(ph.viscosity, key(p, "viscosity"), limits::kViscosity);
+      ph.viscosity = getReal(*m, keyPath(p, "viscosity"));
+      if (ph.viscosity < 0) fail(keyPath(p, "viscosity"), fmt(ph.viscosity) + " m^2/s must be >= 0");
+      inRange(ph.viscosity, keyPath(p, "viscosity"), limits::kViscosity);
     }
     if (const json* m = member(o, "color")) {
-      const std::string cp = key(p, "color");
+      const std::string cp = keyPath(p, "color");
       expectType(m->is_array(), *m, cp, "an array of 3 numbers (RGB in [0, 1])");
       if (m->size() != 3) fail(cp, "expected 3 components (RGB), got " + std::to_string(m->size()));
       for (size_t c = 0; c < 3; ++c) {
-        const double v = getNumber((*m)[c], at(cp, c));
-        if (v < 0 || v > 1) fail(at(cp, c), fmt(v) + " is outside the allowed range [0, 1]");
+        const double v = getNumber((*m)[c], indexPath(cp, c));
+        if (v < 0 || v > 1) fail(indexPath(cp, c), fmt(v) + " is outside the allowed range [0, 1]");
         ph.color[c] = float(v);
       }
     }
@@ -333,15 +246,15 @@ std::vector<FluidBlock<D>> parseFluidBlocks(const json& root, const std::vector<
   if (j.empty() && !emits) fail(path, "the scene has no liquid: list at least one fluid block or an emitter");
   std::vector<FluidBlock<D>> blocks;
   for (size_t i = 0; i < j.size(); ++i) {
-    const std::string p = at(path, i);
+    const std::string p = indexPath(path, i);
     const json& o = expectObject(j[i], p);
     checkKeys(o, p, {"min", "max", "phase", "velocity"});
     FluidBlock<D> b;
     b.box = parseBox<D>(o, p);
-    if (const json* m = member(o, "phase")) b.phase = findPhase(*m, key(p, "phase"), phases);
+    if (const json* m = member(o, "phase")) b.phase = findPhase(*m, keyPath(p, "phase"), phases);
     if (const json* m = member(o, "velocity")) {
-      b.velocity = getVec<D>(*m, key(p, "velocity"));
-      normInRange<D>(b.velocity, key(p, "velocity"), limits::kSpeed);
+      b.velocity = getVec<D>(*m, keyPath(p, "velocity"));
+      normInRange<D>(b.velocity, keyPath(p, "velocity"), limits::kSpeed);
     }
     blocks.push_back(b);
   }
@@ -355,14 +268,14 @@ std::array<double, D == 2 ? 1 : 3> parseRotationDeg(const json& j, const std::st
 // translation, rotation (Euler XYZ, degrees).
 MeshPlacement parseMeshPlacement(const json& o, const std::string& p) {
   MeshPlacement pl;
-  const std::string fp = key(p, "file");
+  const std::string fp = keyPath(p, "file");
   pl.file = getString(required(o, p, "file", "an OBJ file, relative to the scene file's directory"), fp);
   if (pl.file.empty()) fail(fp, "must name an OBJ file");
   std::string ext = std::filesystem::path(pl.file).extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
   if (ext != ".obj") fail(fp, "'" + pl.file + "' is not a Wavefront OBJ file (.obj), the only mesh format read");
   if (const json* m = member(o, "scale")) {
-    const std::string sp = key(p, "scale");
+    const std::string sp = keyPath(p, "scale");
     if (m->is_number()) {
       const double v = getNumber(*m, sp);
       if (!(v > 0)) fail(sp, fmt(v) + " must be > 0");
@@ -371,19 +284,19 @@ MeshPlacement parseMeshPlacement(const json& o, const std::string& p) {
     } else {
       expectType(m->is_array() && m->size() == 3, *m, sp, "a number (uniform scale) or an array of 3 numbers");
       for (size_t d = 0; d < 3; ++d) {
-        pl.scale[d] = getNumber((*m)[d], at(sp, d));
-        if (!(pl.scale[d] > 0)) fail(at(sp, d), fmt(pl.scale[d]) + " must be > 0");
-        inRange(pl.scale[d], at(sp, d), limits::kScale);
+        pl.scale[d] = getNumber((*m)[d], indexPath(sp, d));
+        if (!(pl.scale[d] > 0)) fail(indexPath(sp, d), fmt(pl.scale[d]) + " must be > 0");
+        inRange(pl.scale[d], indexPath(sp, d), limits::kScale);
       }
     }
   }
   if (const json* m = member(o, "translation")) {
-    const std::string tp = key(p, "translation");
+    const std::string tp = keyPath(p, "translation");
     expectType(m->is_array(), *m, tp, "an array of 3 numbers");
     if (m->size() != 3) fail(tp, "expected 3 components (the scene is 3D), got " + std::to_string(m->size()));
-    for (size_t d = 0; d < 3; ++d) pl.translation[d] = inRange(getNumber((*m)[d], at(tp, d)), at(tp, d), limits::kCoordinate);
+    for (size_t d = 0; d < 3; ++d) pl.translation[d] = inRange(getNumber((*m)[d], indexPath(tp, d)), indexPath(tp, d), limits::kCoordinate);
   }
-  if (const json* m = member(o, "rotation")) pl.rotationDeg = parseRotationDeg<3>(*m, key(p, "rotation"));
+  if (const json* m = member(o, "rotation")) pl.rotationDeg = parseRotationDeg<3>(*m, keyPath(p, "rotation"));
   return pl;
 }
 
@@ -429,10 +342,10 @@ std::vector<Obstacle<D>> parseObstacles(const json* j, Real particleRadius, Real
   const std::string path = "obstacles";
   expectArray(*j, path);
   for (size_t i = 0; i < j->size(); ++i) {
-    const std::string p = at(path, i);
+    const std::string p = indexPath(path, i);
     const json& o = expectObject((*j)[i], p);
     const std::string type = getString(required(o, p, "type", D == 2 ? "\"box\", \"sphere\" or \"disk\"" : "\"box\", \"sphere\" or \"mesh\""),
-                                       key(p, "type"));
+                                       keyPath(p, "type"));
     Obstacle<D> ob;
     if (type == "box") {
       checkKeys(o, p, {"type", "min", "max"});
@@ -441,32 +354,30 @@ std::vector<Obstacle<D>> parseObstacles(const json* j, Real particleRadius, Real
     } else if (type == "sphere" || (D == 2 && type == "disk")) {
       checkKeys(o, p, {"type", "center", "radius"});
       ob.shape = ObstacleShape::Sphere;
-      ob.center = getVec<D>(required(o, p, "center", "m"), key(p, "center"));
-      ob.radius = getReal(required(o, p, "radius", "m"), key(p, "radius"));
-      if (ob.radius <= 0) fail(key(p, "radius"), fmt(ob.radius) + " m must be > 0");
-      componentsInRange<D>(ob.center, key(p, "center"), limits::kCoordinate);
-      inRange(ob.radius, key(p, "radius"), limits::kCoordinate);
+      ob.center = getVec<D>(required(o, p, "center", "m"), keyPath(p, "center"));
+      ob.radius = getReal(required(o, p, "radius", "m"), keyPath(p, "radius"));
+      if (ob.radius <= 0) fail(keyPath(p, "radius"), fmt(ob.radius) + " m must be > 0");
+      componentsInRange<D>(ob.center, keyPath(p, "center"), limits::kCoordinate);
+      inRange(ob.radius, keyPath(p, "radius"), limits::kCoordinate);
       ob.box = AABB<D>(ob.center.array() - ob.radius, ob.center.array() + ob.radius);
     } else if (type == "mesh") {
       if constexpr (D == 2) {
-        fail(key(p, "type"), "mesh obstacles (OBJ files) are 3D only; a 2D scene takes box and disk obstacles");
+        fail(keyPath(p, "type"), "mesh obstacles (OBJ files) are 3D only; a 2D scene takes box and disk obstacles");
       } else {
         checkKeys(o, p, {"type", "file", "scale", "translation", "rotation"});
         ob.shape = ObstacleShape::Mesh;
         ob.placement = parseMeshPlacement(o, p);
-        ob.mesh = buildMeshObstacle(ob.placement, particleRadius, contactDistance, key(p, "file"));
+        ob.mesh = buildMeshObstacle(ob.placement, particleRadius, contactDistance, keyPath(p, "file"));
         ob.box = ob.mesh->bounds();
       }
     } else {
-      fail(key(p, "type"), "unknown obstacle type '" + type + "'; expected " +
+      fail(keyPath(p, "type"), "unknown obstacle type '" + type + "'; expected " +
                                (D == 2 ? "box, sphere or disk (mesh is 3D only)" : "box, sphere or mesh (disk is 2D only)"));
     }
     obstacles.push_back(ob);
   }
   return obstacles;
 }
-
-bool getBool(const json& j, const std::string& path);
 
 // Rotation in degrees: 2D a number (counter-clockwise), 3D [x, y, z] Euler
 // angles, intrinsic XYZ.
@@ -477,7 +388,7 @@ std::array<double, D == 2 ? 1 : 3> parseRotationDeg(const json& j, const std::st
     r[0] = inRange(getNumber(j, path), path, limits::kRotation);
   } else {
     expectType(j.is_array() && j.size() == 3, j, path, "[x, y, z] Euler angles in degrees");
-    for (size_t a = 0; a < 3; ++a) r[a] = inRange(getNumber(j[a], at(path, a)), at(path, a), limits::kRotation);
+    for (size_t a = 0; a < 3; ++a) r[a] = inRange(getNumber(j[a], indexPath(path, a)), indexPath(path, a), limits::kRotation);
   }
   return r;
 }
@@ -510,10 +421,10 @@ void checkBodyInDomain(const Body<D>& b, const BodyKey<D>& pose, const AABB<D>& 
 template <class Named>
 std::string uniqueName(const json& o, const std::string& p, const std::vector<Named>& before, const char* one,
                        const char* many) {
-  const std::string name = getString(required(o, p, "name", std::string("a name unique among the ") + many), key(p, "name"));
-  if (!isValidTemplateName(name)) fail(key(p, "name"), "\"" + name.substr(0, 40) + "\" is not a name ([A-Za-z0-9_-]{1,64})");
+  const std::string name = getString(required(o, p, "name", std::string("a name unique among the ") + many), keyPath(p, "name"));
+  if (!isValidTemplateName(name)) fail(keyPath(p, "name"), "\"" + name.substr(0, 40) + "\" is not a name ([A-Za-z0-9_-]{1,64})");
   for (const Named& other : before)
-    if (other.name == name) fail(key(p, "name"), std::string("duplicate ") + one + " name \"" + name + "\"");
+    if (other.name == name) fail(keyPath(p, "name"), std::string("duplicate ") + one + " name \"" + name + "\"");
   return name;
 }
 
@@ -526,100 +437,100 @@ std::vector<Body<D>> parseBodies(const json* j, const AABB<D>& domain) {
   const std::string path = "bodies";
   expectArray(*j, path);
   for (size_t i = 0; i < j->size(); ++i) {
-    const std::string p = at(path, i);
+    const std::string p = indexPath(path, i);
     const json& o = expectObject((*j)[i], p);
     checkKeys(o, p, {"name", "type", "size", "radius", "position", "rotation", "motion", "velocity",
                      "angular_velocity", "keys", "period", "density", "carve_fluid"});
     Body<D> b;
     b.name = uniqueName(o, p, bodies, "body", "bodies");
-    const std::string type = getString(required(o, p, "type", D == 2 ? "\"box\" or \"disk\"" : "\"box\" or \"sphere\""), key(p, "type"));
+    const std::string type = getString(required(o, p, "type", D == 2 ? "\"box\" or \"disk\"" : "\"box\" or \"sphere\""), keyPath(p, "type"));
     if (type == "box") {
       b.shape = ObstacleShape::Box;
-      if (member(o, "radius")) fail(key(p, "radius"), "a box has a size, not a radius");
-      const Vec<D> size = getVec<D>(required(o, p, "size", "edge lengths, m"), key(p, "size"));
+      if (member(o, "radius")) fail(keyPath(p, "radius"), "a box has a size, not a radius");
+      const Vec<D> size = getVec<D>(required(o, p, "size", "edge lengths, m"), keyPath(p, "size"));
       for (int d = 0; d < D; ++d)
-        if (!(size[d] > 0)) fail(at(key(p, "size"), size_t(d)), fmt(size[d]) + " m must be > 0");
+        if (!(size[d] > 0)) fail(indexPath(keyPath(p, "size"), size_t(d)), fmt(size[d]) + " m must be > 0");
       b.halfSize = Real(0.5) * size;
     } else if (type == "sphere" || (D == 2 && type == "disk")) {
       b.shape = ObstacleShape::Sphere;
-      if (member(o, "size")) fail(key(p, "size"), "a " + type + " has a radius, not a size");
-      b.radius = getReal(required(o, p, "radius", "m"), key(p, "radius"));
-      if (!(b.radius > 0)) fail(key(p, "radius"), fmt(b.radius) + " m must be > 0");
+      if (member(o, "size")) fail(keyPath(p, "size"), "a " + type + " has a radius, not a size");
+      b.radius = getReal(required(o, p, "radius", "m"), keyPath(p, "radius"));
+      if (!(b.radius > 0)) fail(keyPath(p, "radius"), fmt(b.radius) + " m must be > 0");
     } else {
-      fail(key(p, "type"), "unknown body type '" + type + "'; expected " + (D == 2 ? "box or disk" : "box or sphere"));
+      fail(keyPath(p, "type"), "unknown body type '" + type + "'; expected " + (D == 2 ? "box or disk" : "box or sphere"));
     }
     if (member(o, "keys") && member(o, "motion") && (*member(o, "motion")) == "dynamic")
-      fail(key(p, "keys"), "a dynamic body moves by the liquid's forces; it has no keys");
+      fail(keyPath(p, "keys"), "a dynamic body moves by the liquid's forces; it has no keys");
     // Keyed bodies start at their first key.
-    if (!member(o, "keys")) b.position = getVec<D>(required(o, p, "position", "the body centre, m"), key(p, "position"));
-    else if (member(o, "position")) fail(key(p, "position"), "a keyed body starts at its first key; give no position");
-    if (member(o, "keys") && member(o, "rotation")) fail(key(p, "rotation"), "a keyed body starts at its first key; give no rotation");
-    if (const json* m = member(o, "rotation")) b.rotationDeg = parseRotationDeg<D>(*m, key(p, "rotation"));
-    const std::string motion = getString(required(o, p, "motion", "\"kinematic\" or \"dynamic\""), key(p, "motion"));
+    if (!member(o, "keys")) b.position = getVec<D>(required(o, p, "position", "the body centre, m"), keyPath(p, "position"));
+    else if (member(o, "position")) fail(keyPath(p, "position"), "a keyed body starts at its first key; give no position");
+    if (member(o, "keys") && member(o, "rotation")) fail(keyPath(p, "rotation"), "a keyed body starts at its first key; give no rotation");
+    if (const json* m = member(o, "rotation")) b.rotationDeg = parseRotationDeg<D>(*m, keyPath(p, "rotation"));
+    const std::string motion = getString(required(o, p, "motion", "\"kinematic\" or \"dynamic\""), keyPath(p, "motion"));
     if (motion == "kinematic") {
       b.motion = BodyMotion::Kinematic;
-      if (member(o, "density")) fail(key(p, "density"), "only a dynamic body has a density");
+      if (member(o, "density")) fail(keyPath(p, "density"), "only a dynamic body has a density");
       if (const json* m = member(o, "velocity")) {
-        b.velocity = getVec<D>(*m, key(p, "velocity"));
-        normInRange<D>(b.velocity, key(p, "velocity"), limits::kSpeed);
+        b.velocity = getVec<D>(*m, keyPath(p, "velocity"));
+        normInRange<D>(b.velocity, keyPath(p, "velocity"), limits::kSpeed);
       }
       if (const json* m = member(o, "angular_velocity")) {
-        b.angularVelocityDeg = parseRotationDeg<D>(*m, key(p, "angular_velocity"));
+        b.angularVelocityDeg = parseRotationDeg<D>(*m, keyPath(p, "angular_velocity"));
         for (size_t a = 0; a < b.angularVelocityDeg.size(); ++a)
-          inRange(std::abs(b.angularVelocityDeg[a]), at(key(p, "angular_velocity"), a), limits::kAngularSpeed);
+          inRange(std::abs(b.angularVelocityDeg[a]), indexPath(keyPath(p, "angular_velocity"), a), limits::kAngularSpeed);
       }
       if (const json* m = member(o, "keys")) {
-        const std::string kp = key(p, "keys");
+        const std::string kp = keyPath(p, "keys");
         expectArray(*m, kp);
         if (m->empty()) fail(kp, "needs at least one key");
         if (member(o, "velocity") || member(o, "angular_velocity"))
           fail(kp, "give either keys or velocity/angular_velocity, not both");
         for (size_t k = 0; k < m->size(); ++k) {
-          const std::string q = at(kp, k);
+          const std::string q = indexPath(kp, k);
           const json& ko = expectObject((*m)[k], q);
           checkKeys(ko, q, {"time", "position", "rotation"});
           BodyKey<D> key0;
-          key0.time = inRange(getNumber(required(ko, q, "time", "s"), key(q, "time")), key(q, "time"), limits::kTime);
-          key0.position = getVec<D>(required(ko, q, "position", "m"), key(q, "position"));
-          if (const json* r = member(ko, "rotation")) key0.rotationDeg = parseRotationDeg<D>(*r, key(q, "rotation"));
+          key0.time = inRange(getNumber(required(ko, q, "time", "s"), keyPath(q, "time")), keyPath(q, "time"), limits::kTime);
+          key0.position = getVec<D>(required(ko, q, "position", "m"), keyPath(q, "position"));
+          if (const json* r = member(ko, "rotation")) key0.rotationDeg = parseRotationDeg<D>(*r, keyPath(q, "rotation"));
           if (!b.keys.empty() && !(key0.time > b.keys.back().time))
-            fail(key(q, "time"), fmt(key0.time) + " s must be after the previous key's " + fmt(b.keys.back().time) + " s");
+            fail(keyPath(q, "time"), fmt(key0.time) + " s must be after the previous key's " + fmt(b.keys.back().time) + " s");
           b.keys.push_back(key0);
         }
         b.position = b.keys.front().position;
         b.rotationDeg = b.keys.front().rotationDeg;
       }
       if (const json* m = member(o, "period")) {
-        b.period = inRange(getNumber(*m, key(p, "period")), key(p, "period"), limits::kTime);
-        if (b.keys.empty()) fail(key(p, "period"), "a period repeats keys; this body has none");
+        b.period = inRange(getNumber(*m, keyPath(p, "period")), keyPath(p, "period"), limits::kTime);
+        if (b.keys.empty()) fail(keyPath(p, "period"), "a period repeats keys; this body has none");
         if (!(b.period >= b.keys.back().time) || !(b.period > 0))
-          fail(key(p, "period"), fmt(b.period) + " s must be > 0 and at least the last key's time");
+          fail(keyPath(p, "period"), fmt(b.period) + " s must be > 0 and at least the last key's time");
       }
     } else if (motion == "dynamic") {
       b.motion = BodyMotion::Dynamic;
       for (const char* k : {"velocity", "angular_velocity", "keys", "period"})
         if (const json* m = member(o, k); m && std::string(k) != "velocity")
-          fail(key(p, k), "a dynamic body moves by the liquid's forces; it has no " + std::string(k));
+          fail(keyPath(p, k), "a dynamic body moves by the liquid's forces; it has no " + std::string(k));
       if (const json* m = member(o, "velocity")) {
-        b.velocity = getVec<D>(*m, key(p, "velocity"));
-        normInRange<D>(b.velocity, key(p, "velocity"), limits::kSpeed);
+        b.velocity = getVec<D>(*m, keyPath(p, "velocity"));
+        normInRange<D>(b.velocity, keyPath(p, "velocity"), limits::kSpeed);
       }
-      b.density = getReal(required(o, p, "density", "kg/m^3"), key(p, "density"));
-      if (!(b.density > 0)) fail(key(p, "density"), fmt(b.density) + " kg/m^3 must be > 0");
-      inRange(b.density, key(p, "density"), limits::kBodyDensity);
+      b.density = getReal(required(o, p, "density", "kg/m^3"), keyPath(p, "density"));
+      if (!(b.density > 0)) fail(keyPath(p, "density"), fmt(b.density) + " kg/m^3 must be > 0");
+      inRange(b.density, keyPath(p, "density"), limits::kBodyDensity);
     } else {
-      fail(key(p, "motion"), "unknown motion '" + motion + "'; expected kinematic or dynamic");
+      fail(keyPath(p, "motion"), "unknown motion '" + motion + "'; expected kinematic or dynamic");
     }
-    if (const json* m = member(o, "carve_fluid")) b.carveFluid = getBool(*m, key(p, "carve_fluid"));
+    if (const json* m = member(o, "carve_fluid")) b.carveFluid = getBool(*m, keyPath(p, "carve_fluid"));
     // The body stays inside the tank: at its start and at every key.
     std::vector<std::pair<std::string, BodyKey<D>>> poses;
     if (b.keys.empty()) {
       BodyKey<D> k;
       k.position = b.position;
       k.rotationDeg = b.rotationDeg;
-      poses.push_back({key(p, "position"), k});
+      poses.push_back({keyPath(p, "position"), k});
     } else {
-      for (size_t k = 0; k < b.keys.size(); ++k) poses.push_back({key(at(key(p, "keys"), k), "position"), b.keys[k]});
+      for (size_t k = 0; k < b.keys.size(); ++k) poses.push_back({keyPath(indexPath(keyPath(p, "keys"), k), "position"), b.keys[k]});
     }
     for (const auto& [where, pose] : poses) checkBodyInDomain<D>(b, pose, domain, where);
     bodies.push_back(b);
@@ -637,26 +548,26 @@ std::vector<Emitter<D>> parseEmitters(const json* j, const std::vector<Phase>& p
   const std::string path = "emitters";
   expectArray(*j, path);
   for (size_t i = 0; i < j->size(); ++i) {
-    const std::string p = at(path, i);
+    const std::string p = indexPath(path, i);
     const json& o = expectObject((*j)[i], p);
     checkKeys(o, p, {"name", "center", "direction", "radius", "speed", "phase", "start", "end"});
     Emitter<D> e;
     e.name = uniqueName(o, p, emitters, "emitter", "emitters");
-    e.center = getVec<D>(required(o, p, "center", "the nozzle's centre, m"), key(p, "center"));
-    const Vec<D> dir = getVec<D>(required(o, p, "direction", "the jet's direction (normalised when read)"), key(p, "direction"));
-    if (!(dir.norm() > Real(1e-6))) fail(key(p, "direction"), "must not be zero");
+    e.center = getVec<D>(required(o, p, "center", "the nozzle's centre, m"), keyPath(p, "center"));
+    const Vec<D> dir = getVec<D>(required(o, p, "direction", "the jet's direction (normalised when read)"), keyPath(p, "direction"));
+    if (!(dir.norm() > Real(1e-6))) fail(keyPath(p, "direction"), "must not be zero");
     e.direction = dir.normalized();
-    e.radius = getReal(required(o, p, "radius", D == 2 ? "the nozzle's half width, m" : "the nozzle's radius, m"), key(p, "radius"));
-    if (!(e.radius > 0)) fail(key(p, "radius"), fmt(e.radius) + " m must be > 0");
-    e.speed = getReal(required(o, p, "speed", "m/s"), key(p, "speed"));
+    e.radius = getReal(required(o, p, "radius", D == 2 ? "the nozzle's half width, m" : "the nozzle's radius, m"), keyPath(p, "radius"));
+    if (!(e.radius > 0)) fail(keyPath(p, "radius"), fmt(e.radius) + " m must be > 0");
+    e.speed = getReal(required(o, p, "speed", "m/s"), keyPath(p, "speed"));
     if (!(e.speed > 0) || e.speed > kMaxEmitterSpeed)
-      fail(key(p, "speed"), fmt(e.speed) + " m/s is outside the allowed range (0, " + fmt(kMaxEmitterSpeed) + "]");
-    if (const json* m = member(o, "phase")) e.phase = findPhase(*m, key(p, "phase"), phases);
-    if (const json* m = member(o, "start")) e.start = getNumber(*m, key(p, "start"));
-    if (!(e.start >= 0) || e.start > kMaxDuration) fail(key(p, "start"), fmt(e.start) + " s must be in [0, " + fmt(kMaxDuration) + "]");
+      fail(keyPath(p, "speed"), fmt(e.speed) + " m/s is outside the allowed range (0, " + fmt(kMaxEmitterSpeed) + "]");
+    if (const json* m = member(o, "phase")) e.phase = findPhase(*m, keyPath(p, "phase"), phases);
+    if (const json* m = member(o, "start")) e.start = getNumber(*m, keyPath(p, "start"));
+    if (!(e.start >= 0) || e.start > kMaxDuration) fail(keyPath(p, "start"), fmt(e.start) + " s must be in [0, " + fmt(kMaxDuration) + "]");
     if (const json* m = member(o, "end")) {
-      e.end = inRange(getNumber(*m, key(p, "end")), key(p, "end"), limits::kTime);
-      if (!(e.end > e.start)) fail(key(p, "end"), fmt(e.end) + " s must be after start (" + fmt(e.start) + " s)");
+      e.end = inRange(getNumber(*m, keyPath(p, "end")), keyPath(p, "end"), limits::kTime);
+      if (!(e.end > e.start)) fail(keyPath(p, "end"), fmt(e.end) + " s must be after start (" + fmt(e.start) + " s)");
     }
     emitters.push_back(e);
   }
@@ -675,18 +586,18 @@ void checkEmitters(const SimulationSetup<D>& s) {
   for (const FluidBlock<D>& b : s.fluidBlocks) total += double(latticeCount(b.box, spacing));
   for (size_t i = 0; i < s.emitters.size(); ++i) {
     const Emitter<D>& e = s.emitters[i];
-    const std::string p = at("emitters", i);
+    const std::string p = indexPath("emitters", i);
     const std::vector<Vec<D>> layer = nozzleLayer(e, spacing);
     for (const Vec<D>& x : layer) {
       for (int d = 0; d < D; ++d)
         if (x[d] < s.domain.min[d] + r - slack || x[d] > s.domain.max[d] - r + slack)
-          fail(key(p, "center"), "the nozzle's point " + fmtVec<D>(x) + " is closer than a particle radius (" + fmt(r) +
+          fail(keyPath(p, "center"), "the nozzle's point " + fmtVec<D>(x) + " is closer than a particle radius (" + fmt(r) +
                                      " m) to the tank's " + axisName(d) + " walls " +
                                      interval(s.domain.min[d], s.domain.max[d]));
       for (size_t k = 0; k < s.obstacles.size(); ++k)
         if (s.obstacles[k].signedDistance(x) < r - slack)
-          fail(key(p, "center"), "the nozzle's point " + fmtVec<D>(x) + " lies inside or within a particle radius of " +
-                                     at("obstacles", k));
+          fail(keyPath(p, "center"), "the nozzle's point " + fmtVec<D>(x) + " lies inside or within a particle radius of " +
+                                     indexPath("obstacles", k));
     }
     const double open = std::max(0.0, std::min(e.end, s.duration) - e.start);
     total += double(layer.size()) * (double(e.speed) * open / double(spacing) + 1);
@@ -704,11 +615,11 @@ NamedParams parseSolver(const json* j) {
   NamedParams solver{kDefaultSolver, {}};
   const json empty = json::object();
   const json& o = j ? expectObject(*j, path) : empty;
-  if (const json* m = member(o, "method")) solver.name = getString(*m, key(path, "method"));
+  if (const json* m = member(o, "method")) solver.name = getString(*m, keyPath(path, "method"));
   const auto* entry = reg.find(solver.name);
   if (!entry)
-    fail(j && member(o, "method") ? key(path, "method") : path,
-         "unknown solver method '" + solver.name + "'; known methods: " + joinNames(reg.names()));
+    fail(j && member(o, "method") ? keyPath(path, "method") : path,
+         "unknown solver method '" + solver.name + "'; known methods: " + joinNames(reg.names(), "(none registered)"));
   solver.values = parseParams(o, path, entry->params, {"method"}, "solver '" + solver.name + "'");
   return solver;
 }
@@ -718,7 +629,7 @@ ParamValues parseSettings(const json* j) {
   if (!j) return ParamValues(simulationSettingsSpecs());
   ParamValues v = parseParams(expectObject(*j, path), path, simulationSettingsSpecs(), {}, "settings");
   if (v.get("dt_min") > v.get("dt_max"))
-    fail(key(path, member(*j, "dt_min") ? "dt_min" : "dt_max"),
+    fail(keyPath(path, member(*j, "dt_min") ? "dt_min" : "dt_max"),
          "dt_min = " + fmt(v.get("dt_min")) + " s is larger than dt_max = " + fmt(v.get("dt_max")) + " s");
   return v;
 }
@@ -732,7 +643,7 @@ std::vector<NamedParams> parseEffects(const json* j) {
   const auto& reg = EffectRegistry<D>::instance();
   std::vector<std::string> namePaths;  // where each effect's name was written, for duplicate messages
   for (size_t i = 0; i < j->size(); ++i) {
-    const std::string p = at(path, i);
+    const std::string p = indexPath(path, i);
     const json& item = (*j)[i];
     const json empty = json::object();
     const json* params = &empty;
@@ -741,14 +652,14 @@ std::vector<NamedParams> parseEffects(const json* j) {
     if (item.is_string()) {
       e.name = item.get<std::string>();
     } else if (item.is_object()) {
-      namePath = key(p, "name");
+      namePath = keyPath(p, "name");
       e.name = getString(required(item, p, "name", "effect name"), namePath);
       params = &item;
     } else {
       expectType(false, item, p, "an effect name or an object with \"name\" and parameters");
     }
     const auto* entry = reg.find(e.name);
-    if (!entry) fail(namePath, "unknown effect '" + e.name + "'; known effects: " + joinNames(reg.names()));
+    if (!entry) fail(namePath, "unknown effect '" + e.name + "'; known effects: " + joinNames(reg.names(), "(none registered)"));
     for (size_t k = 0; k < effects.size(); ++k)
       if (effects[k].name == e.name) fail(namePath, "duplicate effect '" + e.name + "' (also " + namePaths[k] + ")");
     e.values = parseParams(*params, p, entry->params, {"name"}, "effect '" + e.name + "'");
@@ -774,13 +685,8 @@ VecDouble<D> getVecDouble(const json& j, const std::string& path) {
     fail(path, "expected " + std::to_string(D) + " components (the scene is " + std::to_string(D) + "D), got " +
                    std::to_string(j.size()));
   VecDouble<D> v;
-  for (int d = 0; d < D; ++d) v[d] = getNumber(j[size_t(d)], at(path, size_t(d)));
+  for (int d = 0; d < D; ++d) v[d] = getNumber(j[size_t(d)], indexPath(path, size_t(d)));
   return v;
-}
-
-bool getBool(const json& j, const std::string& path) {
-  expectType(j.is_boolean(), j, path, "true or false");
-  return j.get<bool>();
 }
 
 template <int D>
@@ -788,22 +694,22 @@ TransformKey<D> parseTransformKey(const json& j, const std::string& p) {
   const json& o = expectObject(j, p);
   checkKeys(o, p, {"time", "translation", "rotation", "scale", "reflect"});
   TransformKey<D> k;
-  if (const json* m = member(o, "time")) k.time = inRange(getNumber(*m, key(p, "time")), key(p, "time"), limits::kTime);
+  if (const json* m = member(o, "time")) k.time = inRange(getNumber(*m, keyPath(p, "time")), keyPath(p, "time"), limits::kTime);
   k.translation = getVecDouble<D>(required(o, p, "translation", "m, where the template region's centre goes"),
-                                  key(p, "translation"));
-  for (int d = 0; d < D; ++d) inRange(k.translation[d], at(key(p, "translation"), size_t(d)), limits::kCoordinate);
+                                  keyPath(p, "translation"));
+  for (int d = 0; d < D; ++d) inRange(k.translation[d], indexPath(keyPath(p, "translation"), size_t(d)), limits::kCoordinate);
   if (const json* m = member(o, "rotation")) {
-    const std::string rp = key(p, "rotation");
+    const std::string rp = keyPath(p, "rotation");
     if constexpr (D == 2) {
       expectType(m->is_number(), *m, rp, "a number (degrees, counter-clockwise)");
       k.rotationDeg[0] = inRange(getNumber(*m, rp), rp, limits::kRotation);
     } else {
       const VecDouble<3> r = getVecDouble<3>(*m, rp);
-      for (int d = 0; d < 3; ++d) k.rotationDeg[size_t(d)] = inRange(r[d], at(rp, size_t(d)), limits::kRotation);
+      for (int d = 0; d < 3; ++d) k.rotationDeg[size_t(d)] = inRange(r[d], indexPath(rp, size_t(d)), limits::kRotation);
     }
   }
   if (const json* m = member(o, "scale")) {
-    const std::string sp = key(p, "scale");
+    const std::string sp = keyPath(p, "scale");
     const char* rule = " must be > 0 (use reflect to mirror)";
     if (m->is_number()) {
       const double v = getNumber(*m, sp);
@@ -816,17 +722,17 @@ TransformKey<D> parseTransformKey(const json& j, const std::string& p) {
                         : "a number (uniform scale) or an array of 3 numbers");
       k.scale = getVecDouble<D>(*m, sp);
       for (int d = 0; d < D; ++d)
-        if (!(k.scale[d] > 0)) fail(at(sp, size_t(d)), fmt(k.scale[d]) + rule);
-        else inRange(k.scale[d], at(sp, size_t(d)), limits::kScale);
+        if (!(k.scale[d] > 0)) fail(indexPath(sp, size_t(d)), fmt(k.scale[d]) + rule);
+        else inRange(k.scale[d], indexPath(sp, size_t(d)), limits::kScale);
     }
   }
   if (const json* m = member(o, "reflect")) {
-    const std::string rp = key(p, "reflect");
+    const std::string rp = keyPath(p, "reflect");
     expectType(m->is_array(), *m, rp, D == 2 ? "an array of 2 booleans" : "an array of 3 booleans");
     if (m->size() != size_t(D))
       fail(rp, "expected " + std::to_string(D) + " components (the scene is " + std::to_string(D) + "D), got " +
                    std::to_string(m->size()));
-    for (int d = 0; d < D; ++d) k.reflect[size_t(d)] = getBool((*m)[size_t(d)], at(rp, size_t(d)));
+    for (int d = 0; d < D; ++d) k.reflect[size_t(d)] = getBool((*m)[size_t(d)], indexPath(rp, size_t(d)));
   }
   return k;
 }
@@ -835,7 +741,7 @@ template <int D>
 TransformTrack<D> parseTransform(const json& j, const std::string& path) {
   expectArray(j, path);
   TransformTrack<D> track;
-  for (size_t k = 0; k < j.size(); ++k) track.keys.push_back(parseTransformKey<D>(j[k], at(path, k)));
+  for (size_t k = 0; k < j.size(); ++k) track.keys.push_back(parseTransformKey<D>(j[k], indexPath(path, k)));
   // Ordering (and anything parsing let through): "[k].field: what".
   const std::string err = track.validate();
   if (!err.empty()) {
@@ -855,41 +761,41 @@ InstanceSpec<D> parseInstance(const json& j, const std::string& p, const std::ve
   // Parameters first: an unknown key fails here, listing every accepted one.
   s.params = parseParams(o, p, instanceParamSpecs(D), kInstanceKeys, "an instance");
   if (const json* m = member(o, "name")) {
-    s.name = getString(*m, key(p, "name"));
-    if (s.name.empty()) fail(key(p, "name"), "must not be empty (omit it for a name derived from the template)");
+    s.name = getString(*m, keyPath(p, "name"));
+    if (s.name.empty()) fail(keyPath(p, "name"), "must not be empty (omit it for a name derived from the template)");
     // Instances are addressed by name in URLs (/api/sessions/{id}/instances/{name}).
     if (!isValidTemplateName(s.name))
-      fail(key(p, "name"), "'" + s.name.substr(0, 80) + "' must be 1 to 64 characters from A-Z a-z 0-9 _ -");
+      fail(keyPath(p, "name"), "'" + s.name.substr(0, 80) + "' must be 1 to 64 characters from A-Z a-z 0-9 _ -");
   }
-  const std::string tp = key(p, "template");
+  const std::string tp = keyPath(p, "template");
   s.templateName = getString(required(o, p, "template", "name of a template in the template database"), tp);
   try {
     checkTemplateName(s.templateName);
   } catch (const DatabaseError& e) {
     fail(tp, e.what());
   }
-  if (const json* m = member(o, "phase")) s.phase = findPhase(*m, key(p, "phase"), phases);
-  if (const json* m = member(o, "transform")) s.transform = parseTransform<D>(*m, key(p, "transform"));
+  if (const json* m = member(o, "phase")) s.phase = findPhase(*m, keyPath(p, "phase"), phases);
+  if (const json* m = member(o, "transform")) s.transform = parseTransform<D>(*m, keyPath(p, "transform"));
 
   TimeMap& t = s.time;
-  if (const json* m = member(o, "start")) t.start = inRange(getNumber(*m, key(p, "start")), key(p, "start"), limits::kTime);
+  if (const json* m = member(o, "start")) t.start = inRange(getNumber(*m, keyPath(p, "start")), keyPath(p, "start"), limits::kTime);
   if (const json* m = member(o, "crop_begin")) {
-    t.cropBegin = inRange(getNumber(*m, key(p, "crop_begin")), key(p, "crop_begin"), limits::kTime);
-    if (t.cropBegin < 0) fail(key(p, "crop_begin"), fmt(t.cropBegin) + " s must be >= 0 (template time)");
+    t.cropBegin = inRange(getNumber(*m, keyPath(p, "crop_begin")), keyPath(p, "crop_begin"), limits::kTime);
+    if (t.cropBegin < 0) fail(keyPath(p, "crop_begin"), fmt(t.cropBegin) + " s must be >= 0 (template time)");
   }
   if (const json* m = member(o, "crop_end")) {
-    const std::string ep = key(p, "crop_end");
+    const std::string ep = keyPath(p, "crop_end");
     t.cropEnd = inRange(getNumber(*m, ep), ep, limits::kTime);
     if (t.cropEnd < 0) fail(ep, fmt(t.cropEnd) + " s must be >= 0 (omit crop_end to play to the template's end)");
     if (!(t.cropEnd > t.cropBegin))
       fail(ep, fmt(t.cropEnd) + " s must be greater than crop_begin = " + fmt(t.cropBegin) + " s");
   }
   if (const json* m = member(o, "speed")) {
-    t.speed = getNumber(*m, key(p, "speed"));
-    if (!(t.speed > 0)) fail(key(p, "speed"), fmt(t.speed) + " must be > 0 (use reverse to play backwards)");
-    inRange(t.speed, key(p, "speed"), limits::kPlaybackSpeed);
+    t.speed = getNumber(*m, keyPath(p, "speed"));
+    if (!(t.speed > 0)) fail(keyPath(p, "speed"), fmt(t.speed) + " must be > 0 (use reverse to play backwards)");
+    inRange(t.speed, keyPath(p, "speed"), limits::kPlaybackSpeed);
   }
-  if (const json* m = member(o, "reverse")) t.reverse = getBool(*m, key(p, "reverse"));
+  if (const json* m = member(o, "reverse")) t.reverse = getBool(*m, keyPath(p, "reverse"));
   return s;
 }
 
@@ -901,14 +807,14 @@ std::vector<InstanceSpec<D>> parseInstances(const json* j, const std::vector<Pha
   expectArray(*j, path);
   std::set<std::string> taken;
   for (size_t i = 0; i < j->size(); ++i) {
-    const std::string p = at(path, i);
+    const std::string p = indexPath(path, i);
     out.push_back(parseInstance<D>((*j)[i], p, phases));
     const std::string& name = out.back().name;
     if (name.empty()) continue;
     if (!taken.insert(name).second) {
       size_t k = 0;
       while (out[k].name != name) ++k;
-      fail(key(p, "name"), "duplicate instance name '" + name + "' (also " + key(at(path, k), "name") + ")");
+      fail(keyPath(p, "name"), "duplicate instance name '" + name + "' (also " + keyPath(indexPath(path, k), "name") + ")");
     }
   }
   // Unnamed instances: the template's name, or "<template>-<k>" (k = 2, 3,
@@ -985,13 +891,13 @@ void checkFluidBlocks(const SimulationSetup<D>& s, bool overridden) {
   const Real spacing = 2 * r;
   size_t total = 0;
   for (size_t i = 0; i < s.fluidBlocks.size(); ++i) {
-    const std::string p = at("fluid_blocks", i);
+    const std::string p = indexPath("fluid_blocks", i);
     const AABB<D>& b = s.fluidBlocks[i].box;
     for (int d = 0; d < D; ++d) {
       const bool below = b.min[d] < s.domain.min[d] - kContainTolerance;
       const bool above = b.max[d] > s.domain.max[d] + kContainTolerance;
       if (below || above)
-        fail(at(key(p, below ? "min" : "max"), d), fmt(below ? b.min[d] : b.max[d]) +
+        fail(indexPath(keyPath(p, below ? "min" : "max"), d), fmt(below ? b.min[d] : b.max[d]) +
                                                        " lies outside the domain, whose " + axisName(d) + " range is " +
                                                        interval(s.domain.min[d], s.domain.max[d]));
     }
@@ -1001,7 +907,7 @@ void checkFluidBlocks(const SimulationSetup<D>& s, bool overridden) {
       bool overlap = true;
       for (int d = 0; d < D; ++d)
         overlap = overlap && std::min(b.max[d], o.max[d]) - std::max(b.min[d], o.min[d]) > kContainTolerance;
-      if (overlap) fail(p, "overlaps " + at("fluid_blocks", k) + "; fluid blocks may touch but not overlap");
+      if (overlap) fail(p, "overlaps " + indexPath("fluid_blocks", k) + "; fluid blocks may touch but not overlap");
     }
     const size_t n = latticeCount(b, spacing);
     if (n == 0)
@@ -1024,10 +930,10 @@ void checkFluidBlocks(const SimulationSetup<D>& s, bool overridden) {
       forEachLatticePoint(b, spacing, [&](const Vec<D>& x) {
         const Real dist = ob.signedDistance(x);
         if (dist < limit)
-          fail(at("fluid_blocks", i),
+          fail(indexPath("fluid_blocks", i),
                "its particle at " + fmtVec<D>(x) + " is " +
-                   (dist < 0 ? "inside " + at("obstacles", k)
-                             : fmt(dist) + " m from " + at("obstacles", k) + ", closer than particle_radius " + fmt(r) + " m") +
+                   (dist < 0 ? "inside " + indexPath("obstacles", k)
+                             : fmt(dist) + " m from " + indexPath("obstacles", k) + ", closer than particle_radius " + fmt(r) + " m") +
                    "; move or shrink the block");
       });
     }
@@ -1053,8 +959,8 @@ void checkBodies(const SimulationSetup<D>& s) {
         const Eigen::Matrix<double, D, 1> local = R.transpose() * (x - b.position).template cast<double>();
         const Real dist = b.localSignedDistance(local.template cast<Real>());
         if (dist < r)
-          fail(at("bodies", k),
-               "body \"" + b.name + "\" overlaps " + at("fluid_blocks", i) + " (its particle at " + fmtVec<D>(x) +
+          fail(indexPath("bodies", k),
+               "body \"" + b.name + "\" overlaps " + indexPath("fluid_blocks", i) + " (its particle at " + fmtVec<D>(x) +
                    " would start " + (dist < 0 ? "inside the body" : "closer than particle_radius to it") +
                    "); move the body or the block, or set \"carve_fluid\": true to leave that liquid out");
       });

@@ -2,6 +2,7 @@
 // Scene files: JSON <-> SimulationSetup, with validation that names the key
 // path of every error. The format is documented in scenes/README.md.
 #include "control/instance.h"
+#include "io/json_access.h"
 #include "sph/setup.h"
 #include <nlohmann/json.hpp>
 #include <stdexcept>
@@ -10,16 +11,13 @@
 
 namespace fc {
 
-// An invalid scene. `path` locates the offending value the way a user would
-// type it (`fluid_blocks[1].min[0]`, `solver.density_tolerance_pct`); it is
-// empty for file-level errors (missing file, malformed JSON), whose message
-// names the file instead. what() is "<path>: <message>", or just the message
-// when the path is empty.
-struct SceneError : std::runtime_error {
-  SceneError(std::string path, const std::string& message);
-  std::string path;
-  std::string message;  // what() without the path prefix
-};
+// An invalid scene: a JSON value error (io/json_access.h) whose `path`
+// locates the offending value the way a user would type it
+// (`fluid_blocks[1].min[0]`, `solver.density_tolerance_pct`); it is empty for
+// file-level errors (missing file, malformed JSON), whose message names the
+// file instead. what() is "<path>: <message>", or just the message when the
+// path is empty.
+using SceneError = JsonValueError;
 
 // Parses scene JSON text. Besides syntax errors (reported with line and
 // column) this rejects duplicate object keys, which plain JSON parsers
