@@ -1,7 +1,9 @@
 #pragma once
-// The REST API (issue 5, proto/openapi.yaml) as plain request → response
-// functions, with no networking: service/http_server.cpp (Boost.Beast) feeds
-// it parsed requests, tests can call it directly.
+// The REST API (proto/openapi.yaml) as plain request → response functions,
+// with no networking: service/http_server.cpp (Boost.Beast) feeds it parsed
+// requests, tests can call it directly. rest_api.cpp holds the route table,
+// the dispatch and the sessions; the handlers are in one rest_*.cpp per
+// resource (named at each group below).
 //
 // The ServiceHub owns the sessions and the template database. Sessions are
 // shared: a WebSocket stream keeps its session alive until it notices the
@@ -119,22 +121,25 @@ class ServiceHub {
 
  private:
   using Params = std::vector<std::string>;
+  // rest_server_info.cpp
   HttpResponse health(const HttpRequest&, const Params&);
   HttpResponse parameters(const HttpRequest&, const Params&);
   HttpResponse presets(const HttpRequest&, const Params&);
+  // rest_templates.cpp
   HttpResponse listTemplates(const HttpRequest&, const Params&);
   HttpResponse getTemplate(const HttpRequest&, const Params&);
   HttpResponse deleteTemplate(const HttpRequest&, const Params&);
   HttpResponse templatePreview(const HttpRequest&, const Params&);
   HttpResponse recordTemplate(const HttpRequest&, const Params&);
+  // rest_scenes.cpp
   HttpResponse listScenes(const HttpRequest&, const Params&);
   HttpResponse getScene(const HttpRequest&, const Params&);
   HttpResponse saveScene(const HttpRequest&, const Params&);
+  // rest_sessions.cpp
   HttpResponse listSessions(const HttpRequest&, const Params&);
   HttpResponse createSession(const HttpRequest&, const Params&);
   HttpResponse getSession(const HttpRequest&, const Params&);
   HttpResponse deleteSession(const HttpRequest&, const Params&);
-  HttpResponse sessionStats(const HttpRequest&, const Params&);
   HttpResponse sessionScene(const HttpRequest&, const Params&);
   HttpResponse listInstances(const HttpRequest&, const Params&);
   HttpResponse getInstance(const HttpRequest&, const Params&);
@@ -144,9 +149,13 @@ class ServiceHub {
   HttpResponse patchSettings(const HttpRequest&, const Params&);
   HttpResponse getEdit(const HttpRequest&, const Params&);
   HttpResponse transport(const HttpRequest&, const Params&);
+  // rest_frames.cpp
+  HttpResponse sessionStats(const HttpRequest&, const Params&);
   HttpResponse getFrame(const HttpRequest&, const Params&);
+  // rest_exports.cpp
   HttpResponse exportFrames(const HttpRequest&, const Params&);
   HttpResponse getExport(const HttpRequest&, const Params&);
+  // rest_recipes.cpp
   HttpResponse listRecipes(const HttpRequest&, const Params&);
   HttpResponse startRecipeJob(const HttpRequest&, const Params&);
   HttpResponse getRecipeJob(const HttpRequest&, const Params&);
