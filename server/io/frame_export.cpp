@@ -30,7 +30,6 @@ namespace {
 
 using hdf5::checked;
 using hdf5::Handle;
-using hdf5::syncPath;
 using hdf5::writeArray;
 using hdf5::writeScalar;
 using hdf5::writeString;
@@ -415,23 +414,13 @@ void FrameExporter<D>::close() {
   }
   if (checked(H5Fclose(file_)) < 0) fail("cannot finish the temporary file '" + tempPath_ + "'");
   file_ = -1;
-  // Data on disk before the name points at it, so a crash right after the
-  // rename cannot leave a truncated file under the final name.
+  // fsynced before the name points at it: a crash cannot leave a truncated file under <path>.
   try {
-    syncPath(tempPath_, false);
-  } catch (const std::system_error& e) {
-    fail("cannot flush '" + tempPath_ + "' to disk: " + e.code().message());
+    publishStaged(tempPath_, path_, /*replace=*/true);
+  } catch (const PublishError& e) {
+    fail(e.what());
   }
-  if (std::rename(tempPath_.c_str(), path_.c_str()) != 0)
-    fail("cannot rename '" + tempPath_ + "' to the final name: " + std::strerror(errno));
   open_ = false;
-  // Make the rename itself durable; the file is already published, so a
-  // failure here is not an export failure.
-  try {
-    std::filesystem::path dir = std::filesystem::path(path_).parent_path();
-    syncPath(dir.empty() ? "." : dir.string(), true);
-  } catch (const std::exception&) {
-  }
 }
 
 template <int D>

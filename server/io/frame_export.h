@@ -21,10 +21,11 @@
 // exporter itself (same bytes as HDF5's filters) and written directly.
 //
 // Publication is atomic: frames go to the hidden stagingPath(path)
-// (io/staged_files.h), which is fsynced and renamed to <path> only by a
-// successful close(). Until then an existing file at <path> is untouched;
-// after a failure the temporary file is removed and <path> is never created
-// or replaced; after a crash recoverPublishing() deletes it.
+// (io/staged_files.h), which is fsynced and renamed to <path>
+// (publishStaged) only by a successful close(). Until then an existing file
+// at <path> is untouched; after a failure the temporary file is removed and
+// <path> is never created or replaced; after a crash recoverPublishing()
+// deletes it.
 #include "sph/particles.h"
 #include "sph/phase.h"
 #include <cstdint>

@@ -405,7 +405,10 @@ void StagedFiles::commit() {
                          "cannot rename '" + e.staged + "' to the final name: " + errnoText(errno));
     crashPoint();
   }
-  if (const int err = syncDirectory(dir_); err != 0)
+  // One file: its rename was the commit point; rolling back now would leave
+  // neither the file it replaced nor the new one.
+  if (entries_.size() == 1) done_ = true;
+  if (const int err = syncDirectory(dir_); err != 0 && !done_)
     throw PublishError(entries_.front().final, false, "cannot flush directory '" + dir_ + "': " + errnoText(err));
   crashPoint();
   if (!journal_.empty()) {
@@ -442,13 +445,19 @@ void StagedFiles::rollback() noexcept {
   if (!dir_.empty()) syncDirectory(dir_);
 }
 
-void publishFile(const std::string& path, const std::string& text, bool replace) {
+void publishStaged(const std::string& staged, const std::string& final, bool replace) {
   StagedFiles files(replace);
-  const std::string staged = stagingPath(path);
-  files.stage(staged, path);
-  if (const int err = writeNewFile(staged, text); err != 0)
-    throw std::runtime_error("cannot write '" + path + "': " + errnoText(err));
+  files.stage(staged, final);
   files.commit();
+}
+
+void publishFile(const std::string& path, const std::string& text, bool replace) {
+  const std::string staged = stagingPath(path);
+  if (const int err = writeNewFile(staged, text); err != 0) {
+    ::unlink(staged.c_str());  // partly written
+    throw std::runtime_error("cannot write '" + path + "': " + errnoText(err));
+  }
+  publishStaged(staged, path, replace);
 }
 
 PublishRecovery recoverPublishing(const std::string& dir) {

@@ -3,8 +3,8 @@
 // files in one directory moves to its final names all or nothing, even if the
 // process is killed at any instant. Used by recordRecipe (all templates of a
 // recipe), publishTemplate, a session's history export (NAME.h5 +
-// NAME.xdmf), FrameExporter (`flowclip run --export`) and saved scenes
-// (publishFile).
+// NAME.xdmf), writeTemplate and FrameExporter (publishStaged), saved scenes
+// and statistics (publishFile).
 //
 // How: every temporary name is hidden and carries its owner, the process
 // (pid) and a token of that process's start (so a later process that reuses
@@ -61,7 +61,9 @@ class StagedFiles {
   // Moves every staged file to its final name, all or nothing (also across
   // a crash, see above). Throws PublishError (exists: a final name appeared
   // and !replace; else an I/O error, with strerror) after which the
-  // destructor rolls back.
+  // destructor rolls back. A single file is published by its rename: a
+  // failed fsync of the directory after it is not reported (the file is in
+  // place; only its durability across a power cut is in doubt).
   void commit();
 
   // Tests only: the process _exit()s with kTestCrashStatus at the step-th
@@ -83,6 +85,12 @@ class StagedFiles {
   std::string journal_;  // written by commit(), "" when there is none
   std::vector<Entry> entries_;
 };
+
+// Publishes one file that the caller wrote and closed at `staged` (from
+// stagingPath(final)) as `final`, the way StagedFiles publishes one file:
+// fsynced, then renamed over `final` (replace) or linked to it (never
+// replacing). Throws PublishError as commit(), after removing `staged`.
+void publishStaged(const std::string& staged, const std::string& final, bool replace);
 
 // Publishes `text` as the file `path` (whose directory must exist) the way
 // StagedFiles publishes one file: a reader, or the directory after a crash,

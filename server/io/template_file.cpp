@@ -34,7 +34,6 @@ namespace fs = std::filesystem;
 
 using hdf5::checked;
 using hdf5::Handle;
-using hdf5::syncPath;
 using hdf5::utf8StringType;
 using hdf5::writeArray;
 using hdf5::writeScalar;
@@ -751,8 +750,8 @@ void writeTemplate(const std::string& path, const Template<D>& tpl) {
     offset[f + 1] = row;
   }
 
-  // Write to a temporary file next to `path`, then rename; its hidden name is
-  // one recoverPublishing() deletes after a crash.
+  // Written under the hidden stagingPath(path), which recoverPublishing()
+  // deletes after a crash, then published (io/staged_files.h).
   const std::string tmp = stagingPath(path);
   hdf5::Quiet quiet;
   bool created = false;
@@ -822,17 +821,10 @@ void writeTemplate(const std::string& path, const Template<D>& tpl) {
   if (const std::string error = stampChecksum(tmp); !error.empty())
     abandon("cannot write the checksum of '" + tmp + "': " + error, false);
   try {
-    syncPath(tmp, false);
-  } catch (const std::system_error& e) {
-    abandon("cannot flush '" + tmp + "' to disk: " + e.code().message(), false);
+    publishStaged(tmp, path, /*replace=*/true);
+  } catch (const PublishError& e) {
+    abandon(e.what(), false);
   }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0)
-    abandon("cannot rename '" + tmp + "' to the final name: " + std::strerror(errno), false);
-  try {
-    const fs::path dir = fs::path(path).parent_path();
-    syncPath(dir.empty() ? "." : dir.string(), true);
-  } catch (const std::exception&) {
-  }  // already published
 }
 
 TemplateHeader readTemplateHeader(const std::string& path) {

@@ -166,6 +166,28 @@ TEST(StagedFiles, PublishesWithAndWithoutReplace) {
   EXPECT_THROW(publishFile(tmp.file("missing/s.json"), "{}", true), std::runtime_error);
 }
 
+// A file its writer staged itself (an HDF5 file written in place) is
+// published the same way: moved, or removed with the old file left as it was.
+TEST(StagedFiles, PublishStagedMovesAWrittenFileOrRemovesIt) {
+  TempDir tmp;
+  const std::string dir = tmp.file("d");
+  setFiles(dir, {{"t.h5", "old"}});
+  const std::string final = (fs::path(dir) / "t.h5").string();
+  std::string staged = stagingPath(final);
+  std::ofstream(staged, std::ios::binary) << "new";
+  try {
+    publishStaged(staged, final, false);
+    ADD_FAILURE() << "replaced without replace";
+  } catch (const PublishError& e) {
+    EXPECT_TRUE(e.exists);
+  }
+  EXPECT_EQ(filesIn(dir), (Files{{"t.h5", "old"}}));
+  staged = stagingPath(final);
+  std::ofstream(staged, std::ios::binary) << "new";
+  publishStaged(staged, final, true);
+  EXPECT_EQ(filesIn(dir), (Files{{"t.h5", "new"}}));
+}
+
 TEST(StagedFiles, FailuresRollBackInProcess) {
   TempDir tmp;
   const std::string dir = tmp.file("d");
