@@ -49,7 +49,9 @@ void CheckpointStore::put(int frame, const std::vector<uint8_t>& archive) {
   dropFrom(frame);  // a newer one than this is from another timeline
   Entry e;
   e.rawSize = archive.size();
-  if (compress_) {
+  // In-between checkpoints stay raw: they are saved after every frame, where
+  // deflate would cost a tenth of a 3D frame; the grid's are kept longest.
+  if (compress_ && onGrid(frame)) {
     std::vector<uint8_t> packed = compress(archive);
     if (packed.size() * 10 <= archive.size() * 9) {
       e.bytes = std::move(packed);

@@ -12,10 +12,13 @@
 // checkpoints go first, farthest from the focus (the playhead) first; then
 // the grid thins by dropping every other checkpoint from the oldest on (the
 // newest stays), so that the spacing doubles where checkpoints are oldest,
-// as Houdini's and Blender's caches keep the frames near the playhead. Each checkpoint
-// is stored compressed when that saves at least a tenth: the bytes
-// shuffled by position within a 4-byte word (floats' exponents and the
-// high bytes of indices line up) and deflated at zlib's fastest level.
+// as Houdini's and Blender's caches keep the frames near the playhead.
+//
+// Compression. A grid checkpoint is stored compressed when that saves at
+// least a tenth: the bytes shuffled by position within a 4-byte word
+// (floats' exponents and the high bytes of indices line up) and deflated at
+// zlib's fastest level. In-between checkpoints stay raw (saved after every
+// frame, their deflate would cost about a tenth of a 3D frame).
 #include <cstddef>
 #include <cstdint>
 #include <map>
