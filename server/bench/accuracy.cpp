@@ -15,6 +15,7 @@
 //     where an instance plays.
 // Writes accuracy.csv, accuracy.md, surge_fronts.csv, presets.json and the
 // plots (tools/plot_accuracy.py).
+// One file: the sweep's points, their runs and the report are one benchmark.
 #include "bench/accuracy_metrics.h"
 #include "bench/commands.h"
 #include "bench/exported_frames.h"

@@ -1,3 +1,5 @@
+// The scene format parsed in one place: every key's check and error path
+// (with its key path) side by side, as the scene reference documents them.
 #include "io/scene.h"
 
 #include "core/text.h"

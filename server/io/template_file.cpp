@@ -1,3 +1,5 @@
+// The template file (HDF5) read and written in one place, so that the
+// format's every dataset and its checks on reading stay side by side.
 #include "io/template_file.h"
 
 #include "io/hdf5_util.h"

@@ -1,4 +1,6 @@
 // The WebSocket wire format: see frame_encoding.h and proto/flowclip.fbs.
+// Long because every table of the wire format is encoded here, beside the
+// flatbuffers builder calls that must follow the schema's order.
 #include "service/frame_encoding.h"
 
 #include "core/text.h"

@@ -1,3 +1,5 @@
+// The HTTP and WebSocket server (Boost.Beast). One file because Beast and
+// Asio, header-only and slow to compile, are included here and nowhere else.
 #include "service/http_server.h"
 
 #include "core/text.h"

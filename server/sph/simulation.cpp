@@ -1,3 +1,6 @@
+// The simulation's set-up and its step (sph/simulation.h). Long because the
+// step's order of stages, time-step control and boundary handling read best
+// as one sequence, as in the papers; methods live in the family folders.
 #include "sph/simulation.h"
 
 #include "sph/emitters/nozzle.h"

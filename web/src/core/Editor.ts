@@ -3,6 +3,7 @@
 // document (scene, instances), and announces every change through typed
 // signals. Panels only listen to signals and call the hub's methods (or
 // execute Commands through it); they never talk to each other or the server.
+// Long because the hub is the one place that owns the editor's state.
 import { Api, ApiError } from '../net/Api';
 import { FrameDecoder, type FrameInfo } from '../net/FrameDecoder';
 import { Stream, type ConnectionStatus, type StreamState } from '../net/Stream';

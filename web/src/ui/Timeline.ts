@@ -14,6 +14,7 @@
 // editor.setPlayhead. It renders on demand (one animation frame after
 // something changed), never in a loop. Plain DOM: tests find the parts by
 // data-testid and read data-* values.
+// One widget: ruler, cache bar, playhead and tracks share one frame↔pixel mapping.
 import './timeline.css';
 import type { Editor } from '../core/Editor';
 import { instanceValue, type InstanceJson, type TemplateInfo } from '../net/types';
