@@ -4,6 +4,9 @@
 // in the server depends on bench/.
 #include <CLI/CLI.hpp>
 
+#include <string>
+#include <vector>
+
 namespace fc::bench {
 
 // The `bench` group with all its sub-commands (bench.cpp).
@@ -16,5 +19,9 @@ void addBenchControlCommand(CLI::App& bench);    // bench control (control.cpp)
 void addBenchServiceCommand(CLI::App& bench);    // bench service (service.cpp)
 void addBenchScenesCommand(CLI::App& bench);     // bench scenes (scenes.cpp)
 void addBenchAccuracyCommand(CLI::App& bench);   // bench accuracy (accuracy.cpp)
+
+// The scene files (*.json, sorted) of `folder` under the working directory,
+// else under the source tree: the benchmarks' default scenes (bench.cpp).
+std::vector<std::string> sceneFilesIn(const std::string& folder);
 
 }  // namespace fc::bench

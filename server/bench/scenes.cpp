@@ -60,18 +60,6 @@ struct Options {
   std::string out;
 };
 
-std::vector<std::string> shippedScenes() {
-  std::vector<std::string> found;
-  for (const fs::path& dir : {fs::path("scenes"), fs::path(FLOWCLIP_SOURCE_DIR) / "scenes"}) {
-    if (!fs::is_directory(dir)) continue;
-    for (const auto& e : fs::directory_iterator(dir))
-      if (e.path().extension() == ".json") found.push_back(e.path().string());
-    break;
-  }
-  std::sort(found.begin(), found.end());
-  return found;
-}
-
 std::string count(double v) {
   char b[32];
   if (v >= 1e6) std::snprintf(b, sizeof b, "%.2fM", v / 1e6);
@@ -81,7 +69,7 @@ std::string count(double v) {
 }
 
 int benchScenes(const Options& opt) {
-  const std::vector<std::string> scenes = opt.scenes.empty() ? shippedScenes() : opt.scenes;
+  const std::vector<std::string> scenes = opt.scenes.empty() ? sceneFilesIn("scenes") : opt.scenes;
   if (scenes.empty()) {
     std::fprintf(stderr, "error: no scenes found (scenes/*.json)\n");
     return BadInput;

@@ -52,20 +52,8 @@ struct BenchOptions {
   std::string out;
 };
 
-std::vector<std::string> defaultBenchScenes() {
-  std::vector<std::string> found;
-  for (const fs::path& dir : {fs::path("scenes/bench"), fs::path(FLOWCLIP_SOURCE_DIR) / "scenes/bench"}) {
-    if (!fs::is_directory(dir)) continue;
-    for (const auto& e : fs::directory_iterator(dir))
-      if (e.path().extension() == ".json") found.push_back(e.path().string());
-    break;
-  }
-  std::sort(found.begin(), found.end());
-  return found;
-}
-
 int benchSolver(const BenchOptions& opt) {
-  const std::vector<std::string> scenes = opt.scenes.empty() ? defaultBenchScenes() : opt.scenes;
+  const std::vector<std::string> scenes = opt.scenes.empty() ? sceneFilesIn("scenes/bench") : opt.scenes;
   if (scenes.empty()) {
     std::fprintf(stderr, "error: no bench scenes found (scenes/bench/*.json)\n");
     return BadInput;

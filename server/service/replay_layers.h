@@ -38,13 +38,6 @@ class ReplayLayers {
     at_ = -1;
   }
 
-  // Forgets the parked state (the simulation was rebuilt or replaced).
-  void discard() {
-    parked_ = false;
-    live_.clear();
-    at_ = -1;
-  }
-
   // Brings the session's simulation to the end of recorded frame `n`.
   // `sim` returns the session's simulation (`rebuild` replaces it by a
   // fresh one at frame 0, for frames before the first checkpoint).
