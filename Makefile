@@ -138,9 +138,10 @@ bench-cache: build templates
 
 # The documentation site (docs/, mkdocs.yml) into site/, failing on a page
 # missing from the navigation, a broken relative link or anchor. A few
-# seconds; `make test` runs it as a check.
-docs: setup
-	@NO_MKDOCS_2_WARNING=1 $(BUILD_DIR)/venv/bin/mkdocs build --strict --quiet
+# seconds; `make test` runs it as a check. The parameter reference is
+# generated from the built binary's declarations (`flowclip params`).
+docs: build
+	@FLOWCLIP_BIN=$(ABS_BUILD_DIR)/flowclip NO_MKDOCS_2_WARNING=1 $(BUILD_DIR)/venv/bin/mkdocs build --strict --quiet
 	@echo "docs: site/index.html"
 
 clean:

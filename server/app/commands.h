@@ -11,5 +11,6 @@ namespace fc::app {
 void addRunCommand(CLI::App& app);        // run (run_command.cpp)
 void addTemplatesCommands(CLI::App& app); // record, templates list|inspect|remove (templates_command.cpp)
 void addServeCommand(CLI::App& app);      // serve (serve_command.cpp)
+void addParamsCommand(CLI::App& app);     // params (params_command.cpp)
 
 }  // namespace fc::app

@@ -10,6 +10,7 @@ int main(int argc, char** argv) {
   fc::bench::addBenchCommand(app);
   fc::app::addTemplatesCommands(app);
   fc::app::addServeCommand(app);
+  fc::app::addParamsCommand(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

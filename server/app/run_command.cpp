@@ -44,7 +44,7 @@ struct RunOptions {
 // (controlSettingsSpecs) replaced, checked as the scene file's would be
 // (booleans as 0/1/true/false). `flowclip bench control` uses it to time
 // forces_every_substep.
-void overrideControlSettings(const std::vector<std::string>& overrides, ParamValues& settings) {
+void overrideControlSettings(const std::vector<std::string>& overrides, ControlSettings& settings) {
   for (const auto& kv : overrides) {
     const size_t eq = kv.find('=');
     const std::string key = kv.substr(0, eq);
@@ -74,7 +74,7 @@ void overrideControlSettings(const std::vector<std::string>& overrides, ParamVal
       std::snprintf(range, sizeof(range), "must be in [%g, %g]", spec->min, spec->max);
       throw bad(range);
     }
-    settings.set(key, value);
+    controlSettingsTable().assign(settings, key, value);
   }
 }
 

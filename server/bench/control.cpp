@@ -105,7 +105,7 @@ void planInstances(const json& scene, const TemplateDatabase& db, ScenePlan& pla
   for (const auto& inst : control.instances)
     if (duration.count(inst.templateName))
       end = std::max(end, inst.time.start + inst.time.sceneDuration(duration[inst.templateName]));
-  const double fps = setup.settings.get("frame_rate");
+  const double fps = setup.settings.frameRate;
   // Through frame k = floor(end · fps) + 1, the last to start (at (k − 1) / fps) while an instance is active.
   plan.frames = std::min(kMaxDefaultFrames, int(std::floor(end * fps + 1e-6)) + 1);
 }

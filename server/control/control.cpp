@@ -137,8 +137,8 @@ Real poly6SumNear(const std::array<const Real*, D + 1>& in, size_t count, const 
 }
 
 // w_r as applied: 0 when the instance's repulsion layer is off.
-Real repulsionWeight(const ParamValues& p) {
-  return p.get("repulsion") != 0 ? Real(p.get("repulsion_weight")) * kAccelerationScale : Real(0);
+Real repulsionWeight(const InstanceParams& p) {
+  return p.repulsion ? Real(p.repulsionWeight) * kAccelerationScale : Real(0);
 }
 
 // The cells of `grid` holding at least one of its static points (ascending).
@@ -285,9 +285,8 @@ void checkBound(const std::vector<BoundInstance<D>>& instances) {
 }  // namespace
 
 template <int D>
-Control<D>::Control(std::vector<BoundInstance<D>> instances, const ParamValues& settings)
-    : instances_(std::move(instances)), settings_(controlSettingsSpecs()) {
-  for (const auto& [k, v] : settings.all()) settings_.set(k, v);
+Control<D>::Control(std::vector<BoundInstance<D>> instances, const ControlSettings& settings)
+    : instances_(std::move(instances)), settings_(settings) {
   checkBound(instances_);
   state_.resize(instances_.size());
 }
@@ -345,8 +344,8 @@ void Control<D>::prepare(size_t i, double time) {
   const Real hT = inst.accel->supportRadius;
   s.kernel.setRadius(hT);
   // A world length w spans w / ‖L e_d‖ template units along template axis d.
-  const Real width = Real(inst.spec.params.get("falloff_width"));
-  s.decay = Real(inst.spec.params.get("falloff_decay"));
+  const Real width = Real(inst.spec.params.falloffWidth);
+  s.decay = Real(inst.spec.params.falloffDecay);
   s.region = tpl.region();
   const AABB<D>& region = s.region;
   for (int d = 0; d < D; ++d) {
@@ -551,9 +550,9 @@ void Control<D>::addInstanceForces(size_t i, Simulation<D>& sim, Real applyFor) 
   const long nc = long(xc.size());
   const Mat<D> linv = s.toTemplate.linear;
   const bool moving = inst.spec.transform.animated();
-  const ParamValues& p = inst.spec.params;
-  const Real wa = Real(p.get("attraction_weight")) * kAccelerationScale;
-  const Real wv = Real(p.get("velocity_weight")) * kRateScale;
+  const InstanceParams& p = inst.spec.params;
+  const Real wa = Real(p.attractionWeight) * kAccelerationScale;
+  const Real wv = Real(p.velocityWeight) * kRateScale;
   const Real wr = repulsionWeight(p);
   // The sums' fields, in controlGrid_'s order (computeCoverage built it)
   // and in repulsionGrid_'s.
@@ -704,7 +703,7 @@ double Control<D>::measureFidelity(size_t i) {
   const TemplateFrameGrids<D>& grids = inst.accel->frame(s.frame);
   Real radius = Real(inst.templ().header.particleRadius);
   if (!(radius > 0)) radius = s.kernel.radius() / 4;
-  const Real cell = Real(settings_.get("fidelity_cell")) * radius;
+  const Real cell = Real(settings_.fidelityCell) * radius;
   VecI<D> dims;
   size_t cells = 1;
   for (int d = 0; d < D; ++d) {
@@ -773,11 +772,11 @@ void Control<D>::beginFrame(Simulation<D>& sim, FrameStats& fs) {
 
 template <int D>
 void Control<D>::addAccelerations(Simulation<D>& sim) {
-  const bool everySubstep = settings_.get("forces_every_substep") != 0;
+  const bool everySubstep = settings_.forcesEverySubstep;
   const auto t0 = Clock::now();
   if (forcesDue_ || everySubstep) {
     if (everySubstep && !forcesDue_) selectActive(sim.time() + timeOffset_);
-    const Real applyFor = everySubstep ? Real(sim.setup().settings.get("dt_max")) : Real(sim.frameDuration());
+    const Real applyFor = everySubstep ? Real(sim.setup().settings.dtMax) : Real(sim.frameDuration());
     computeForces(sim, applyFor);
     forcesDue_ = false;
   }
@@ -816,7 +815,7 @@ void Control<D>::endFrame(Simulation<D>&, FrameStats& fs) {
     for (Real f : s.fade) is.controlled += f > 0;
     const auto& grids = instances_[i].accel->frame(s.frame);
     is.controlParticles = grids.controlCount();
-    if (instances_[i].spec.params.get("repulsion") != 0) is.repulsionParticles = grids.repulsionCount();
+    if (instances_[i].spec.params.repulsion) is.repulsionParticles = grids.repulsionCount();
     fs.controlParticles += is.controlParticles;
     fs.repulsionParticles += is.repulsionParticles;
   }

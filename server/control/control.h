@@ -47,7 +47,7 @@ template <int D>
 class Control : public Effect<D> {
  public:
   // Instances must be bound (template loaded, transform track not empty).
-  Control(std::vector<BoundInstance<D>> instances, const ParamValues& settings);
+  Control(std::vector<BoundInstance<D>> instances, const ControlSettings& settings);
 
   unsigned stages() const override { return AddAccelerations | FrameBoundary; }
   void beginFrame(Simulation<D>& sim, FrameStats& fs) override;
@@ -130,7 +130,7 @@ class Control : public Effect<D> {
   void updateTemporaryParticles(Simulation<D>& sim, FrameStats& fs);
 
   std::vector<BoundInstance<D>> instances_;
-  ParamValues settings_;
+  ControlSettings settings_;
   std::vector<State> state_;          // one per instance
   std::vector<uint8_t> occupancy_;    // fidelity scratch
   std::vector<uint32_t> fidelityCells_;

@@ -184,48 +184,59 @@ std::string TimeMap::validate(double templateDuration) const {
   return {};
 }
 
-const ParamSpecs& instanceParamSpecs(int dimension) {
+const ParamTable<InstanceParams>& instanceParamTable(int dimension) {
   // Weights: paper §4 defaults. Units: see control/control.h (the forces'
   // normalisation makes them independent of the liquid's resolution).
-  static const ParamSpecs specs2 = {
-      {"attraction_weight", "", 0, 100, 0.2, "w_a: attraction towards uncovered control particles (eq. 2)"},
-      {"velocity_weight", "", 0, 100, 0.03, "w_v: pull towards the control particles' velocity (eq. 4)"},
-      {"repulsion_weight", "", 0, 100, 0.1, "w_r: push back from the repulsion layer (eq. 5)"},
-      {"repulsion", "", 0, 1, 1, "use the template's repulsion layer", ParamType::Boolean},
-      {"temporary_particles", "", 0, 1, 1, "seed and remove temporary particles (Algorithms 1, 2)",
-       ParamType::Boolean},
-      {"seed_threshold", "rho0", 0, 10, 0.35, "eta: seed where control density exceeds liquid density by this"},
-      {"removal_threshold", "rho0", 0, 10, 0.35, "tau: remove where non-temporary density exceeds this"},
-      {"seed_distance", "h", 0.1, 2, 0.5, "l: candidates at d_tp = l h from their particle"},
-      {"falloff_width", "m", 0, 100, 0.05, "band around the instance box where control fades"},
-      {"falloff_decay", "", 0, 10, 1, "gamma: weights fade as t^gamma across the band"},
+  using P = InstanceParams;
+  static const ParamTable<P> table2 = {
+      {.name = "attraction_weight", .min = 0, .max = 100, .def = 0.2,
+       .help = "w_a: attraction towards uncovered control particles (eq. 2)", .member = &P::attractionWeight},
+      {.name = "velocity_weight", .min = 0, .max = 100, .def = 0.03,
+       .help = "w_v: pull towards the control particles' velocity (eq. 4)", .member = &P::velocityWeight},
+      {.name = "repulsion_weight", .min = 0, .max = 100, .def = 0.1,
+       .help = "w_r: push back from the repulsion layer (eq. 5)", .member = &P::repulsionWeight},
+      {.name = "repulsion", .min = 0, .max = 1, .def = 1, .help = "use the template's repulsion layer",
+       .member = &P::repulsion},
+      {.name = "temporary_particles", .min = 0, .max = 1, .def = 1,
+       .help = "seed and remove temporary particles (Algorithms 1, 2)", .member = &P::temporaryParticles},
+      {.name = "seed_threshold", .unit = "rho0", .min = 0, .max = 10, .def = 0.35,
+       .help = "eta: seed where the control density exceeds the liquid density by this many rest densities",
+       .member = &P::seedThreshold},
+      {.name = "removal_threshold", .unit = "rho0", .min = 0, .max = 10, .def = 0.35,
+       .help = "tau: remove temporary particles where the non-temporary density exceeds this many rest densities",
+       .member = &P::removalThreshold},
+      {.name = "seed_distance", .unit = "h", .min = 0.1, .max = 2, .def = 0.5,
+       .help = "l: seed candidates at d_tp = l h from their particle", .member = &P::seedDistance},
+      {.name = "falloff_width", .unit = "m", .min = 0, .max = 100, .def = 0.05,
+       .help = "band around the instance's box across which control fades out", .member = &P::falloffWidth},
+      {.name = "falloff_decay", .min = 0, .max = 10, .def = 1,
+       .help = "gamma: the weights fade as t^gamma across the band", .member = &P::falloffDecay},
   };
-  static const ParamSpecs specs3 = [] {
-    ParamSpecs s = specs2;
-    for (auto& p : s) {
-      if (p.name == "attraction_weight") p.def = 0.06;
-      if (p.name == "velocity_weight") p.def = 0.01;
-      if (p.name == "repulsion_weight") p.def = 0.04;
-    }
-    return s;
-  }();
-  return dimension == 3 ? specs3 : specs2;
+  static const ParamTable<P> table3 =
+      table2.withDefaults({{"attraction_weight", 0.06}, {"velocity_weight", 0.01}, {"repulsion_weight", 0.04}});
+  return dimension == 3 ? table3 : table2;
 }
 
-const ParamSpecs& controlSettingsSpecs() {
-  static const ParamSpecs specs = {
-      {"forces_every_substep", "", 0, 1, 0,
-       "recompute control forces at every substep instead of once per frame (paper)", ParamType::Boolean},
-      {"temporary_grace_frames", "frames", 0, 1e6, 60,
-       "frames a temporary particle may stay outside every instance before it is removed regardless of density",
-       ParamType::Integer},
-      {"temporary_fade_share", "", 1e-4, 1, 0.02,
-       "at most this share of the liquid's mass leaves per frame as temporary particles past their grace period "
-       "(the rest go in the next frames), so that the liquid does not visibly lose a layer in one frame"},
-      {"fidelity_cell", "r", 0.5, 10, 4,
-       "cell size of the fidelity occupancy grid, in template particle radii (4: two particle spacings)"},
+const ParamTable<ControlSettings>& controlSettingsTable() {
+  using C = ControlSettings;
+  static const ParamTable<C> table = {
+      {.name = "forces_every_substep", .min = 0, .max = 1, .def = 0,
+       .help = "recompute the control forces at every substep instead of once per frame (the paper's choice)",
+       .member = &C::forcesEverySubstep},
+      {.name = "temporary_grace_frames", .unit = "frames", .min = 0, .max = 1e6, .def = 60,
+       .help = "frames a temporary particle may stay outside every instance before it is removed regardless of "
+               "density",
+       .member = &C::temporaryGraceFrames},
+      {.name = "temporary_fade_share", .min = 1e-4, .max = 1, .def = 0.02,
+       .help = "at most this share of the liquid's mass leaves per frame as temporary particles past their grace "
+               "period (the rest go in the next frames), so that the liquid does not visibly lose a layer in one "
+               "frame",
+       .member = &C::temporaryFadeShare},
+      {.name = "fidelity_cell", .unit = "r", .min = 0.5, .max = 10, .def = 4,
+       .help = "cell size of the fidelity occupancy grid, in template particle radii (4: two particle spacings)",
+       .member = &C::fidelityCell},
   };
-  return specs;
+  return table;
 }
 
 template struct TransformTrack<2>;

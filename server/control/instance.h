@@ -88,11 +88,34 @@ struct TimeMap {
   std::string validate(double templateDuration) const;
 };
 
-// Per-instance parameters (paper §3.3–§3.5, defaults of §4), declared once.
-// The weights' defaults depend on the dimension (paper §4).
-const ParamSpecs& instanceParamSpecs(int dimension);
+// Per-instance parameters (paper §3.3–§3.5, defaults of §4).
+struct InstanceParams {
+  double attractionWeight;  // w_a, eq. (2)
+  double velocityWeight;    // w_v, eq. (4)
+  double repulsionWeight;   // w_r, eq. (5)
+  bool repulsion;
+  bool temporaryParticles;  // Algorithms 1 and 2
+  double seedThreshold;     // eta, rest densities
+  double removalThreshold;  // tau, rest densities
+  double seedDistance;      // l, smoothing lengths
+  double falloffWidth;      // m
+  double falloffDecay;      // gamma
+  bool operator==(const InstanceParams&) const = default;
+};
+// Declared once; the weights' defaults depend on the dimension (paper §4).
+const ParamTable<InstanceParams>& instanceParamTable(int dimension);
+inline const ParamSpecs& instanceParamSpecs(int dimension) { return instanceParamTable(dimension).specs(); }
+
 // Scene-level control settings (the "control" object of a scene).
-const ParamSpecs& controlSettingsSpecs();
+struct ControlSettings {
+  bool forcesEverySubstep;
+  int temporaryGraceFrames;
+  double temporaryFadeShare;
+  double fidelityCell;  // template particle radii
+  bool operator==(const ControlSettings&) const = default;
+};
+const ParamTable<ControlSettings>& controlSettingsTable();
+inline const ParamSpecs& controlSettingsSpecs() { return controlSettingsTable().specs(); }
 
 template <int D>
 struct InstanceSpec {
@@ -101,7 +124,7 @@ struct InstanceSpec {
   TransformTrack<D> transform;  // empty: one key at the recording place (filled in at bind time)
   TimeMap time;
   int phase = 0;                // index of the scene phase it controls
-  ParamValues params;           // instanceParamSpecs(D), every value present
+  InstanceParams params = instanceParamTable(D).defaults();
 };
 
 // An instance with its template loaded (shared between instances of the same

@@ -61,22 +61,22 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
   Real tau = std::numeric_limits<Real>::max(), l = std::numeric_limits<Real>::max();
   const double now = sim.time() + timeOffset_;
   for (size_t i = 0; i < instances_.size(); ++i) {
-    const ParamValues& p = instances_[i].spec.params;
+    const InstanceParams& p = instances_[i].spec.params;
     // A particle outside every instance belongs to none: removal uses the
     // most eager threshold and spacing of the instances started so far (one
     // that starts later changes nothing before it: edits re-simulate from
     // an instance's start).
     if (instances_[i].spec.time.start <= now + 1e-9) {
-      tau = std::min(tau, Real(p.get("removal_threshold")));
-      l = std::min(l, Real(p.get("seed_distance")));
+      tau = std::min(tau, Real(p.removalThreshold));
+      l = std::min(l, Real(p.seedDistance));
     }
-    seeding = seeding || (state_[i].on && p.get("temporary_particles") != 0);
+    seeding = seeding || (state_[i].on && p.temporaryParticles);
   }
   if (tau == std::numeric_limits<Real>::max()) {
     // Only left by an instance since removed: its defaults.
-    const ParamSpecs& specs = instanceParamSpecs(D);
-    tau = Real(ParamValues(specs).get("removal_threshold"));
-    l = Real(ParamValues(specs).get("seed_distance"));
+    const InstanceParams defaults = instanceParamTable(D).defaults();
+    tau = Real(defaults.removalThreshold);
+    l = Real(defaults.seedDistance);
   }
   if (!seeding && temporaries_ == 0) return;
   // Neighbours and pair gradients of the frame's own positions: the frame
@@ -95,7 +95,7 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
   std::vector<uint32_t> remove;
   faded_ = 0;
   if (temporaries_ > 0) {
-    const uint32_t grace = uint32_t(settings_.get("temporary_grace_frames"));
+    const uint32_t grace = uint32_t(settings_.temporaryGraceFrames);
     const Real dtp = l * hL;
     std::vector<uint32_t>& temporary = temporaryScratch_;
     temporary.clear();
@@ -142,7 +142,7 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
                        [&](uint32_t a, uint32_t b) { return framesOutside_[a] > framesOutside_[b]; });
       double total = 0;
       for (long i = 0; i < n; ++i) total += double(f.mass[i]);
-      const double budget = settings_.get("temporary_fade_share") * total;
+      const double budget = settings_.temporaryFadeShare * total;
       double gone = 0;
       for (uint32_t i : overdue) {
         if (gone > 0 && gone + double(f.mass[i]) > budget) break;
@@ -165,16 +165,16 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
     const uint32_t* nbr = sim.pairNeighbors();
     for (size_t s = 0; s < instances_.size(); ++s) {
       State& st = state_[s];
-      const ParamValues& p = instances_[s].spec.params;
-      if (!st.on || p.get("temporary_particles") == 0) continue;
+      const InstanceParams& p = instances_[s].spec.params;
+      if (!st.on || !p.temporaryParticles) continue;
       // Only the box seeds (not its falloff band): its liquid, from the
       // grid of the last substep (grown by a cell: particles moved less
       // since), tested on today's positions.
       std::vector<uint32_t>& sources = seedSources_;
       sim.search.dynamicInBox(st.regionWorldBox.grown(sim.search.radius()), sources);
       const int phase = instances_[s].spec.phase;
-      const Real eta = Real(p.get("seed_threshold"));
-      const Real dtp = Real(p.get("seed_distance")) * hL;
+      const Real eta = Real(p.seedThreshold);
+      const Real dtp = Real(p.seedDistance) * hL;
       const Real eps = Real(0.05) * dtp;
       const Template<D>& tpl = instances_[s].templ();
       const Real rho0T = Real(tpl.header.restDensity);

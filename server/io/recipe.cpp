@@ -120,8 +120,8 @@ Recipe parseRecipe(const nlohmann::json& recipe, const std::string& text) {
 }
 
 int recipeSimulationFrames(const Recipe& recipe) {
-  const double frameRate = recipe.dimension == 2 ? parseScene<2>(recipe.scene).settings.get("frame_rate")
-                                                 : parseScene<3>(recipe.scene).settings.get("frame_rate");
+  const double frameRate = recipe.dimension == 2 ? parseScene<2>(recipe.scene).settings.frameRate
+                                                 : parseScene<3>(recipe.scene).settings.frameRate;
   int last = 0;
   for (const CaptureSpec& c : recipe.captures) last = std::max(last, windowOf(c, 1.0 / frameRate).last());
   return last;

@@ -626,14 +626,15 @@ NamedParams parseSolver(const json* j) {
   return solver;
 }
 
-ParamValues parseSettings(const json* j) {
+SimulationSettings parseSettings(const json* j) {
   const std::string path = "settings";
-  if (!j) return ParamValues(simulationSettingsSpecs());
-  ParamValues v = parseParams(expectObject(*j, path), path, simulationSettingsSpecs(), {}, "settings");
-  if (v.get("dt_min") > v.get("dt_max"))
+  if (!j) return simulationSettingsTable().defaults();
+  const SimulationSettings s =
+      simulationSettingsTable().bind(parseParams(expectObject(*j, path), path, simulationSettingsSpecs(), {}, "settings"));
+  if (s.dtMin > s.dtMax)
     fail(keyPath(path, member(*j, "dt_min") ? "dt_min" : "dt_max"),
-         "dt_min = " + fmt(v.get("dt_min")) + " s is larger than dt_max = " + fmt(v.get("dt_max")) + " s");
-  return v;
+         "dt_min = " + fmt(s.dtMin) + " s is larger than dt_max = " + fmt(s.dtMax) + " s");
+  return s;
 }
 
 template <int D>
@@ -761,7 +762,7 @@ InstanceSpec<D> parseInstance(const json& j, const std::string& p, const std::ve
   const json& o = expectObject(j, p);
   InstanceSpec<D> s;
   // Parameters first: an unknown key fails here, listing every accepted one.
-  s.params = parseParams(o, p, instanceParamSpecs(D), kInstanceKeys, "an instance");
+  s.params = instanceParamTable(D).bind(parseParams(o, p, instanceParamSpecs(D), kInstanceKeys, "an instance"));
   if (const json* m = member(o, "name")) {
     s.name = getString(*m, keyPath(p, "name"));
     if (s.name.empty()) fail(keyPath(p, "name"), "must not be empty (omit it for a name derived from the template)");
@@ -840,7 +841,7 @@ json vecDoubleToJson(const VecDouble<D>& v) {
 
 template <int D>
 json instanceToJson(const InstanceSpec<D>& s, const std::vector<Phase>& phases) {
-  json o = paramsToJson(s.params, &instanceParamSpecs(D));
+  json o = paramsToJson(instanceParamTable(D).values(s.params), &instanceParamSpecs(D));
   o["name"] = s.name;
   o["template"] = s.templateName;
   o["phase"] = phases.at(size_t(s.phase)).name;
@@ -1097,7 +1098,7 @@ SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
   s.phases = parsePhases(member(root, "phases"));
   s.fluidBlocks = parseFluidBlocks<D>(root, s.phases);
   s.settings = parseSettings(member(root, "settings"));  // before the obstacles: mesh grids use contact_distance
-  s.obstacles = parseObstacles<D>(member(root, "obstacles"), s.particleRadius, Real(s.settings.get("contact_distance")));
+  s.obstacles = parseObstacles<D>(member(root, "obstacles"), s.particleRadius, Real(s.settings.contactDistance));
   s.bodies = parseBodies<D>(member(root, "bodies"), s.domain);
   s.emitters = parseEmitters<D>(member(root, "emitters"), s.phases);
   s.solver = parseSolver<D>(member(root, "solver"));
@@ -1212,7 +1213,7 @@ json sceneToJson(const SimulationSetup<D>& s) {
   solver["method"] = s.solver.name;
   j["solver"] = solver;
 
-  j["settings"] = paramsToJson(s.settings, &simulationSettingsSpecs());
+  j["settings"] = paramsToJson(simulationSettingsTable().values(s.settings), &simulationSettingsSpecs());
 
   json effects = json::array();
   for (const NamedParams& e : s.effects) {
@@ -1234,9 +1235,8 @@ SceneControl<D> parseSceneControl(const json& root, const std::vector<Phase>& ph
   if (phases.empty()) throw std::invalid_argument("parseSceneControl: the scene has no phases");
   SceneControl<D> c;
   if (const json* m = member(root, "control"))
-    c.settings = parseParams(expectObject(*m, "control"), "control", controlSettingsSpecs(), {}, "control");
-  else
-    c.settings = ParamValues(controlSettingsSpecs());
+    c.settings = controlSettingsTable().bind(
+        parseParams(expectObject(*m, "control"), "control", controlSettingsSpecs(), {}, "control"));
   c.instances = parseInstances<D>(member(root, "instances"), phases);
   return c;
 }
@@ -1245,7 +1245,7 @@ template <int D>
 json sceneControlToJson(const SceneControl<D>& c, const std::vector<Phase>& phases) {
   json instances = json::array();
   for (const auto& s : c.instances) instances.push_back(instanceToJson<D>(s, phases));
-  return {{"control", paramsToJson(c.settings, &controlSettingsSpecs())}, {"instances", instances}};
+  return {{"control", paramsToJson(controlSettingsTable().values(c.settings), &controlSettingsSpecs())}, {"instances", instances}};
 }
 
 template SimulationSetup<2> parseScene<2>(const json&, double);

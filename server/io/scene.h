@@ -67,7 +67,7 @@ nlohmann::json sceneToJson(const SimulationSetup<D>& setup);
 template <int D>
 struct SceneControl {
   std::vector<InstanceSpec<D>> instances;  // every name set and unique
-  ParamValues settings;                    // controlSettingsSpecs(), every value present
+  ControlSettings settings = controlSettingsTable().defaults();  // the scene's "control"
 };
 
 // `phases` are the scene's (SimulationSetup::phases): instances name theirs.

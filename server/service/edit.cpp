@@ -8,6 +8,7 @@
 namespace fc::service {
 
 using nlohmann::json;
+using namespace json_access;
 
 const char* editKindName(EditKind kind) {
   switch (kind) {
@@ -19,61 +20,46 @@ const char* editKindName(EditKind kind) {
   return "?";
 }
 
-
 const std::vector<std::string>& settingsEditKeys() {
   static const std::vector<std::string> keys = {"settings", "solver", "control"};
   return keys;
 }
 
-std::string joinedNames(const std::vector<std::string>& v) {
-  std::string s;
-  for (const auto& x : v) s += (s.empty() ? "" : ", ") + x;
-  return s;
-}
-
 namespace {
-
-void onlyKeys(const json& j, const std::vector<std::string>& allowed, const std::string& type) {
-  for (const auto& [k, v] : j.items())
-    if (std::find(allowed.begin(), allowed.end(), k) == allowed.end())
-      throw SceneError(k, "unknown key for a " + type + " edit (accepted: " + joinedNames(allowed) + ")");
+// The member `key` of an edit, checked for its JSON type (json_access.h's messages).
+const json& objectMember(const json& j, const std::string& key, const std::string& what) {
+  return expectObject(required(j, "", key, what), key);
 }
-
-const json& requiredMember(const json& j, const std::string& key, json::value_t type, const std::string& what) {
-  auto it = j.find(key);
-  if (it == j.end()) throw SceneError(key, "required: " + what);
-  if (it->type() != type)
-    throw SceneError(key, std::string("must be ") + (type == json::value_t::object ? "an object" : "a string") +
-                              ", got " + it->type_name());
-  return *it;
+std::string stringMember(const json& j, const std::string& key, const std::string& what) {
+  return getString(required(j, "", key, what), key);
 }
 }  // namespace
 
 Edit Edit::fromJson(const json& j) {
   if (!j.is_object()) throw SceneError("", std::string("an edit must be a JSON object, got ") + j.type_name());
   const std::string kinds = "add_instance, update_instance, remove_instance or settings";
-  const std::string type = requiredMember(j, "type", json::value_t::string, kinds).get<std::string>();
+  const std::string type = stringMember(j, "type", kinds);
   Edit e;
   if (type == "add_instance") {
-    onlyKeys(j, {"type", "instance"}, type);
+    checkKeys(j, "", {"type", "instance"}, "a " + type + " edit");
     e.kind = EditKind::AddInstance;
-    e.payload = requiredMember(j, "instance", json::value_t::object, "the instance object");
+    e.payload = objectMember(j, "instance", "the instance object");
   } else if (type == "update_instance") {
-    onlyKeys(j, {"type", "name", "patch"}, type);
+    checkKeys(j, "", {"type", "name", "patch"}, "a " + type + " edit");
     e.kind = EditKind::UpdateInstance;
-    e.instance = requiredMember(j, "name", json::value_t::string, "the instance's name").get<std::string>();
-    e.payload = requiredMember(j, "patch", json::value_t::object, "a JSON merge patch of the instance");
+    e.instance = stringMember(j, "name", "the instance's name");
+    e.payload = objectMember(j, "patch", "a JSON merge patch of the instance");
   } else if (type == "remove_instance") {
-    onlyKeys(j, {"type", "name"}, type);
+    checkKeys(j, "", {"type", "name"}, "a " + type + " edit");
     e.kind = EditKind::RemoveInstance;
-    e.instance = requiredMember(j, "name", json::value_t::string, "the instance's name").get<std::string>();
+    e.instance = stringMember(j, "name", "the instance's name");
   } else if (type == "settings") {
-    onlyKeys(j, {"type", "settings", "solver", "control"}, type);
+    checkKeys(j, "", {"type", "settings", "solver", "control"}, "a " + type + " edit");
     e.kind = EditKind::Settings;
     e.payload = json::object();
     for (const auto& k : settingsEditKeys())
-      if (j.contains(k)) e.payload[k] = requiredMember(j, k, json::value_t::object, "");
-    if (e.payload.empty()) throw SceneError("", "a settings edit needs at least one of " + joinedNames(settingsEditKeys()));
+      if (j.contains(k)) e.payload[k] = objectMember(j, k, "");
+    if (e.payload.empty()) throw SceneError("", "a settings edit needs at least one of " + joinNames(settingsEditKeys()));
   } else {
     throw SceneError("type", "unknown edit type '" + type + "' (expected " + kinds + ")");
   }

@@ -57,7 +57,5 @@ struct EditResult {
 
 // The scene objects a settings edit may patch: settings, solver, control.
 const std::vector<std::string>& settingsEditKeys();
-// "a, b, c" (for messages that list what is accepted).
-std::string joinedNames(const std::vector<std::string>& names);
 
 }  // namespace fc::service

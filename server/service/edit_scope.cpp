@@ -70,7 +70,7 @@ double firstAffectedTime(const InstanceSpec<D>* before, const InstanceSpec<D>* a
   if (!after) return before->time.start;
   const double start = std::min(before->time.start, after->time.start);
   const bool restSame = before->templateName == after->templateName && before->phase == after->phase &&
-                        before->params.all() == after->params.all() && sameTimeMap(before->time, after->time);
+                        before->params == after->params && sameTimeMap(before->time, after->time);
   if (!restSame) return start;
   // Only the track: from where the tracks part, but never before the instance acts.
   const double track = tracksAgreeUntil(before->transform, after->transform);

@@ -394,7 +394,7 @@ void encodeFrameImpl(const Simulation<D>& sim, const FrameStats& stats, const Co
       nControl += grids.controlCount();
       extendMapped<D>(map, grids.controlPositions(), clo, chi);
     }
-    if (sendRepulsion && inst.spec.params.get("repulsion") != 0) {
+    if (sendRepulsion && inst.spec.params.repulsion) {
       spans[i].repulsionOffset = u32(nRepulsion);
       spans[i].repulsionCount = u32(grids.repulsionCount());
       nRepulsion += grids.repulsionCount();
@@ -496,7 +496,7 @@ void encodeFrameImpl(const Simulation<D>& sim, const FrameStats& stats, const Co
             r.templateMax[size_t(d)] = double(region.max[d]);
           }
         }
-        r.falloffWidth = inst.spec.params.has("falloff_width") ? inst.spec.params.get("falloff_width") : 0.0;
+        r.falloffWidth = inst.spec.params.falloffWidth;
         if (stats.instances.size() == nInst && stats.instances[i].name == inst.spec.name) {
           r.fidelity = stats.instances[i].fidelity;
           r.controlled = stats.instances[i].controlled;

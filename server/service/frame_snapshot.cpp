@@ -109,7 +109,7 @@ FramePtr snapshotOf(const Simulation<D>& sim, const AABB<D>& domain, const std::
       is.regionMin[size_t(d)] = double(region.min[d]);
       is.regionMax[size_t(d)] = double(region.max[d]);
     }
-    is.falloffWidth = b.spec.params.get("falloff_width");
+    is.falloffWidth = b.spec.params.falloffWidth;
     s->instances.push_back(std::move(is));
   }
   s->byteSize = s->bytes();

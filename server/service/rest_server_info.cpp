@@ -2,11 +2,10 @@
 
 // GET /api/health, /api/parameters, /api/presets: what the server is and
 // what it accepts.
+#include "io/parameter_reference.h"
 #include "service/rest_support.h"
-#include "sph/limits.h"
 #include "sph/pipeline.h"
 #include "sph/settings.h"
-#include "control/instance.h"
 
 #include <fstream>
 #include <unistd.h>
@@ -32,57 +31,12 @@ HttpResponse ServiceHub::health(const HttpRequest&, const Params&) {
                        {"rss_mb", currentRssMb()}});
 }
 
-namespace {
-
-json specsJson(const ParamSpecs& specs) {
-  json list = json::array();
-  for (const ParamSpec& s : specs) {
-    const char* type = s.type == ParamType::Boolean ? "boolean" : s.type == ParamType::Integer ? "integer" : "number";
-    json j = {{"name", s.name}, {"unit", s.unit}, {"min", s.min}, {"max", s.max}, {"type", type}, {"help", s.help}};
-    if (s.type == ParamType::Boolean) j["default"] = s.def != 0;
-    else j["default"] = s.def;
-    list.push_back(j);
-  }
-  return list;
-}
-
-template <class R>
-json registryJson(const R& registry) {
-  json out = json::object();
-  for (const std::string& name : registry.names()) {
-    const auto* e = registry.find(name);
-    out[name] = {{"help", e->help}, {"params", specsJson(e->params)}};
-  }
-  return out;
-}
-
-json limitsJson() {
-  json list = json::array();
-  for (const PhysicalRange& r : physicalRanges())
-    list.push_back({{"name", r.name}, {"unit", r.unit}, {"min", r.min}, {"max", r.max}, {"help", r.help}});
-  return list;
-}
-
-template <int D>
-json parametersJson() {
-  registerBuiltinSolversAndEffects();
-  return {{"dimension", D},
-          {"instance", specsJson(instanceParamSpecs(D))},
-          {"control", specsJson(controlSettingsSpecs())},
-          {"settings", specsJson(simulationSettingsSpecs())},
-          {"solvers", registryJson(PressureSolverRegistry<D>::instance())},
-          {"effects", registryJson(EffectRegistry<D>::instance())},
-          {"limits", limitsJson()}};
-}
-
-}  // namespace
-
 // The one declaration of every parameter (name, unit, range, default, help):
 // the editor's inspector builds its fields from it.
 HttpResponse ServiceHub::parameters(const HttpRequest& req, const Params&) {
   const std::string d = queryValue(req.query, "dimension");
-  if (d.empty() || d == "2") return jsonResponse(parametersJson<2>());
-  if (d == "3") return jsonResponse(parametersJson<3>());
+  if (d.empty() || d == "2") return jsonResponse(parameterReference<2>());
+  if (d == "3") return jsonResponse(parameterReference<3>());
   throw ApiError(400, "query \"dimension\" must be 2 or 3, got \"" + d.substr(0, 40) + "\"", "dimension");
 }
 

@@ -381,7 +381,7 @@ class SessionImpl final : public Session {
   }
 
   // A control stage over bound_ on `sim` (whose clock starts at timeBase_).
-  Control<D>* attachControlStage(Simulation<D>& sim, const ParamValues& settings) {
+  Control<D>* attachControlStage(Simulation<D>& sim, const ControlSettings& settings) {
     auto c = std::make_unique<Control<D>>(bound_, settings);
     Control<D>* stage = c.get();
     sim.addEffect(std::move(c), "control");
@@ -1006,7 +1006,7 @@ class SessionImpl final : public Session {
       names.push_back(control_.instances[i].name);
     }
     throw SceneError("name", "no instance named '" + name + "' (the scene has " +
-                                 (names.empty() ? std::string("none") : joinedNames(names)) + ")");
+                                 json_access::joinNames(names, "none") + ")");
   }
 
   // Validates fully, then applies; throws (changing nothing) when invalid.
@@ -1075,7 +1075,7 @@ class SessionImpl final : public Session {
     json candidate = scene_;
     for (const auto& [k, v] : payload.items()) {
       if (std::find(settingsEditKeys().begin(), settingsEditKeys().end(), k) == settingsEditKeys().end())
-        throw SceneError(k, "cannot be changed by a settings edit (it may change " + joinedNames(settingsEditKeys()) + ")");
+        throw SceneError(k, "cannot be changed by a settings edit (it may change " + json_access::joinNames(settingsEditKeys()) + ")");
       if (!v.is_object())
         throw SceneError(k, std::string("must be an object (a merge patch of the scene's \"") + k + "\"), got " +
                                 v.type_name());

@@ -25,7 +25,7 @@ inline constexpr PhysicalRange kRestDensity{"phases[].rest_density", "kg/m^3", 1
                                             "rest density of a liquid phase (water 1000, mercury 13 546)"};
 inline constexpr PhysicalRange kViscosity{"phases[].viscosity", "m^2/s", 0, 1e3, "kinematic viscosity of a phase"};
 inline constexpr PhysicalRange kSpeed{"velocity, speed", "m/s", 0, 1e3,
-                                      "a block's, emitter's or body's speed (magnitude)"};
+                                      "a block's, emitter's or body's speed (magnitude); an emitter's at most 100 m/s"};
 inline constexpr PhysicalRange kAngularSpeed{"angular_velocity", "deg/s", 0, 1e5, "a body's spin, per axis"};
 inline constexpr PhysicalRange kBodyDensity{"bodies[].density", "kg/m^3", 1, 1e6, "a dynamic body's density"};
 inline constexpr PhysicalRange kCoordinate{"positions, sizes", "m", -1e5, 1e5,

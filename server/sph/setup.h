@@ -5,6 +5,7 @@
 #include "core/mesh_sdf.h"
 #include "sph/parameters.h"
 #include "sph/phase.h"
+#include "sph/settings.h"
 #include <array>
 #include <limits>
 #include <memory>
@@ -135,7 +136,7 @@ struct SimulationSetup {
   std::vector<Body<D>> bodies;          // moving solids (none: no stage, no cost)
   std::vector<Emitter<D>> emitters;     // inflows (none: no stage, no cost)
   NamedParams solver;                   // pressure solver name and its parameters
-  ParamValues settings;                 // scene-level solver settings (simulationSettingsSpecs)
+  SimulationSettings settings = simulationSettingsTable().defaults();  // the scene's "settings"
   std::vector<NamedParams> effects;     // in the order the scene lists them
   double duration = 2;                  // s, default run length
   size_t maxParticles = 2000000;

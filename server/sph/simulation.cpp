@@ -60,16 +60,11 @@ Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
   gravity_ = setup_.gravity;
   for (const auto& ph : setup_.phases) restDensity_.push_back(ph.restDensity);
 
-  // Settings default where the caller left them out.
-  ParamValues defaults(simulationSettingsSpecs());
-  for (const auto& [k, v] : defaults.all())
-    if (!setup_.settings.has(k)) setup_.settings.set(k, v);
-
   // The density formulation, once: the number density where phases of
   // different rest densities meet (automatic), or as the scene says. A
   // single-phase scene keeps the mass sum, exactly as before.
   {
-    const int formulation = int(setup_.settings.get("density_formulation"));
+    const int formulation = setup_.settings.densityFormulation;
     bool contrast = false;
     for (Real r : restDensity_) contrast = contrast || r != restDensity_.front();
     numberDensity_ = formulation == 2 || (formulation == 0 && contrast);
@@ -113,7 +108,7 @@ Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
   for (auto& e : effects_) e->resize(fluid.size());
   pressure_->init(*this);
   for (auto& e : effects_) e->init(*this);
-  lastDt_ = Real(setup_.settings.get("dt_max"));
+  lastDt_ = Real(setup_.settings.dtMax);
   relaxInitialState();
 }
 
@@ -282,7 +277,7 @@ void Simulation<D>::removeParticles(const std::vector<uint32_t>& indices) {
 template <int D>
 void Simulation<D>::buildBoundary() {
   const Real spacing = 2 * radius_;
-  const int layers = int(setup_.settings.get("boundary_layers"));
+  const int layers = setup_.settings.boundaryLayers;
   std::vector<Vec<D>> pts;
   // Sample centres sit one particle radius behind the solid surface, where
   // the fluid lattice would continue: a fluid particle resting against the
@@ -478,9 +473,9 @@ std::optional<Real> Simulation<D>::cflTimeStep() const {
     }
   }
   if (nonFinite > 0) return std::nullopt;
-  const Real cfl = Real(setup_.settings.get("cfl_factor"));
+  const Real cfl = Real(setup_.settings.cflFactor);
   const Real vmax = std::sqrt(vmax2);
-  Real dtMax = Real(setup_.settings.get("dt_max"));
+  Real dtMax = Real(setup_.settings.dtMax);
   // Moving bodies: their fastest material point counts as a particle's speed.
   const Real vfast = bodies_ ? std::max(vmax, Real(bodies_->maxPointSpeed())) : vmax;
   Real dt = vfast > 0 ? cfl * Real(0.4) * (2 * radius_) / vfast : dtMax;
@@ -507,7 +502,7 @@ std::optional<Real> Simulation<D>::cflTimeStep() const {
   // density solve to remove and conditions the implicit viscosity system
   // better, so the next solves start closer to their tolerance. dt_min stays
   // the floor.
-  const Real dtMin = std::min(Real(setup_.settings.get("dt_min")), dtMax);
+  const Real dtMin = std::min(Real(setup_.settings.dtMin), dtMax);
   return std::max(std::clamp(dt, dtMin, dtMax) * stepScale_, dtMin);
 }
 
@@ -519,8 +514,8 @@ std::optional<Real> Simulation<D>::cflTimeStep() const {
 template <int D>
 void Simulation<D>::updateStepScale(bool converged) {
   constexpr Real kMinStepScale = Real(1) / 64;
-  if (converged) stepScale_ = std::min(Real(1), stepScale_ * Real(setup_.settings.get("step_recovery")));
-  else stepScale_ = std::max(kMinStepScale, stepScale_ * Real(setup_.settings.get("unconverged_step_scale")));
+  if (converged) stepScale_ = std::min(Real(1), stepScale_ * Real(setup_.settings.stepRecovery));
+  else stepScale_ = std::max(kMinStepScale, stepScale_ * Real(setup_.settings.unconvergedStepScale));
 }
 
 template <int D>
@@ -542,7 +537,7 @@ void Simulation<D>::reorderParticles() {
 // surface itself within the step are counted apart (`crossedSurface`).
 template <int D>
 void Simulation<D>::enforceSolidContact(FrameStats& fs) {
-  const Real c = Real(setup_.settings.get("contact_distance")) * radius_;
+  const Real c = Real(setup_.settings.contactDistance) * radius_;
   const Vec<D> lo = setup_.domain.min.array() + c;
   const Vec<D> hi = setup_.domain.max.array() - c;
   size_t contacts = 0, crossed = 0;
@@ -621,7 +616,7 @@ void Simulation<D>::relaxInitialState() {
   const long n = long(fluid.size());
   FrameStats ignored;
   enforceSolidContact(ignored);
-  const Real tau = Real(setup_.settings.get("dt_max"));
+  const Real tau = Real(setup_.settings.dtMax);
   const Real maxMove = Real(0.5) * radius_;
   std::vector<Vec<D>> velocities;
   for (relaxationPasses_ = 0; relaxationPasses_ < kMaxPasses; ++relaxationPasses_) {
@@ -675,11 +670,11 @@ FrameStats Simulation<D>::advanceFrame() {
   const auto t0 = Clock::now();
   FrameStats fs;
   const double frameEnd = double(frame_ + 1) * frameDuration();
-  const int reorderInterval = int(setup_.settings.get("reorder_interval"));
+  const int reorderInterval = setup_.settings.reorderInterval;
   fs.minDt = 1e30;
   for (Effect<D>* e : frameStages_) e->beginFrame(*this, fs);
   const long n = long(fluid.size());
-  const int maxSubsteps = int(setup_.settings.get("max_substeps_per_frame"));
+  const int maxSubsteps = setup_.settings.maxSubstepsPerFrame;
   auto stop = [&](std::string why) {
     fs.finite = false;
     fs.failure = std::move(why);

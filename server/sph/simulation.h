@@ -150,7 +150,7 @@ class Simulation {
   Real supportRadius() const { return kernel.radius(); }
   double time() const { return time_; }
   int frame() const { return frame_; }
-  double frameDuration() const { return 1.0 / setup_.settings.get("frame_rate"); }
+  double frameDuration() const { return 1.0 / setup_.settings.frameRate; }
   const std::vector<std::string>& pipelineStages() const { return stageNames_; }
   // Moving bodies (null when the scene has none).
   const RigidBodies<D>* bodies() const { return bodies_.get(); }

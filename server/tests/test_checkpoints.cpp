@@ -114,14 +114,14 @@ struct RichRun {
     BoundInstance<D> b;
     b.spec.name = "blob";
     b.spec.templateName = "blob";
-    b.spec.params = ParamValues(instanceParamSpecs(D));
-    b.spec.params.set("falloff_width", 0.05);
+    b.spec.params = instanceParamTable(D).defaults();
+    b.spec.params.falloffWidth = 0.05;
     TransformKey<D> k;
     k.translation = tpl->region().center().template cast<double>();
     b.spec.transform.keys = {k};
     b.accel = std::make_shared<TemplateAccel<D>>(TemplateAccel<D>::build(tpl));
-    ParamValues settings(controlSettingsSpecs());
-    settings.set("temporary_grace_frames", 4);
+    ControlSettings settings = controlSettingsTable().defaults();
+    settings.temporaryGraceFrames = 4;
     sim->addEffect(std::make_unique<Control<D>>(std::vector<BoundInstance<D>>{b}, settings), "control");
   }
 };
@@ -300,7 +300,7 @@ TEST(EditScope, FirstAffectedFrameFollowsTheInstanceTimeline) {
   }
 
   InstanceSpec<2> a;
-  a.params = ParamValues(instanceParamSpecs(2));
+  a.params = instanceParamTable(2).defaults();
   a.time.start = 1.0;
   TransformKey<2> k0, k1, k2;
   k0.time = 0;
@@ -338,7 +338,7 @@ TEST(EditScope, FirstAffectedFrameFollowsTheInstanceTimeline) {
   EXPECT_TRUE(t == 2.0 || t == service::kNeverAffected) << t;
   // A weight: from the start; the start moved: from the earlier one.
   b = a;
-  b.params.set("attraction_weight", 1);
+  b.params.attractionWeight = 1;
   EXPECT_EQ(firstAffectedTime<2>(&a, &b), 1.0);
   b = a;
   b.time.start = 0.25;

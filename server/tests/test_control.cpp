@@ -60,7 +60,7 @@ BoundInstance<D> bind(std::shared_ptr<Template<D>> tpl, const TransformKey<D>* k
   BoundInstance<D> b;
   b.spec.name = "instance";
   b.spec.templateName = tpl->header.name;
-  b.spec.params = ParamValues(instanceParamSpecs(D));
+  b.spec.params = instanceParamTable(D).defaults();
   TransformKey<D> k;
   if (key) k = *key;
   else k.translation = tpl->region().center().template cast<double>();
@@ -92,7 +92,7 @@ struct Rig {
   std::unique_ptr<Simulation<D>> sim;
   Control<D>* control = nullptr;
   Rig(const SimulationSetup<D>& setup, std::vector<BoundInstance<D>> instances,
-      const ParamValues& settings = ParamValues(controlSettingsSpecs())) {
+      const ControlSettings& settings = controlSettingsTable().defaults()) {
     sim = std::make_unique<Simulation<D>>(setup);
     auto c = std::make_unique<Control<D>>(std::move(instances), settings);
     control = c.get();
@@ -144,8 +144,8 @@ TEST(ControlForces, AttractionPointsIntoTheEmptyTemplate) {
   const auto region = box2(0.3f, 0.3f, 0.7f, 0.7f);
   auto tpl = blockTemplate<2>(region, box2(0.5f, 0.3f, 0.7f, 0.7f));  // right half filled
   auto inst = bind<2>(tpl);
-  inst.spec.params.set("velocity_weight", 0);
-  inst.spec.params.set("repulsion", 0);
+  inst.spec.params.velocityWeight = 0;
+  inst.spec.params.repulsion = false;
   // A thin liquid column left of the control block, inside the box.
   Rig<2> rig(liquidSetup<2>(box2(0, 0, 1, 1), {box2(0.45f, 0.44f, 0.49f, 0.56f)}, kRT), {inst});
   const auto& acc = rig.evaluate();
@@ -171,8 +171,8 @@ TEST(ControlForces, VelocityForceVanishesWhenVelocitiesMatch) {
   const Vec<2> vT(Real(0.5), Real(-0.25));
   auto tpl = blockTemplate<2>(region, region, vT);
   auto inst = bind<2>(tpl);
-  inst.spec.params.set("attraction_weight", 0);
-  inst.spec.params.set("repulsion", 0);
+  inst.spec.params.attractionWeight = 0;
+  inst.spec.params.repulsion = false;
   auto setup = liquidSetup<2>(box2(0, 0, 1, 1), {box2(0.38f, 0.38f, 0.62f, 0.62f)}, kRT);
   Rig<2> rig(setup, {inst});
   for (auto& v : rig.sim->fluid.v) v = vT;
@@ -195,8 +195,8 @@ TEST(ControlForces, RepulsionPushesBackAlongTheNormal) {
   const auto region = box2(0.2f, 0.2f, 0.8f, 0.8f);
   auto tpl = blockTemplate<2>(region, box2(0.2f, 0.2f, 0.8f, 0.5f));  // slab, top face at y = 0.5
   auto inst = bind<2>(tpl);
-  inst.spec.params.set("attraction_weight", 0);
-  inst.spec.params.set("velocity_weight", 0);
+  inst.spec.params.attractionWeight = 0;
+  inst.spec.params.velocityWeight = 0;
   Rig<2> rig(liquidSetup<2>(box2(0, 0, 1, 1), {box2(0.46f, 0.52f, 0.54f, 0.6f)}, kRT), {inst});
   const auto& acc = rig.evaluate();
   const auto& f = rig.sim->fluid;
@@ -209,7 +209,7 @@ TEST(ControlForces, RepulsionPushesBackAlongTheNormal) {
   }
   EXPECT_GT(pushed, 0u);
   // Off: nothing.
-  inst.spec.params.set("repulsion", 0);
+  inst.spec.params.repulsion = false;
   Rig<2> off(liquidSetup<2>(box2(0, 0, 1, 1), {box2(0.46f, 0.52f, 0.54f, 0.6f)}, kRT), {inst});
   for (const auto& a : off.evaluate()) EXPECT_EQ(a.norm(), 0);
 }
@@ -220,10 +220,10 @@ TEST(ControlForces, FalloffFadesAcrossTheBand) {
   const auto region = box2(0.4f, 0.4f, 0.6f, 0.6f);
   auto tpl = blockTemplate<2>(region, region, Vec<2>(1, 0));
   auto inst = bind<2>(tpl);
-  inst.spec.params.set("attraction_weight", 0);
-  inst.spec.params.set("repulsion", 0);
-  inst.spec.params.set("falloff_width", 0.1);
-  inst.spec.params.set("falloff_decay", 2);
+  inst.spec.params.attractionWeight = 0;
+  inst.spec.params.repulsion = false;
+  inst.spec.params.falloffWidth = 0.1;
+  inst.spec.params.falloffDecay = 2;
   // A liquid strip along y = 0.5 from x = 0.1 to 0.9.
   Rig<2> rig(liquidSetup<2>(box2(0, 0, 1, 1), {box2(0.1f, 0.49f, 0.9f, 0.51f)}, kRT), {inst});
   const auto& acc = rig.evaluate();
@@ -237,7 +237,7 @@ TEST(ControlForces, FalloffFadesAcrossTheBand) {
   // fade on an instance whose control particles reach into it: the same
   // particle's force with and without the band weight.
   auto flat = inst;
-  flat.spec.params.set("falloff_decay", 0);  // t^0 = 1 across the band
+  flat.spec.params.falloffDecay = 0;  // t^0 = 1 across the band
   Rig<2> rig0(liquidSetup<2>(box2(0, 0, 1, 1), {box2(0.1f, 0.49f, 0.9f, 0.51f)}, kRT), {flat});
   const auto& acc0 = rig0.evaluate();
   size_t inBand = 0;
@@ -305,8 +305,7 @@ TEST(ControlForces, TemplateSpaceEvaluationCommutesWithTheTransform) {
   instB.spec.params = instA.spec.params;
   // The falloff band is a world width: twice as wide for the same band in
   // template space.
-  instB.spec.params.set("falloff_width", key.scale[0] * instanceParamSpecs(2)[8].def);
-  ASSERT_EQ(instanceParamSpecs(2)[8].name, "falloff_width");
+  instB.spec.params.falloffWidth = key.scale[0] * instanceParamTable(2).defaults().falloffWidth;
   const Affine<2> map = instB.spec.transform.templateToWorld(0, tpl->region().center());
   AABB<2> worldDomain(map.point(Vec<2>(0, 0)).cwiseMin(map.point(Vec<2>(1, 1))),
                       map.point(Vec<2>(0, 0)).cwiseMax(map.point(Vec<2>(1, 1))));
@@ -381,8 +380,8 @@ TEST(ControlForces, InstanceMotionSpeedAndReverseShapeTheTargetVelocity) {
   const auto liquid = box2(0.38f, 0.38f, 0.62f, 0.62f);
   // Velocity force on liquid moving at `v` (attraction and repulsion off).
   auto velocityForce = [&](BoundInstance<2> inst, const Vec<2>& v, double t) {
-    inst.spec.params.set("attraction_weight", 0);
-    inst.spec.params.set("repulsion", 0);
+    inst.spec.params.attractionWeight = 0;
+    inst.spec.params.repulsion = false;
     Rig<2> rig(liquidSetup<2>(box2(0, 0, 1, 1), {liquid}, kRT), {inst});
     for (auto& x : rig.sim->fluid.v) x = v;
     const auto& acc = rig.evaluate(t);
@@ -402,8 +401,8 @@ TEST(ControlForces, InstanceMotionSpeedAndReverseShapeTheTargetVelocity) {
   const Vec<2> vInstance(Real(0.5), Real(-0.2));
   // At t = 1 the instance sits at its mid-point: move the liquid there.
   auto atMid = [&](BoundInstance<2> inst, const Vec<2>& v) {
-    inst.spec.params.set("attraction_weight", 0);
-    inst.spec.params.set("repulsion", 0);
+    inst.spec.params.attractionWeight = 0;
+    inst.spec.params.repulsion = false;
     Rig<2> rig(liquidSetup<2>(box2(0, 0, 2, 1), {AABB<2>(liquid.min + Vec<2>(Real(0.5), Real(-0.2)),
                                                           liquid.max + Vec<2>(Real(0.5), Real(-0.2)))},
                               kRT),
@@ -519,10 +518,10 @@ void checkSumsAgainstDirectEvaluation() {
 
   // Equations (2), (4), (5), directly (the instance is not transformed, so
   // template and world axes coincide, and the liquid is inside the box).
-  const ParamValues& p = inst.spec.params;
-  const double wa = p.get("attraction_weight") * kAccelerationScale;
-  const double wv = p.get("velocity_weight") * kRateScale;
-  const double wr = p.get("repulsion_weight") * kAccelerationScale;
+  const InstanceParams& p = inst.spec.params;
+  const double wa = p.attractionWeight * kAccelerationScale;
+  const double wv = p.velocityWeight * kRateScale;
+  const double wr = p.repulsionWeight * kAccelerationScale;
   const double rho0 = tpl->header.restDensity, dMin = hT / 16;
   const auto& xr = grids.repulsionPositions();
   const auto& nr = grids.repulsionNormals();

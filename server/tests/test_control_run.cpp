@@ -27,7 +27,7 @@ SimulationSetup<2> tank(std::vector<AABB<2>> blocks, Real gravity = Real(-9.81))
     s.fluidBlocks.push_back(f);
   }
   s.solver.name = "dfsph";
-  s.settings.set("frame_rate", 60);
+  s.settings.frameRate = 60;
   s.effects.push_back({"viscosity_standard", ParamValues()});
   return s;
 }
@@ -60,7 +60,7 @@ BoundInstance<2> bindAtRecordingPlace(std::shared_ptr<const Template<2>> tpl) {
   BoundInstance<2> b;
   b.spec.name = tpl->header.name;
   b.spec.templateName = tpl->header.name;
-  b.spec.params = ParamValues(instanceParamSpecs(2));
+  b.spec.params = instanceParamTable(2).defaults();
   TransformKey<2> k;
   k.translation = tpl->region().center().cast<double>();
   b.spec.transform.keys = {k};
@@ -69,7 +69,7 @@ BoundInstance<2> bindAtRecordingPlace(std::shared_ptr<const Template<2>> tpl) {
 }
 
 Control<2>* attach(Simulation<2>& sim, std::vector<BoundInstance<2>> instances,
-                   const ParamValues& settings = ParamValues(controlSettingsSpecs())) {
+                   const ControlSettings& settings = controlSettingsTable().defaults()) {
   auto c = std::make_unique<Control<2>>(std::move(instances), settings);
   Control<2>* raw = c.get();
   sim.addEffect(std::move(c), "control");
@@ -94,7 +94,7 @@ TEST(TemporaryParticles, SeedingFollowsAlgorithm1) {
   auto tpl = blobTemplate(region, box2(0.4f, 0.1f, 0.6f, 0.4f), 31);  // 1 s at 30 fps
   Simulation<2> sim(tank({box2(0, 0, 1, 0.2f)}));
   auto inst = bindAtRecordingPlace(tpl);
-  inst.spec.params.set("falloff_width", 0.1);
+  inst.spec.params.falloffWidth = 0.1;
   Control<2>* control = attach(sim, {inst});
   const size_t n0 = sim.fluid.size();
   FrameStats fs;
@@ -145,9 +145,9 @@ TEST(TemporaryParticles, PastTheGracePeriodTheyFadeOutABoundedShareAFrame) {
   auto tpl = blobTemplate(region, box2(0.42f, 0.18f, 0.58f, 0.45f), 16);  // 0.5 s at 30 fps
   Simulation<2> sim(tank({box2(0, 0, 1, 0.2f)}));
   auto inst = bindAtRecordingPlace(tpl);
-  ParamValues settings(controlSettingsSpecs());
-  settings.set("temporary_grace_frames", 0);  // every temporary particle outside the box is overdue at once
-  settings.set("temporary_fade_share", 0.01);
+  ControlSettings settings = controlSettingsTable().defaults();
+  settings.temporaryGraceFrames = 0;  // every temporary particle outside the box is overdue at once
+  settings.temporaryFadeShare = 0.01;
   attach(sim, {inst}, settings);
   const size_t n0 = sim.fluid.size();
   size_t most = 0, fadingFrames = 0, faded = 0;
@@ -260,8 +260,8 @@ FidelityRun runWithInstance(const SimulationSetup<2>& setup, std::shared_ptr<con
   auto inst = bindAtRecordingPlace(tpl);
   inst.spec.time.start = start;
   if (!steer) {
-    for (const char* w : {"attraction_weight", "velocity_weight", "repulsion_weight"}) inst.spec.params.set(w, 0);
-    inst.spec.params.set("temporary_particles", 0);
+    inst.spec.params.attractionWeight = inst.spec.params.velocityWeight = inst.spec.params.repulsionWeight = 0;
+    inst.spec.params.temporaryParticles = false;
   }
   attach(sim, {inst});
   FidelityRun r;

@@ -35,7 +35,7 @@ SimulationSetup<D> tankSetup(const AABB<D>& domain, const AABB<D>& block, Real r
   b.box = block;
   s.fluidBlocks.push_back(b);
   s.solver.name = "dfsph";
-  s.settings.set("frame_rate", 60);
+  s.settings.frameRate = 60;
   return s;
 }
 
@@ -169,8 +169,8 @@ struct ControlledScene {
     BoundInstance<2> b;
     b.spec.name = "blob-1";
     b.spec.templateName = "blob";
-    b.spec.params = ParamValues(instanceParamSpecs(2));
-    b.spec.params.set("falloff_width", 0.07);
+    b.spec.params = instanceParamTable(2).defaults();
+    b.spec.params.falloffWidth = 0.07;
     TransformKey<2> k0, k1;
     k0.time = 0;
     k0.translation = Eigen::Vector2d(0.52, 0.31);
@@ -181,7 +181,7 @@ struct ControlledScene {
     k1.rotationDeg = {20};
     b.spec.transform.keys = {k0, k1};
     b.accel = std::make_shared<TemplateAccel<2>>(TemplateAccel<2>::build(std::shared_ptr<const Template<2>>(tpl)));
-    auto c = std::make_unique<Control<2>>(std::vector<BoundInstance<2>>{b}, ParamValues(controlSettingsSpecs()));
+    auto c = std::make_unique<Control<2>>(std::vector<BoundInstance<2>>{b}, controlSettingsTable().defaults());
     control = c.get();
     sim->addEffect(std::move(c), "control");
   }

@@ -118,7 +118,7 @@ void expectSpecEqual(const InstanceSpec<D>& a, const InstanceSpec<D>& b) {
   EXPECT_EQ(a.time.cropEnd, b.time.cropEnd);
   EXPECT_EQ(a.time.speed, b.time.speed);
   EXPECT_EQ(a.time.reverse, b.time.reverse);
-  EXPECT_EQ(a.params.all(), b.params.all());
+  EXPECT_TRUE(a.params == b.params);
   ASSERT_EQ(a.transform.keys.size(), b.transform.keys.size());
   for (size_t k = 0; k < a.transform.keys.size(); ++k) {
     const auto& ka = a.transform.keys[k];
@@ -136,17 +136,17 @@ void expectSpecEqual(const InstanceSpec<D>& a, const InstanceSpec<D>& b) {
 TEST(InstanceSceneParse, AbsentKeysGiveNoInstancesAndDefaultSettings) {
   const auto c = parseSceneControl<2>(json{{"dimension", 2}}, twoPhases());
   EXPECT_TRUE(c.instances.empty());
-  EXPECT_EQ(c.settings.all(), ParamValues(controlSettingsSpecs()).all());
-  EXPECT_EQ(c.settings.get("temporary_grace_frames"), 60);
-  EXPECT_EQ(c.settings.get("forces_every_substep"), 0);
+  EXPECT_TRUE(c.settings == controlSettingsTable().defaults());
+  EXPECT_EQ(c.settings.temporaryGraceFrames, 60);
+  EXPECT_FALSE(c.settings.forcesEverySubstep);
 }
 
 TEST(InstanceSceneParse, ControlSettings) {
   const json j = {{"control", {{"forces_every_substep", true}, {"temporary_grace_frames", 12}}}};
   const auto c = parseSceneControl<2>(j, twoPhases());
-  EXPECT_EQ(c.settings.get("forces_every_substep"), 1);
-  EXPECT_EQ(c.settings.get("temporary_grace_frames"), 12);
-  EXPECT_EQ(c.settings.get("fidelity_cell"), 4);  // default kept
+  EXPECT_TRUE(c.settings.forcesEverySubstep);
+  EXPECT_EQ(c.settings.temporaryGraceFrames, 12);
+  EXPECT_EQ(c.settings.fidelityCell, 4);  // default kept
 }
 
 TEST(InstanceSceneParse, Defaults2D) {
@@ -162,12 +162,12 @@ TEST(InstanceSceneParse, Defaults2D) {
   EXPECT_EQ(s.time.cropEnd, -1);
   EXPECT_EQ(s.time.speed, 1);
   EXPECT_FALSE(s.time.reverse);
-  EXPECT_EQ(s.params.all(), ParamValues(instanceParamSpecs(2)).all());
-  EXPECT_DOUBLE_EQ(s.params.get("attraction_weight"), 0.2);
-  EXPECT_DOUBLE_EQ(s.params.get("velocity_weight"), 0.03);
-  EXPECT_DOUBLE_EQ(s.params.get("repulsion_weight"), 0.1);
-  EXPECT_EQ(s.params.get("repulsion"), 1);
-  EXPECT_EQ(s.params.get("temporary_particles"), 1);
+  EXPECT_TRUE(s.params == instanceParamTable(2).defaults());
+  EXPECT_DOUBLE_EQ(s.params.attractionWeight, 0.2);
+  EXPECT_DOUBLE_EQ(s.params.velocityWeight, 0.03);
+  EXPECT_DOUBLE_EQ(s.params.repulsionWeight, 0.1);
+  EXPECT_TRUE(s.params.repulsion);
+  EXPECT_TRUE(s.params.temporaryParticles);
 }
 
 TEST(InstanceSceneParse, Defaults3D) {
@@ -175,10 +175,10 @@ TEST(InstanceSceneParse, Defaults3D) {
   ASSERT_EQ(c.instances.size(), 1u);
   const InstanceSpec<3>& s = c.instances[0];
   EXPECT_EQ(s.name, "wave3d");
-  EXPECT_EQ(s.params.all(), ParamValues(instanceParamSpecs(3)).all());
-  EXPECT_DOUBLE_EQ(s.params.get("attraction_weight"), 0.06);
-  EXPECT_DOUBLE_EQ(s.params.get("velocity_weight"), 0.01);
-  EXPECT_DOUBLE_EQ(s.params.get("repulsion_weight"), 0.04);
+  EXPECT_TRUE(s.params == instanceParamTable(3).defaults());
+  EXPECT_DOUBLE_EQ(s.params.attractionWeight, 0.06);
+  EXPECT_DOUBLE_EQ(s.params.velocityWeight, 0.01);
+  EXPECT_DOUBLE_EQ(s.params.repulsionWeight, 0.04);
 }
 
 TEST(InstanceSceneParse, Full2D) {
@@ -206,16 +206,16 @@ TEST(InstanceSceneParse, Full2D) {
   EXPECT_EQ(s.time.cropEnd, 0.8);
   EXPECT_EQ(s.time.speed, 1.5);
   EXPECT_TRUE(s.time.reverse);
-  EXPECT_EQ(s.params.get("attraction_weight"), 0.5);
-  EXPECT_EQ(s.params.get("velocity_weight"), 0.07);
-  EXPECT_EQ(s.params.get("repulsion_weight"), 0.3);
-  EXPECT_EQ(s.params.get("repulsion"), 0);
-  EXPECT_EQ(s.params.get("temporary_particles"), 0);
-  EXPECT_EQ(s.params.get("seed_threshold"), 0.4);
-  EXPECT_EQ(s.params.get("removal_threshold"), 0.45);
-  EXPECT_EQ(s.params.get("seed_distance"), 0.6);
-  EXPECT_EQ(s.params.get("falloff_width"), 0.1);
-  EXPECT_EQ(s.params.get("falloff_decay"), 2);
+  EXPECT_EQ(s.params.attractionWeight, 0.5);
+  EXPECT_EQ(s.params.velocityWeight, 0.07);
+  EXPECT_EQ(s.params.repulsionWeight, 0.3);
+  EXPECT_FALSE(s.params.repulsion);
+  EXPECT_FALSE(s.params.temporaryParticles);
+  EXPECT_EQ(s.params.seedThreshold, 0.4);
+  EXPECT_EQ(s.params.removalThreshold, 0.45);
+  EXPECT_EQ(s.params.seedDistance, 0.6);
+  EXPECT_EQ(s.params.falloffWidth, 0.1);
+  EXPECT_EQ(s.params.falloffDecay, 2);
 }
 
 TEST(InstanceSceneParse, Full3D) {
@@ -237,11 +237,11 @@ TEST(InstanceSceneParse, Full3D) {
   EXPECT_EQ(s.time.cropEnd, -1);
   EXPECT_EQ(s.time.speed, 0.5);
   EXPECT_FALSE(s.time.reverse);
-  EXPECT_EQ(s.params.get("attraction_weight"), 0.1);
-  EXPECT_DOUBLE_EQ(s.params.get("velocity_weight"), 0.01);   // 3D default
-  EXPECT_DOUBLE_EQ(s.params.get("repulsion_weight"), 0.04);  // 3D default
-  EXPECT_EQ(s.params.get("temporary_particles"), 0);
-  EXPECT_EQ(s.params.get("falloff_width"), 0.2);
+  EXPECT_EQ(s.params.attractionWeight, 0.1);
+  EXPECT_DOUBLE_EQ(s.params.velocityWeight, 0.01);   // 3D default
+  EXPECT_DOUBLE_EQ(s.params.repulsionWeight, 0.04);  // 3D default
+  EXPECT_FALSE(s.params.temporaryParticles);
+  EXPECT_EQ(s.params.falloffWidth, 0.2);
 }
 
 TEST(InstanceSceneParse, TransformKeyDefaults) {
@@ -281,7 +281,7 @@ TEST(InstanceSceneParse, ParseSceneAcceptsControlKeys) {
   const auto setup = parseScene<2>(scene);
   const auto c = parseSceneControl<2>(scene, setup.phases);
   EXPECT_EQ(c.instances.at(0).phase, 1);
-  EXPECT_EQ(c.settings.get("temporary_grace_frames"), 30);
+  EXPECT_EQ(c.settings.temporaryGraceFrames, 30);
 }
 
 TEST(InstanceSceneParse, RoundTrip2D) {
@@ -302,7 +302,7 @@ TEST(InstanceSceneParse, RoundTrip2D) {
   EXPECT_EQ(saved["instances"][0]["repulsion"], false);
 
   const auto b = parseSceneControl<2>(parseSceneText(saved.dump(2)), twoPhases());
-  EXPECT_EQ(a.settings.all(), b.settings.all());
+  EXPECT_TRUE(a.settings == b.settings);
   ASSERT_EQ(a.instances.size(), b.instances.size());
   for (size_t i = 0; i < a.instances.size(); ++i) expectSpecEqual(a.instances[i], b.instances[i]);
   EXPECT_EQ(sceneControlToJson<2>(b, twoPhases()), saved);
@@ -318,7 +318,7 @@ TEST(InstanceSceneParse, RoundTrip3D) {
   const json saved = sceneControlToJson<3>(a, twoPhases());
   EXPECT_EQ(saved["instances"][0]["transform"][0]["rotation"], json::array({10, 20, 30}));
   const auto b = parseSceneControl<3>(parseSceneText(saved.dump()), twoPhases());
-  EXPECT_EQ(a.settings.all(), b.settings.all());
+  EXPECT_TRUE(a.settings == b.settings);
   ASSERT_EQ(a.instances.size(), b.instances.size());
   for (size_t i = 0; i < a.instances.size(); ++i) expectSpecEqual(a.instances[i], b.instances[i]);
   EXPECT_EQ(sceneControlToJson<3>(b, twoPhases()), saved);
@@ -608,7 +608,7 @@ TEST(InstanceSceneBind, InvalidNameFromOutsideTheParser) {
   TemplateDatabase db(fx.dir);
   std::vector<InstanceSpec<2>> specs(1);
   specs[0].templateName = "../a";
-  specs[0].params = ParamValues(instanceParamSpecs(2));
+  specs[0].params = instanceParamTable(2).defaults();
   expectSceneError([&] { bindInstances<2>(specs, db); }, "instances[0].template", {"invalid template name"});
 }
 
@@ -644,15 +644,15 @@ std::string readme() {
   return s.str();
 }
 
-TEST(InstanceSceneDocs, EveryKeyAndParameterIsDocumented) {
+// The declared parameters are in the generated parameter reference
+// (tests/test_parameter_reference.py); the structural keys are written here.
+TEST(InstanceSceneDocs, EveryStructuralKeyIsDocumented) {
   const std::string doc = readme();
   ASSERT_FALSE(doc.empty());
   for (const char* section : {"### `control`", "### `instances[i]`", "| `control` |", "| `instances` |"})
     EXPECT_NE(doc.find(section), std::string::npos) << section;
   std::vector<std::string> keys = kInstanceKeysForDocs();
   for (const char* k : {"time", "translation", "rotation", "scale", "reflect"}) keys.push_back(k);
-  for (const auto& s : instanceParamSpecs(2)) keys.push_back(s.name);
-  for (const auto& s : controlSettingsSpecs()) keys.push_back(s.name);
   for (const auto& k : keys) EXPECT_NE(doc.find("| `" + k + "` |"), std::string::npos) << k << " is not documented";
 }
 

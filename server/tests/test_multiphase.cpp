@@ -253,7 +253,7 @@ TEST(Multiphase, LightPhaseUnderHeavyRises) {
   ASSERT_LT(start.comY[0], start.comY[1]);
   const double startTotal = (start.comY[0] * start.mass[0] + start.comY[1] * start.mass[1]) / (start.mass[0] + start.mass[1]);
   FrameChecks checks;
-  const double rate = sim.setup().settings.get("frame_rate");
+  const double rate = sim.setup().settings.frameRate;
   const int frames = int(std::lround(2.5 * rate));
   double worstAvg = 0, worstMax = 0, maxSpeed = 0, highestTotal = startTotal;
   int unconverged = 0, crossedAt = -1;
@@ -334,7 +334,7 @@ RestRun runLayeredAtRest(int formulation, double seconds) {
   const Interface itf0 = measureInterface(sim);
   Interface itf = itf0;
   FrameChecks checks;
-  const double rate = sim.setup().settings.get("frame_rate");
+  const double rate = sim.setup().settings.frameRate;
   const int frames = int(std::lround(seconds * rate));
   const auto t0 = std::chrono::steady_clock::now();
   for (int k = 0; k < frames; ++k) {

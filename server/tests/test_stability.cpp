@@ -445,10 +445,10 @@ struct InstanceCase {
 // Control settings of the instance cases: temporary particles outside every
 // instance are removed after 5 frames (default 60), all at once (no fade-out
 // bound), to keep the runs short.
-ParamValues quickRemoval() {
-  ParamValues settings(controlSettingsSpecs());
-  settings.set("temporary_grace_frames", 5);
-  settings.set("temporary_fade_share", 1);
+ControlSettings quickRemoval() {
+  ControlSettings settings = controlSettingsTable().defaults();
+  settings.temporaryGraceFrames = 5;
+  settings.temporaryFadeShare = 1;
   return settings;
 }
 
@@ -639,17 +639,17 @@ InstanceSpec<2> randomInstance(unsigned seed, InstanceSpec<2> spec, const AABB<2
   const ParamSpecs& specs = instanceParamSpecs(2);
   for (const char* w : {"attraction_weight", "velocity_weight", "repulsion_weight"}) {
     const ParamSpec* p = findSpec(specs, w);
-    spec.params.set(w, logUniform(rng, 0.1 * p->def, p->max));
+    instanceParamTable(2).assign(spec.params, w, logUniform(rng, 0.1 * p->def, p->max));
   }
-  spec.params.set("temporary_particles", coin(rng) ? 1 : 0);
-  spec.params.set("repulsion", coin(rng) ? 1 : 0);
+  spec.params.temporaryParticles = coin(rng);
+  spec.params.repulsion = coin(rng);
   std::ostringstream d;
   d << "seed " << seed << ": translation (" << k.translation.transpose() << "), rotation " << k.rotationDeg[0]
     << " deg, scale (" << k.scale.transpose() << "), reflect (" << k.reflect[0] << ", " << k.reflect[1] << "), speed "
     << spec.time.speed << (spec.time.reverse ? " reversed" : "") << ", crop [" << spec.time.cropBegin << ", "
-    << spec.time.cropEnd << "] s, weights a " << spec.params.get("attraction_weight") << " v "
-    << spec.params.get("velocity_weight") << " r " << spec.params.get("repulsion_weight") << ", temporary "
-    << spec.params.get("temporary_particles") << ", repulsion " << spec.params.get("repulsion");
+    << spec.time.cropEnd << "] s, weights a " << spec.params.attractionWeight << " v "
+    << spec.params.velocityWeight << " r " << spec.params.repulsionWeight << ", temporary "
+    << spec.params.temporaryParticles << ", repulsion " << spec.params.repulsion;
   described = d.str();
   return spec;
 }

@@ -42,31 +42,53 @@
 
 namespace fc {
 
-const ParamSpecs& dfsphParams() {
-  static const ParamSpecs specs = {
-      {"density_tolerance_pct", "%", 1e-4, 10, 0.01, "average density error at which the density solve stops"},
-      {"divergence_tolerance_pct", "%/step", 1e-4, 100, 0.1,
-       "average density-rate error (relative to rest density, per time step) at which the divergence solve stops"},
-      {"min_iterations", "", 1, 1000, 2, "fewest density-solve iterations", ParamType::Integer},
-      {"max_iterations", "", 1, 10000, 100, "most density-solve iterations", ParamType::Integer},
-      {"max_divergence_iterations", "", 1, 10000, 100, "most divergence-solve iterations", ParamType::Integer},
-      {"divergence_solve", "", 0, 1, 1, "run the divergence-free solve", ParamType::Boolean},
-      {"warm_start", "", 0, 1, 1, "start each solve from half the previous step's stiffness where the particle is still compressed", ParamType::Boolean},
+struct DfsphParams {
+  double densityTolerancePct;
+  double divergenceTolerancePct;
+  int minIterations;
+  int maxIterations;
+  int maxDivergenceIterations;
+  bool divergenceSolve;
+  bool warmStart;
+};
+
+const ParamTable<DfsphParams>& dfsphTable() {
+  using P = DfsphParams;
+  static const ParamTable<P> table = {
+      {.name = "density_tolerance_pct", .unit = "%", .min = 1e-4, .max = 10, .def = 0.01,
+       .help = "average density error at which the density solve stops", .member = &P::densityTolerancePct},
+      {.name = "divergence_tolerance_pct", .unit = "%/step", .min = 1e-4, .max = 100, .def = 0.1,
+       .help = "average density-rate error (relative to rest density, per time step) at which the divergence "
+               "solve stops",
+       .member = &P::divergenceTolerancePct},
+      {.name = "min_iterations", .min = 1, .max = 1000, .def = 2, .help = "fewest density-solve iterations",
+       .member = &P::minIterations},
+      {.name = "max_iterations", .min = 1, .max = 10000, .def = 100, .help = "most density-solve iterations",
+       .member = &P::maxIterations},
+      {.name = "max_divergence_iterations", .min = 1, .max = 10000, .def = 100,
+       .help = "most divergence-solve iterations", .member = &P::maxDivergenceIterations},
+      {.name = "divergence_solve", .min = 0, .max = 1, .def = 1, .help = "run the divergence-free solve",
+       .member = &P::divergenceSolve},
+      {.name = "warm_start", .min = 0, .max = 1, .def = 1,
+       .help = "start each solve from half the previous step's stiffness where the particle is still compressed",
+       .member = &P::warmStart},
   };
-  return specs;
+  return table;
 }
+
+const ParamSpecs& dfsphParams() { return dfsphTable().specs(); }
 
 template <int D>
 class DFSPH final : public PressureSolver<D> {
  public:
-  explicit DFSPH(const ParamValues& p)
-      : densityTol_(Real(p.get("density_tolerance_pct") * 0.01)),
-        divergenceTol_(Real(p.get("divergence_tolerance_pct") * 0.01)),
-        minIterations_(int(p.get("min_iterations"))),
-        maxIterations_(int(p.get("max_iterations"))),
-        maxDivergenceIterations_(int(p.get("max_divergence_iterations"))),
-        divergenceSolve_(p.get("divergence_solve") != 0),
-        warmStart_(p.get("warm_start") != 0) {}
+  explicit DFSPH(const DfsphParams& p)
+      : densityTol_(Real(p.densityTolerancePct * 0.01)),
+        divergenceTol_(Real(p.divergenceTolerancePct * 0.01)),
+        minIterations_(p.minIterations),
+        maxIterations_(p.maxIterations),
+        maxDivergenceIterations_(p.maxDivergenceIterations),
+        divergenceSolve_(p.divergenceSolve),
+        warmStart_(p.warmStart) {}
 
   void resize(size_t n) override {
     factor_.resize(n, 0);
@@ -417,7 +439,7 @@ class DFSPH final : public PressureSolver<D> {
 
 template <int D>
 std::unique_ptr<PressureSolver<D>> makeDFSPH(const ParamValues& p) {
-  return std::make_unique<DFSPH<D>>(p);
+  return std::make_unique<DFSPH<D>>(dfsphTable().bind(p));
 }
 template std::unique_ptr<PressureSolver<2>> makeDFSPH<2>(const ParamValues&);
 template std::unique_ptr<PressureSolver<3>> makeDFSPH<3>(const ParamValues&);

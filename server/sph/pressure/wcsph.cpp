@@ -6,25 +6,34 @@
 
 namespace fc {
 
-const ParamSpecs& wcsphParams() {
-  static const ParamSpecs specs = {
-      {"stiffness", "Pa", 1, 1e9, 50000, "B in p = B((ρ/ρ0)^γ - 1)"},
-      {"exponent", "", 1, 7, 7, "γ in p = B((ρ/ρ0)^γ - 1)"},
+struct WcsphParams {
+  double stiffness;
+  double exponent;
+};
+
+const ParamTable<WcsphParams>& wcsphTable() {
+  using P = WcsphParams;
+  static const ParamTable<P> table = {
+      {.name = "stiffness", .unit = "Pa", .min = 1, .max = 1e9, .def = 50000, .help = "B in p = B((ρ/ρ0)^γ - 1)",
+       .member = &P::stiffness},
+      {.name = "exponent", .min = 1, .max = 7, .def = 7, .help = "γ in p = B((ρ/ρ0)^γ - 1)", .member = &P::exponent},
   };
-  return specs;
+  return table;
 }
+
+const ParamSpecs& wcsphParams() { return wcsphTable().specs(); }
 
 template <int D>
 class WCSPH final : public PressureSolver<D> {
  public:
-  explicit WCSPH(const ParamValues& p) : stiffness_(Real(p.get("stiffness"))), exponent_(Real(p.get("exponent"))) {}
+  explicit WCSPH(const WcsphParams& p) : stiffness_(Real(p.stiffness)), exponent_(Real(p.exponent)) {}
 
   // Sound speed c = sqrt(B γ / ρ0); the step must resolve it (acoustic CFL).
   Real maxTimeStep(const Simulation<D>& sim) const override {
     Real rho0 = sim.restDensity_[0];
     for (Real r : sim.restDensity_) rho0 = std::min(rho0, r);
     const Real c = std::sqrt(stiffness_ * exponent_ / rho0);
-    return Real(sim.setup().settings.get("cfl_factor")) * Real(0.4) * 2 * sim.particleRadius() / c;
+    return Real(sim.setup().settings.cflFactor) * Real(0.4) * 2 * sim.particleRadius() / c;
   }
 
   SolverReport correctDensity(Simulation<D>& sim, Real dt) override {
@@ -107,7 +116,7 @@ class WCSPH final : public PressureSolver<D> {
 
 template <int D>
 std::unique_ptr<PressureSolver<D>> makeWCSPH(const ParamValues& p) {
-  return std::make_unique<WCSPH<D>>(p);
+  return std::make_unique<WCSPH<D>>(wcsphTable().bind(p));
 }
 template std::unique_ptr<PressureSolver<2>> makeWCSPH<2>(const ParamValues&);
 template std::unique_ptr<PressureSolver<3>> makeWCSPH<3>(const ParamValues&);

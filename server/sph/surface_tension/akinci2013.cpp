@@ -34,17 +34,28 @@
 
 namespace fc {
 
-const ParamSpecs& surfaceTensionAkinci2013Params() {
-  static const ParamSpecs specs = {
-      {"surface_tension", "", 0, 100, 0.05,
-       "gamma of Akinci et al. 2013 (SPlisHSPlasH's surfaceTension): cohesion and curvature strength, SI, not N/m "
-       "(cohesion alone gives sigma = 0.003 gamma rho0^2 h^2 N/m)"},
-      {"adhesion", "", 0, 100, 0,
-       "beta of Akinci et al. 2013 (SPlisHSPlasH's surfaceTensionBoundary): pull of walls and obstacles on the liquid "
-       "(0: off)"},
+struct Akinci2013Params {
+  double surfaceTension;
+  double adhesion;
+};
+
+const ParamTable<Akinci2013Params>& akinci2013Table() {
+  using P = Akinci2013Params;
+  static const ParamTable<P> table = {
+      {.name = "surface_tension", .min = 0, .max = 100, .def = 0.05,
+       .help = "gamma of Akinci et al. 2013 (SPlisHSPlasH's surfaceTension): cohesion and curvature strength, SI, "
+               "not N/m (the cohesion term alone gives sigma = 0.003 gamma rho0^2 h^2 N/m, h = 4r); caps the time "
+               "step at the capillary step sqrt(rho0 r^3 / (2 pi sigma))",
+       .member = &P::surfaceTension},
+      {.name = "adhesion", .min = 0, .max = 100, .def = 0,
+       .help = "beta of Akinci et al. 2013 (SPlisHSPlasH's surfaceTensionBoundary): pull of walls and obstacles on "
+               "the liquid (0: off)",
+       .member = &P::adhesion},
   };
-  return specs;
+  return table;
 }
+
+const ParamSpecs& surfaceTensionAkinci2013Params() { return akinci2013Table().specs(); }
 
 // Stability of the explicit step: dt <= c sqrt(rho0 r^3 / (2 pi sigma)),
 // sigma = (21/7040) gamma rho0^2 h^2. Measured at fixed steps
@@ -57,8 +68,8 @@ constexpr double kCapillaryStepFactor = 1.0;
 template <int D>
 class SurfaceTensionAkinci2013 final : public Effect<D> {
  public:
-  explicit SurfaceTensionAkinci2013(const ParamValues& p)
-      : gamma_(Real(p.get("surface_tension"))), beta_(Real(p.get("adhesion"))) {}
+  explicit SurfaceTensionAkinci2013(const Akinci2013Params& p)
+      : gamma_(Real(p.surfaceTension)), beta_(Real(p.adhesion)) {}
   unsigned stages() const override { return AddAccelerations; }
 
   void init(Simulation<D>& sim) override {
@@ -206,7 +217,7 @@ class SurfaceTensionAkinci2013 final : public Effect<D> {
 
 template <int D>
 std::unique_ptr<Effect<D>> makeSurfaceTensionAkinci2013(const ParamValues& p) {
-  return std::make_unique<SurfaceTensionAkinci2013<D>>(p);
+  return std::make_unique<SurfaceTensionAkinci2013<D>>(akinci2013Table().bind(p));
 }
 template std::unique_ptr<Effect<2>> makeSurfaceTensionAkinci2013<2>(const ParamValues&);
 template std::unique_ptr<Effect<3>> makeSurfaceTensionAkinci2013<3>(const ParamValues&);

@@ -15,17 +15,25 @@
 
 namespace fc {
 
-const ParamSpecs& viscosityStandardParams() {
-  static const ParamSpecs specs = {
-      {"boundary_viscosity", "m^2/s", 0, 1000, 0, "kinematic viscosity against walls and obstacles (0: free slip)"},
+struct ViscosityStandardParams {
+  double boundaryViscosity;
+};
+
+const ParamTable<ViscosityStandardParams>& viscosityStandardTable() {
+  using P = ViscosityStandardParams;
+  static const ParamTable<P> table = {
+      {.name = "boundary_viscosity", .unit = "m^2/s", .min = 0, .max = 1000, .def = 0,
+       .help = "kinematic viscosity against walls and obstacles (0: free slip)", .member = &P::boundaryViscosity},
   };
-  return specs;
+  return table;
 }
+
+const ParamSpecs& viscosityStandardParams() { return viscosityStandardTable().specs(); }
 
 template <int D>
 class ViscosityStandard final : public Effect<D> {
  public:
-  explicit ViscosityStandard(const ParamValues& p) : boundaryViscosity_(Real(p.get("boundary_viscosity"))) {}
+  explicit ViscosityStandard(const ViscosityStandardParams& p) : boundaryViscosity_(Real(p.boundaryViscosity)) {}
   unsigned stages() const override { return AddAccelerations; }
   void init(Simulation<D>& sim) override {
     nu_.clear();
@@ -81,7 +89,7 @@ class ViscosityStandard final : public Effect<D> {
 
 template <int D>
 std::unique_ptr<Effect<D>> makeViscosityStandard(const ParamValues& p) {
-  return std::make_unique<ViscosityStandard<D>>(p);
+  return std::make_unique<ViscosityStandard<D>>(viscosityStandardTable().bind(p));
 }
 template std::unique_ptr<Effect<2>> makeViscosityStandard<2>(const ParamValues&);
 template std::unique_ptr<Effect<3>> makeViscosityStandard<3>(const ParamValues&);

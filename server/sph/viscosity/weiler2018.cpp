@@ -57,37 +57,49 @@ namespace fc {
 namespace {
 // Below this many particles the solve's loops run on one thread: a CG
 // iteration is three parallel loops, and for a small liquid their fork/join
-// and barriers cost more than the loops themselves (measured: the 1 600
-// particle channel test took 22 s on 2 threads with the machine shared,
-// 0.3 s on one).
+// and barriers cost more than the loops themselves, far more on a shared
+// machine.
 constexpr long kParallelFrom = 4096;
 }  // namespace
 
-const ParamSpecs& viscosityWeiler2018Params() {
-  static const ParamSpecs specs = {
-      {"tolerance", "", 1e-6, 0.1, 1e-3,
-       "conjugate gradients stop at this residual relative to the step's explicit viscous impulse or the "
-       "liquid's momentum, whichever is smaller (mass-weighted norms)"},
-      {"max_iterations", "", 1, 10000, 100, "most conjugate-gradient iterations per substep", ParamType::Integer},
-      {"boundary_viscosity", "m^2/s", 0, 1000, 0,
-       "kinematic viscosity against walls and obstacles (0: free slip; twice the liquid's viscosity: no slip at the "
-       "wall surface)"},
-      {"warm_start", "", 0, 1, 1, "start each solve from the previous substep's viscous acceleration",
-       ParamType::Boolean},
+struct Weiler2018Params {
+  double tolerance;
+  int maxIterations;
+  double boundaryViscosity;
+  bool warmStart;
+};
+
+const ParamTable<Weiler2018Params>& weiler2018Table() {
+  using P = Weiler2018Params;
+  static const ParamTable<P> table = {
+      {.name = "tolerance", .min = 1e-6, .max = 0.1, .def = 1e-3,
+       .help = "conjugate gradients stop at this residual relative to the step's explicit viscous impulse or the "
+               "liquid's momentum, whichever is smaller (mass-weighted norms)",
+       .member = &P::tolerance},
+      {.name = "max_iterations", .min = 1, .max = 10000, .def = 100,
+       .help = "most conjugate-gradient iterations per substep", .member = &P::maxIterations},
+      {.name = "boundary_viscosity", .unit = "m^2/s", .min = 0, .max = 1000, .def = 0,
+       .help = "kinematic viscosity against walls and obstacles (0: free slip; twice the liquid's viscosity: no "
+               "slip at the wall surface)",
+       .member = &P::boundaryViscosity},
+      {.name = "warm_start", .min = 0, .max = 1, .def = 1,
+       .help = "start each solve from the previous substep's viscous acceleration", .member = &P::warmStart},
   };
-  return specs;
+  return table;
 }
+
+const ParamSpecs& viscosityWeiler2018Params() { return weiler2018Table().specs(); }
 
 template <int D>
 class ViscosityWeiler2018 final : public Effect<D> {
   using M = Mat<D>;
 
  public:
-  explicit ViscosityWeiler2018(const ParamValues& p)
-      : tolerance_(p.get("tolerance")),
-        maxIterations_(int(p.get("max_iterations"))),
-        boundaryViscosity_(Real(p.get("boundary_viscosity"))),
-        warmStart_(p.get("warm_start") != 0) {}
+  explicit ViscosityWeiler2018(const Weiler2018Params& p)
+      : tolerance_(p.tolerance),
+        maxIterations_(p.maxIterations),
+        boundaryViscosity_(Real(p.boundaryViscosity)),
+        warmStart_(p.warmStart) {}
 
   unsigned stages() const override { return ImplicitVelocities; }
 
@@ -324,7 +336,7 @@ class ViscosityWeiler2018 final : public Effect<D> {
 
 template <int D>
 std::unique_ptr<Effect<D>> makeViscosityWeiler2018(const ParamValues& p) {
-  return std::make_unique<ViscosityWeiler2018<D>>(p);
+  return std::make_unique<ViscosityWeiler2018<D>>(weiler2018Table().bind(p));
 }
 template std::unique_ptr<Effect<2>> makeViscosityWeiler2018<2>(const ParamValues&);
 template std::unique_ptr<Effect<3>> makeViscosityWeiler2018<3>(const ParamValues&);

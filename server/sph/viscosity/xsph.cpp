@@ -8,17 +8,25 @@
 
 namespace fc {
 
-const ParamSpecs& viscosityXSPHParams() {
-  static const ParamSpecs specs = {
-      {"coefficient", "", 0, 1, 0.05, "XSPH smoothing factor c"},
+struct XsphParams {
+  double coefficient;
+};
+
+const ParamTable<XsphParams>& xsphTable() {
+  using P = XsphParams;
+  static const ParamTable<P> table = {
+      {.name = "coefficient", .min = 0, .max = 1, .def = 0.05, .help = "XSPH smoothing factor c",
+       .member = &P::coefficient},
   };
-  return specs;
+  return table;
 }
+
+const ParamSpecs& viscosityXSPHParams() { return xsphTable().specs(); }
 
 template <int D>
 class ViscosityXSPH final : public Effect<D> {
  public:
-  explicit ViscosityXSPH(const ParamValues& p) : c_(Real(p.get("coefficient"))) {}
+  explicit ViscosityXSPH(const XsphParams& p) : c_(Real(p.coefficient)) {}
   unsigned stages() const override { return CorrectVelocities; }
   void resize(size_t n) override { old_.resize(n); }
 
@@ -48,7 +56,7 @@ class ViscosityXSPH final : public Effect<D> {
 
 template <int D>
 std::unique_ptr<Effect<D>> makeViscosityXSPH(const ParamValues& p) {
-  return std::make_unique<ViscosityXSPH<D>>(p);
+  return std::make_unique<ViscosityXSPH<D>>(xsphTable().bind(p));
 }
 template std::unique_ptr<Effect<2>> makeViscosityXSPH<2>(const ParamValues&);
 template std::unique_ptr<Effect<3>> makeViscosityXSPH<3>(const ParamValues&);
