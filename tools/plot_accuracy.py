@@ -10,7 +10,7 @@ calls this script) and writes
                        front_* columns: one per scene and resolution) drawn
                        as staircases, presets labelled;
   DIR/surge_front.svg  the dam break's surge front Z = x/a against
-                       T = t sqrt(2g/a): Martin & Moyce (1952) and the
+                       T = t sqrt(2g/a): Martin & Moyce (1952) [MM52] and the
                        presets' runs, with the resolution levels.
 The fronts and presets are the bench's (accuracy.csv); nothing is recomputed
 here.

@@ -9,7 +9,7 @@
 //     largest), beside what the solver reported at exit;
 //   - volume drift: Σ m/max(ρ,ρ0) relative to the rest volume, last frame
 //     against the first simulated frame;
-//   - the 2D dam break's surge front against Martin & Moyce (1952), RMS of
+//   - the 2D dam break's surge front against Martin & Moyce (1952) [MM52], RMS of
 //     Z = x/a over their points T = t sqrt(2g/a) (bench/data);
 //   - the template scenes' control fidelity (IoU), averaged over the frames
 //     where an instance plays.

@@ -1,7 +1,7 @@
 #pragma once
 // What `flowclip bench accuracy` measures on a run
 // (docs/benchmarks/accuracy.md): the liquid's surge front, compression and volume per exported
-// frame, the surge front against Martin & Moyce (1952), and the Pareto front
+// frame, the surge front against Martin & Moyce (1952) [MM52], and the Pareto front
 // and presets of a set of (cost, error) points.
 #include "bench/exported_frames.h"
 #include <string>

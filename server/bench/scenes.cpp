@@ -1,7 +1,7 @@
 // `flowclip bench scenes`: every shipped scene for a fixed number of frames,
 // each in its own child process (`flowclip run --stats`, so that peak RSS is
 // that run's), printed with the columns of the paper's Table 1 (Schoentgen
-// et al. 2020) beside the paper's own figures: average liquid, control,
+// et al. 2020 [SPDM20]) beside the paper's own figures: average liquid, control,
 // repulsion and temporary particles per frame (over the frames with an
 // active instance), simulation and control ms per frame, control share,
 // memory and template storage.

@@ -1,4 +1,4 @@
-// The control stage (Schoentgen et al. 2020, section 4): one file because its
+// The control stage (Schoentgen et al. 2020 [SPDM20], section 4): one file because its
 // per-substep loops share the instance state and the vectorised sums.
 // GCC 12 warns that the AVX-512 reductions and rsqrt14 read an uninitialised
 // operand: it is _mm512_undefined_ps, by design, so the warning is false.

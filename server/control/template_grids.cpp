@@ -47,7 +47,7 @@ void TemplateFrameGrids<D>::build(const TemplateFrame<D>& frame, Real h, const R
   controlBuilt_ = true;
 
   // Repulsion candidates (paper §3.3, Fig. 4). The control density gradient
-  // uses Poly6: the paper's control kernel W is Poly6 (Müller et al. 2003),
+  // uses Poly6: the paper's control kernel W is Poly6 (Müller et al. 2003 [MCG03]),
   // stated with eq. 3 (coverage α_j) and reused by eqs. 2, 4 and 5 ("the same
   // kernel used for both attraction and velocity forces"); the paper does not
   // name a kernel for the gradient itself, so we stay with the control kernel:

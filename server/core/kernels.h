@@ -8,7 +8,7 @@
 
 namespace fc {
 
-// Cubic spline (Monaghan 1992) written with support radius h, as in
+// Cubic spline (Monaghan 1992 [Mon92]) written with support radius h, as in
 // SPlisHSPlasH: q = r/h in [0,1], W = k (6q^3 - 6q^2 + 1) for q <= 1/2,
 // W = k 2 (1-q)^3 for q <= 1, where k = 40/(7 pi h^2) in 2D and 8/(pi h^3) in 3D.
 template <int D>
@@ -98,7 +98,7 @@ class CubicSpline {
   Real h_ = 1, invH_ = 1, k_ = 0, l_ = 0, w0_ = 0;
 };
 
-// Poly6 (Müller et al. 2003), used by template control (paper eq. 3):
+// Poly6 (Müller et al. 2003 [MCG03]), used by template control (paper eq. 3):
 // W = k (h^2 - r^2)^3 with k = 4/(pi h^8) in 2D and 315/(64 pi h^9) in 3D.
 template <int D>
 class Poly6 {

@@ -30,7 +30,7 @@ AABB<3> TriangleMesh::bounds() const {
 namespace {
 
 // Closest point on triangle abc to p (Ericson, Real-Time Collision
-// Detection, 5.1.5), with the feature it lies on: 0, 1, 2 the vertices a, b,
+// Detection [Eri05], 5.1.5), with the feature it lies on: 0, 1, 2 the vertices a, b,
 // c; 3 edge ab, 4 edge bc, 5 edge ca; 6 the face.
 Vec3d closestOnTriangle(const Vec3d& p, const Vec3d& a, const Vec3d& b, const Vec3d& c, int& feature) {
   const Vec3d ab = b - a, ac = c - a, ap = p - a;

@@ -1,7 +1,7 @@
 #pragma once
 // Closed triangle meshes as static solids: an exact signed distance (a BVH
 // over the triangles, sign from angle-weighted pseudonormals, Bærentzen &
-// Aanæs 2005) and, from it, a signed-distance grid with trilinear lookup for
+// Aanæs 2005 [BA05]) and, from it, a signed-distance grid with trilinear lookup for
 // the simulation (contact, "never start inside a solid", block validation).
 // Reading and validating mesh files is io/obj_mesh.*; this layer assumes a
 // closed, consistently oriented mesh without degenerate triangles.

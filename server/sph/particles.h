@@ -76,7 +76,7 @@ struct FluidParticles {
   }
 };
 
-// Boundary particles (Akinci et al. 2012): each samples a solid surface and
+// Boundary particles (Akinci et al. 2012 [AIA*12]): each samples a solid surface and
 // carries the volume it represents, so that Ψ_b = ρ0 V_b enters density and
 // pressure sums like a fluid mass.
 template <int D>

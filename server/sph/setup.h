@@ -57,7 +57,7 @@ struct Obstacle {
   }
 };
 
-// A rigid body (Akinci et al. 2012 boundary particles on its surface):
+// A rigid body (Akinci et al. 2012 [AIA*12] boundary particles on its surface):
 // kinematic (its motion is given) or dynamic (two-way coupled: the liquid's
 // pressure moves it, it moves the liquid). Its shape is described in its own
 // frame, centred on the origin; `position` and `rotationDeg` place it.

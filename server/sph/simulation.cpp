@@ -300,7 +300,7 @@ void Simulation<D>::buildBoundary() {
   // Boundary samples fill the solid `boundary_layers` deep like the fluid
   // lattice continued, so each stands for the lattice volume. Where
   // samples crowd (box edges, curved or touching solids) the volume of Akinci
-  // et al. 2012, eq. (4), V_b = 1 / Σ_k W(x_b - x_k), is smaller and taken
+  // et al. 2012 [AIA*12], eq. (4), V_b = 1 / Σ_k W(x_b - x_k), is smaller and taken
   // instead, so that no solid counts twice. Akinci's volume alone is meant for
   // a single layer; on several layers it would overstate the wall's density.
 #pragma omp parallel for schedule(static)
@@ -333,7 +333,7 @@ void Simulation<D>::buildFluid() {
 }
 
 // Mass sum (default): ρ_i = Σ_j m_j W_ij + Σ_b Ψ_b W_ib with Ψ_b = ρ0_i V_b
-// (Akinci et al. 2012, eq. (6)).
+// (Akinci et al. 2012 [AIA*12], eq. (6)).
 //
 // Number density (Solenthaler & Pajarola 2008, "Density Contrast SPH
 // Interfaces" [SP08]): where phases of different rest densities meet, the
@@ -602,7 +602,7 @@ void Simulation<D>::enforceSolidContact(FrameStats& fs) {
 // and rows projected out of the walls, r = 5 mm), which the liquid then
 // keeps. Instead the error is removed at the position level, velocities
 // untouched (the pre-stabilisation of position-based solvers, Macklin et al.
-// 2014): centres are put out of the solids, then the scene's pressure solver
+// 2014 [MMCK14]): centres are put out of the solids, then the scene's pressure solver
 // is run on zero velocities with Δt = dt_max and the particles moved by
 // Δt·Δv (at most half a radius per pass), until no particle is compressed
 // by more than kRelaxAbovePct. A state built from scene-file blocks, at

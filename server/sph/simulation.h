@@ -167,7 +167,7 @@ class Simulation {
   Real restDensity(size_t i) const { return restDensity_[fluid.phase[i]]; }
   // The density formulation, chosen once at setup (settings
   // "density_formulation"): false, the mass sum ρ_i = Σ_j m_j W_ij; true,
-  // the number density of Solenthaler & Pajarola 2008, ρ_i = m_i Σ_j W_ij,
+  // the number density of Solenthaler & Pajarola 2008 [SP08], ρ_i = m_i Σ_j W_ij,
   // for phases of different rest densities (see computeDensities). The
   // pressure solvers read it once per sweep, never per particle.
   bool numberDensity() const { return numberDensity_; }

@@ -1,4 +1,4 @@
-// Dam break after Martin & Moyce (1952): a water column of width a and
+// Dam break after Martin & Moyce (1952) [MM52]: a water column of width a and
 // height 2a collapses from the left wall of a tank at least 5a long. For
 // DFSPH and WCSPH, in 2D and 3D: nothing leaves the tank, the surge front
 // advances monotonically and reaches the far side, volume is conserved, and

@@ -1,5 +1,5 @@
 // Multiphase liquids: phases of different rest densities in one tank, with
-// the number-density interface treatment of Solenthaler & Pajarola 2008
+// the number-density interface treatment of Solenthaler & Pajarola 2008 [SP08]
 // (settings "density_formulation", automatic when rest densities differ).
 //  1. The formulation is chosen once at setup: automatic (number density
 //     only when rest densities differ), or as the scene says; on a 1:3

@@ -1,4 +1,4 @@
-// Surface tension of Akinci, Akinci & Teschner 2013 (effect
+// Surface tension of Akinci, Akinci & Teschner 2013 [AAT13] (effect
 // surface_tension_akinci2013, sph/surface_tension/akinci2013.cpp):
 //  1. its kernels: the 2D normalisations give the same continuum surface
 //     tension (cohesion) and work of adhesion as the paper's 3D ones;

@@ -1,4 +1,4 @@
-// The implicit viscosity solver of Weiler et al. 2018 (viscosity_weiler2018):
+// The implicit viscosity solver of Weiler et al. 2018 [WKBB18] (viscosity_weiler2018):
 //  1. one solve conserves momentum, dissipates kinetic energy and leaves rigid
 //     motion alone (no walls in reach, zero gravity);
 //  2. gravity-driven flow between two vertical no-slip walls reaches the

@@ -55,7 +55,7 @@ class RigidBodies {
   };
 
   // Samples every body (its boundary particles are appended to `boundary`,
-  // volumes from the body's own samples, Akinci et al. 2012 eq. (4)).
+  // volumes from the body's own samples, Akinci et al. 2012 [AIA*12] eq. (4)).
   RigidBodies(const std::vector<Body<D>>& bodies, Real radius, int layers, const CubicSpline<D>& kernel,
               Real latticeVolume, BoundaryParticles<D>& boundary, const Vec<D>& gravity);
 

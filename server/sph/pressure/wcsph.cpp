@@ -67,7 +67,7 @@ class WCSPH final : public PressureSolver<D> {
 
  private:
   // Mass sum: symmetric pressure acceleration, eq. (6) in [BT07]; boundaries
-  // mirror the particle's own pressure (Akinci et al. 2012, eq. (10)).
+  // mirror the particle's own pressure (Akinci et al. 2012 [AIA*12], eq. (10)).
   // Number density (Solenthaler & Pajarola 2008 [SP08], see dfsph.cpp): the
   // pressure from the equation of state of ρ_i = m_i δ_i, and the force of
   // [SP08] Section 4, a_i = -(1/m_i) Σ_j (p_i/δ_i² + p_j/δ_j²) ∇W_ij, the

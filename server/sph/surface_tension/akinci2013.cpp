@@ -24,7 +24,7 @@
 // The term is explicit: a particle in the cohesion well oscillates with
 // omega^2 ~ gamma rho0 / h, so the step is capped at
 // dt <= c sqrt(rho0 r^3 / (2 pi sigma)) (the capillary time step of
-// Brackbill et al. 1992 with sigma as above), c measured in
+// Brackbill et al. 1992 [BKZ92] with sigma as above), c measured in
 // tests/test_surface_tension.cpp (SurfaceTension.DISABLED_MeasureStabilityLimit).
 #include "sph/builtin.h"
 #include <algorithm>

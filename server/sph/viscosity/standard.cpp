@@ -1,4 +1,4 @@
-// Standard SPH viscosity: the Laplacian estimate of Monaghan 2005 as used by
+// Standard SPH viscosity: the Laplacian estimate of Monaghan 2005 [Mon05] as used by
 // SPlisHSPlasH ("Standard"):
 //   a_i = d Σ_j ν (m_j/ρ_j) (v_ij·x_ij)/(|x_ij|² + 0.01h²) ∇W_ij,
 // with ν the kinematic viscosity of the phases (their mean for a mixed pair).

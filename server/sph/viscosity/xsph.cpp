@@ -1,4 +1,4 @@
-// XSPH velocity smoothing (Monaghan 1989):
+// XSPH velocity smoothing (Monaghan 1989 [Mon89]):
 //   v_i ← v_i + c Σ_j 2 m_j/(ρ_i + ρ_j) (v_j - v_i) W_ij,
 // applied after the pressure solve. Damps noise; c is dimensionless. The
 // symmetric weight conserves momentum (m_j/ρ_j alone does not where
