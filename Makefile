@@ -144,4 +144,4 @@ docs: setup
 	@echo "docs: site/index.html"
 
 clean:
-	rm -rf $(BUILD_DIR) $(FUZZ_BUILD_DIR) $(ASAN_BUILD_DIR)
+	rm -rf $(BUILD_DIR) $(FUZZ_BUILD_DIR) $(ASAN_BUILD_DIR) clients/python/build clients/python/flowclip.egg-info
