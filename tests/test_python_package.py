@@ -55,8 +55,10 @@ def _env():
 
 
 def _pip(python, *args, cwd=None):
-    subprocess.run([str(python), "-m", "pip", "--disable-pip-version-check", "--no-input", "-q", *args],
-                   check=True, timeout=BUILD_TIMEOUT, cwd=cwd, env=_env())
+    run = subprocess.run([str(python), "-m", "pip", "--disable-pip-version-check", "--no-input", "-q", *args],
+                         capture_output=True, text=True, timeout=BUILD_TIMEOUT, cwd=cwd, env=_env())
+    assert run.returncode == 0, (f"pip {' '.join(args)}: the build runs on the venv's setuptools, pinned in "
+                                 f"requirements.txt (make setup installs it)\n{run.stdout}{run.stderr}")
 
 
 @pytest.fixture(scope="module")
