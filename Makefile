@@ -145,4 +145,4 @@ docs: build
 	@echo "docs: site/index.html"
 
 clean:
-	rm -rf $(BUILD_DIR) $(FUZZ_BUILD_DIR) $(ASAN_BUILD_DIR)
+	rm -rf $(BUILD_DIR) $(FUZZ_BUILD_DIR) $(ASAN_BUILD_DIR) clients/python/build clients/python/flowclip.egg-info

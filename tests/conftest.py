@@ -1,8 +1,9 @@
 """Fixtures of the service tests (tests/test_service_*.py).
 
 `server` is one `flowclip serve` per test module (FLOWCLIP_BIN, default
-build/flowclip) with copies of the 2D templates and the scenes in a temporary
-directory (the tests delete templates and save scenes), the small recipes of
+build/flowclip, started by the installed flowclip package, clients/python)
+with copies of the 2D templates and the scenes in a temporary directory
+(the tests delete templates and save scenes), the small recipes of
 `recipe_dir`, --max-body-mb 1, and checked to exit 0 on SIGINT. Every
 `client` validates each response against proto/openapi.yaml as it arrives.
 """
@@ -10,14 +11,24 @@ directory (the tests delete templates and save scenes), the small recipes of
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 
 import pytest
 
-from flowclip_client import FLOWCLIP_BIN, ROOT, FlowClipServer
+from repo_paths import FLOWCLIP_BIN, ROOT
+
+try:
+    from flowclip import FlowClipServer
+except ModuleNotFoundError as e:
+    raise ModuleNotFoundError(f"{e}: the Python client (clients/python) is installed into build/venv by "
+                              "make setup (tools/setup.sh), or by pip install clients/python") from e
 from openapi_check import OpenApiChecker
 from service_helpers import small_recipe
+
+# The package's FlowClipServer starts $FLOWCLIP_BIN: the executable under test.
+os.environ["FLOWCLIP_BIN"] = str(FLOWCLIP_BIN)
 
 TEMPLATES_2D = ("drop2d", "column2d", "jet2d")
 MAX_BODY_MB = 1

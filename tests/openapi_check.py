@@ -1,6 +1,6 @@
 """Validates REST responses against proto/openapi.yaml.
 
-OpenApiChecker.observe is a flowclip_client.Client observer: every response
+OpenApiChecker.observe is a flowclip.Client observer: every response
 of the operation (method, path template) must have a status the spec lists
 for it, and a JSON body must validate against that status's schema
 (jsonschema, draft 2020-12, $refs resolved inside the spec). Error bodies
@@ -81,7 +81,7 @@ class OpenApiChecker:
                 assert body["error"]["code"] == ERROR_CODES[status], body
 
     def observe(self, method, template, response):
-        """flowclip_client.Client observer."""
+        """flowclip.Client observer."""
         body = None
         if response.headers.get("Content-Type", "").startswith("application/json"):
             body = response.json()

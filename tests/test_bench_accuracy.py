@@ -19,7 +19,7 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from flowclip_client import FLOWCLIP_BIN, ROOT
+from repo_paths import FLOWCLIP_BIN, ROOT
 
 KNOBS = ["particle_radius", "density_tolerance_pct", "divergence_tolerance_pct", "stiffness", "cfl_factor",
          "forces_every_substep", "repulsion", "temporary_particles", "falloff_width"]

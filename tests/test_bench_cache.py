@@ -14,7 +14,7 @@ import sys
 
 import pytest
 
-from flowclip_client import FLOWCLIP_BIN, ROOT
+from repo_paths import FLOWCLIP_BIN, ROOT
 
 SCENES = ("drop2d", "pool3d")
 

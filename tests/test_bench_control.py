@@ -9,7 +9,7 @@ import subprocess
 
 import pytest
 
-from flowclip_client import FLOWCLIP_BIN, ROOT
+from repo_paths import FLOWCLIP_BIN, ROOT
 
 REPEAT = 3
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 import subprocess
 
-from flowclip_client import ROOT
+from repo_paths import ROOT
 
 ISSUE = re.compile(r"\b[Ii]ssues?\s*#?\d+\b|\(#\d+\)")
 TEXT = (".md", ".py", ".cpp", ".h", ".ts", ".mjs", ".yaml", ".yml", ".json", ".fbs", ".txt", ".sh", ".css", ".html")

@@ -11,10 +11,11 @@ import requests
 from websockets.exceptions import InvalidStatus
 
 from conftest import MAX_BODY_MB
-from flowclip_client import FLOWCLIP_BIN, ApiError, FlowClipServer, encode_subscribe, encode_transport
+from flowclip import ApiError, FlowClipServer, encode_subscribe, encode_transport
 from flowclip.wire import Ack as fbAck
 from flowclip.wire import Envelope as fbEnvelope
 from flowclip.wire.Message import Message
+from repo_paths import FLOWCLIP_BIN
 from service_helpers import small_scene
 
 

@@ -9,7 +9,7 @@ import h5py
 import numpy as np
 import pytest
 
-from flowclip_client import ApiError, rest_world_matrix
+from flowclip import ApiError, rest_world_matrix
 from service_helpers import drop_scene_without_instances, positions_of, quantum
 
 FOLLOW = 20  # frames played after the instance's first frame

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from flowclip_client import ApiError
+from flowclip import ApiError
 from service_helpers import blowup_scene, small_scene, wait_until
 
 

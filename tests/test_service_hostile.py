@@ -13,9 +13,10 @@ import flatbuffers
 import pytest
 import requests
 
-from flowclip_client import FLOWCLIP_BIN, FlowClipServer, _finish
+from flowclip import FlowClipServer, finish_envelope
 from flowclip.wire import Edit as fbEdit
 from flowclip.wire.Message import Message
+from repo_paths import FLOWCLIP_BIN
 from service_helpers import small_scene, wait_until
 
 
@@ -96,7 +97,7 @@ def test_websocket_errors_echo_client_bytes_as_utf8(server, client):
         fbEdit.Start(b)
         fbEdit.AddEditId(b, 7)
         fbEdit.AddJson(b, text)
-        stream.send(_finish(b, Message.Edit, fbEdit.End(b)))
+        stream.send(finish_envelope(b, Message.Edit, fbEdit.End(b)))
         e = stream.wait("error")  # decoding it would raise on invalid UTF-8
         assert e["request_id"] == 7 and e["code"] == "InvalidEdit" and "\\xFF" in e["message"], e
         stream.transport("step", steps=1, request_id=8)

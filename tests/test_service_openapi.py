@@ -12,12 +12,18 @@ from __future__ import annotations
 import ast
 import json
 import re
+from pathlib import Path
 
 import pytest
 
-from flowclip_client import OPERATIONS, ROOT, ApiError, Client, FlowClipServer, Stream, decode
+import flowclip
+from flowclip import ApiError, Client, FlowClipServer, Stream, decode, load_operations
 from openapi_check import OpenApiChecker
+from repo_paths import ROOT
 from service_helpers import drop_scene_without_instances
+
+# The repository's spec (the package carries a copy: tests/test_python_package.py).
+OPERATIONS = load_operations(ROOT / "proto" / "openapi.yaml")
 
 # Operations served outside rest_api.cpp's table: the WebSocket upgrade (service/http_server.cpp).
 NOT_IN_ROUTE_TABLE = {"stream"}
@@ -43,24 +49,32 @@ def test_server_route_table_is_the_spec():
     assert stream.endswith("/stream") and '"/stream"' in (ROOT / "server" / "service" / "http_server.cpp").read_text()
 
 
+def _client_sources():
+    """The modules of the installed flowclip package, the generated flowclip.wire aside."""
+    return sorted(Path(flowclip.__file__).parent.glob("*.py"))
+
+
 def _operations_named_by_the_client():
-    """operationIds the client's source names: op("X"), _edit("X"), route("X")."""
-    tree = ast.parse((ROOT / "tests" / "flowclip_client.py").read_text())
+    """operationIds the client's source names: op("X"), _edit("X"), route("X") -> "module.py:line"."""
     named = {}
-    for node in ast.walk(tree):
-        if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
-                and node.func.attr in ("op", "_edit", "route") and node.args
-                and isinstance(node.args[0], ast.Constant) and isinstance(node.args[0].value, str)):
-            named.setdefault(node.args[0].value, node.lineno)
+    for source in _client_sources():
+        for node in ast.walk(ast.parse(source.read_text())):
+            if not (isinstance(node, ast.Call) and node.args and isinstance(node.args[0], ast.Constant)
+                    and isinstance(node.args[0].value, str)):
+                continue
+            func = node.func.attr if isinstance(node.func, ast.Attribute) else getattr(node.func, "id", None)
+            if func in ("op", "_edit", "route"):
+                named.setdefault(node.args[0].value, f"{source.name}:{node.lineno}")
     return named
 
 
 def test_python_client_has_a_method_per_operation():
+    assert {"client.py", "stream.py"} <= {p.name for p in _client_sources()}, _client_sources()
     named = _operations_named_by_the_client()
-    unknown = {op: line for op, line in named.items() if op not in OPERATIONS}
-    assert not unknown, f"tests/flowclip_client.py names operationIds proto/openapi.yaml lacks (line): {unknown}"
+    unknown = {op: where for op, where in named.items() if op not in OPERATIONS}
+    assert not unknown, f"the flowclip package names operationIds proto/openapi.yaml lacks: {unknown}"
     missing = sorted(set(OPERATIONS) - set(named))
-    assert not missing, f"operations of proto/openapi.yaml without a method in tests/flowclip_client.py: {missing}"
+    assert not missing, f"operations of proto/openapi.yaml without a method in the flowclip package: {missing}"
     # Routes come from the spec: no path literal in the client's methods.
     for cls in (Client, Stream):
         for name, member in vars(cls).items():

@@ -9,7 +9,7 @@ import json
 
 import pytest
 
-from flowclip_client import ApiError, FlowClipServer
+from flowclip import ApiError, FlowClipServer
 from service_helpers import small_scene
 
 NEEDS_TINY = "needs_tiny"

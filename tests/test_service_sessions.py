@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from websockets.exceptions import InvalidStatus
 
-from flowclip_client import ApiError, FlowClipServer
+from flowclip import ApiError, FlowClipServer
 from service_helpers import positions_of, small_scene
 
 

@@ -51,11 +51,11 @@ import threading
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
+from bench_report import loadavg, machine  # tools/, beside this script
+from flowclip import FlowClipServer  # clients/python, installed into build/venv by make setup
 
-from bench_report import loadavg, machine  # noqa: E402  (tools/, beside this script)
-from flowclip_client import FLOWCLIP_BIN, FlowClipServer  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
+FLOWCLIP_BIN = Path(os.environ.get("FLOWCLIP_BIN", ROOT / "build" / "flowclip"))
 
 FRAME_RATE = 60
 FIRST_FRAME_ALLOWANCE_MS = 100.0  # the targets' allowance beyond one frame's compute time
@@ -675,7 +675,7 @@ def main(argv=None) -> int:
             log("recording templates/recipes/drop2d.json (no templates/drop2d.h5)")
             subprocess.run([str(FLOWCLIP_BIN), "record", str(ROOT / "templates" / "recipes" / "drop2d.json"),
                             "--templates", str(templates), "--force", "--quiet"], check=True, timeout=600)
-        with FlowClipServer(templates, ROOT / "scenes", Path(tmp) / "exports") as server:
+        with FlowClipServer(templates, ROOT / "scenes", Path(tmp) / "exports", binary=FLOWCLIP_BIN) as server:
             api = server.client()
             api.timeout = 120
             bench = Bench(server, api, args.threads)

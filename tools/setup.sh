@@ -42,6 +42,24 @@ if [ ! -x "$VENV/bin/python" ] || ! cmp -s requirements.txt "$VENV/.requirements
   cp requirements.txt "$VENV/.requirements"
 fi
 
+# The Python client package (clients/python, docs: clients/python/README.md),
+# installed like a user's `pip install clients/python` and again whenever its
+# sources or the proto/ files it packages change. No network: its build runs
+# on the venv's setuptools and its dependencies are requirements.txt's pins.
+PY_PACKAGE=clients/python
+package_sources() {
+  { ls "$PY_PACKAGE"/pyproject.toml "$PY_PACKAGE"/setup.py "$PY_PACKAGE"/README.md proto/openapi.yaml proto/*.fbs
+    find "$PY_PACKAGE/flowclip" -path "$PY_PACKAGE/flowclip/wire" -prune -o -name '*.py' -print
+  } | LC_ALL=C sort | xargs sha256sum
+}
+package_stamp=$(package_sources | sha256sum)
+if [ "$package_stamp" != "$(cat "$VENV/.flowclip-package" 2>/dev/null)" ]; then
+  echo "setup: installing the Python client ($PY_PACKAGE) into $VENV"
+  "$VENV/bin/pip" install -q --disable-pip-version-check --no-index --no-build-isolation --no-deps \
+    --force-reinstall "./$PY_PACKAGE"
+  echo "$package_stamp" >"$VENV/.flowclip-package"
+fi
+
 # Web editor packages (present once web/package.json exists). Vite 8 and
 # Playwright need Node.js >= 20.19; Debian 12's own nodejs is 18.
 if [ -f web/package.json ]; then

@@ -28,11 +28,11 @@ import threading
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
+from bench_report import machine  # tools/, beside this script
+from flowclip import FlowClipServer  # clients/python, installed into build/venv by make setup
 
-from bench_report import machine  # noqa: E402  (tools/, beside this script)
-from flowclip_client import FLOWCLIP_BIN, FlowClipServer  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
+FLOWCLIP_BIN = Path(os.environ.get("FLOWCLIP_BIN", ROOT / "build" / "flowclip"))
 
 
 def rss_mb(pid: int) -> float:
@@ -179,8 +179,8 @@ def main() -> int:
     command = " ".join([Path(sys.argv[0]).as_posix()] + sys.argv[1:])
     stats, stop = Stats(), threading.Event()
     samples = []
-    with FlowClipServer(args.templates, ROOT / "scenes", history_cap_mb=args.history_cap_mb,
-                        max_sessions=args.sessions) as server:
+    with FlowClipServer(args.templates, ROOT / "scenes", binary=FLOWCLIP_BIN,
+                        history_cap_mb=args.history_cap_mb, max_sessions=args.sessions) as server:
         api = server.client()
         pid = server.proc.pid
         fds_idle = fds(pid)

@@ -3,8 +3,9 @@ reports inside the documentation site, and keep every relative link working.
 
 Some pages live beside what they describe rather than under docs/: the scene
 file reference (scenes/README.md), the template database (templates/README.md),
-the wire contracts (proto/), the editor's npm scripts (web/README.md), and the
-reports the benchmarks write (bench/).
+the wire contracts (proto/), the editor's npm scripts (web/README.md), the
+Python client (clients/python/README.md), and the reports the benchmarks write
+(bench/).
 They stay where they are, so that the tools that write them and a reader on a
 code host find them there; this hook adds them to the site at the same path
 (bench/cache/cache.md is served as bench/cache/cache.html), and rewrites the
@@ -33,6 +34,7 @@ MIRRORED = [
     "proto/openapi.yaml",
     "proto/flowclip.fbs",
     "web/README.md",
+    "clients/python/README.md",
     "bench/**/*.md",
     "bench/**/*.json",
     "bench/**/*.csv",
