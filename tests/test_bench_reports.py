@@ -1,0 +1,55 @@
+"""`flowclip bench solver | scenes | service` at their smallest settings: each writes its
+report (NAME.md + NAME.json, docs/benchmarks/) into --out, with the machine, date and
+command, figures that fit the scene, and the same figures in the markdown as in the JSON.
+`bench control`'s report: tests/test_bench_control.py."""
+from __future__ import annotations
+
+import pytest
+
+from bench_report_check import block_particles, lattice_particles, md_row, read_report, run_bench
+from flowclip_client import ROOT
+
+DAM = ROOT / "scenes" / "bench" / "dambreak2d_r010.json"
+DROP = ROOT / "scenes" / "drop2d.json"
+FRAME_RATE = 60
+
+
+def test_solver_report(tmp_path):
+    out = tmp_path / "solver"
+    seconds = 0.05
+    run_bench(["solver", "--scenes", str(DAM), "--seconds", str(seconds), "--threads", "1"], out)
+    report, md = read_report(out, "solver")
+    assert report["settings"]["seconds"] == seconds and report["machine"]["threads"] == 1
+    assert report["failures"] == []
+    runs = report["runs"]
+    assert [r["solver"] for r in runs] == ["dfsph", "wcsph"]
+    for r in runs:
+        assert r["bench_scene"] == "dambreak2d_r010" and r["threads"] == 1
+        assert r["liquid_particles"] == block_particles(DAM) == 74 * 74
+        assert r["frames"] == round(seconds * FRAME_RATE)
+        assert r["substeps"] >= r["frames"]
+        assert r["us_per_particle_step"] > 0 and r["wall_s_per_simulated_s"] > 0 and r["ms_per_frame"] > 0
+        assert r["peak_rss_mb"] > 0
+        assert 0 <= r["mean_avg_density_error_pct"] <= r["max_density_error_pct"]
+        stages = r["stage_ms_per_substep"]
+        parts = [stages[k] for k in ("neighbor_ms", "density_ms", "divergence_ms", "non_pressure_ms", "pressure_ms")]
+        assert all(p >= 0 for p in parts) and stages["total_ms"] == pytest.approx(sum(parts))
+        # The stages are part of the step: together no longer than the run's wall time per substep.
+        assert stages["total_ms"] <= 1000 * r["wall_s"] / r["substeps"]
+        row = md_row(r["bench_scene"], r["solver"], r["liquid_particles"], r["substeps"],
+                     f"{r['us_per_particle_step']:.3f}", f"{r['substeps_per_frame']:.1f}", f"{r['ms_per_frame']:.1f}",
+                     f"{r['wall_s_per_simulated_s']:.2f}", f"{r['mean_avg_density_error_pct']:.4f}",
+                     f"{r['max_density_error_pct']:.3f}",
+                     "-" if r["density_tolerance_pct"] is None else f"{r['density_tolerance_pct']:g}",
+                     f"{r['peak_rss_mb']:.0f}")
+        assert row in md, row
+        assert md_row(r["bench_scene"], r["solver"], *(f"{p:.2f}" for p in parts), f"{stages['total_ms']:.2f}",
+                      f"{r['divergence_iterations_per_substep']:.2f}",
+                      f"{r['density_iterations_per_substep']:.2f}") in md
+    dfsph, wcsph = runs
+    # The scene's own tolerance is held; WCSPH has none. DFSPH's density solve iterates at least once a substep.
+    assert dfsph["density_tolerance_pct"] == 0.1 and wcsph["density_tolerance_pct"] is None
+    assert dfsph["density_iterations_per_substep"] >= 1
+    ref = dfsph["splishsplash_fixed"]
+    assert ref["ours_us_pct"] == pytest.approx(100 * dfsph["us_per_particle_step"] / ref["us_per_particle_step"])
+    assert "splishsplash_fixed" not in wcsph
