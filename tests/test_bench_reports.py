@@ -53,3 +53,31 @@ def test_solver_report(tmp_path):
     ref = dfsph["splishsplash_fixed"]
     assert ref["ours_us_pct"] == pytest.approx(100 * dfsph["us_per_particle_step"] / ref["us_per_particle_step"])
     assert "splishsplash_fixed" not in wcsph
+
+
+def test_scenes_report(template_dir, tmp_path):
+    out = tmp_path / "scenes"
+    frames = 14  # two frames past the drop's instance start (t = 0.2 s)
+    run_bench(["scenes", str(DROP), str(DAM), "--frames", str(frames), "--threads", "1",
+               "--templates", str(template_dir)], out)
+    report, md = read_report(out, "scenes")
+    assert report["failures"] == []
+    drop, dam = report["scenes"]
+    assert (drop["scene"], dam["scene"]) == ("drop2d", "dambreak2d_r010")
+    for r in (drop, dam):
+        assert r["frames"] == frames and 1 <= r["active_frames"] <= frames
+        assert r["simulation_ms_per_frame"] > 0 and r["peak_rss_mb"] > 0
+        assert r["control_pct"] == pytest.approx(100 * r["control_ms_per_frame"] / r["simulation_ms_per_frame"])
+        assert md_row(r["scene"], f"{r['active_frames']} / {r['frames']}", *(f"{r[k]:.0f}" for k in (
+            "liquid", "control", "repulsion", "temporary")), f"{r['simulation_ms_per_frame']:.1f}",
+            f"{r['control_ms_per_frame']:.1f}", f"{r['control_pct']:.1f}", f"{r['peak_rss_mb']:.0f}",
+            f"{r['template_storage_mb']:.2f}") in md
+    # Without instances every frame counts, and nothing is controlled.
+    assert dam["active_frames"] == frames and dam["liquid"] == block_particles(DAM)
+    assert dam["control"] == dam["control_ms_per_frame"] == dam["template_storage_mb"] == 0
+    # The drop's liquid is its block's (temporary particles counted apart), its template on disk.
+    assert drop["liquid"] == pytest.approx(block_particles(DROP), rel=0.01)
+    assert drop["active_frames"] < frames and drop["control"] > 0
+    assert drop["template_storage_mb"] == pytest.approx((template_dir / "drop2d.h5").stat().st_size / 1e6)
+    assert drop["paper"]["name"] == "2D Rectangular drop" and "paper" not in dam
+    assert "| drop2d | 2D Rectangular drop | 6700 | 1300 | 88 | 36 | 190.2 | 5.6 | 2.9 | 0.33 | 3.87 |" in md
