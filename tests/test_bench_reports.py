@@ -81,3 +81,49 @@ def test_scenes_report(template_dir, tmp_path):
     assert drop["template_storage_mb"] == pytest.approx((template_dir / "drop2d.h5").stat().st_size / 1e6)
     assert drop["paper"]["name"] == "2D Rectangular drop" and "paper" not in dam
     assert "| drop2d | 2D Rectangular drop | 6700 | 1300 | 88 | 36 | 190.2 | 5.6 | 2.9 | 0.33 | 3.87 |" in md
+
+
+def test_service_report(template_dir, tmp_path):
+    out = tmp_path / "service"
+    particles, frames, clients = 2000, 5, [1, 2]
+    run_bench(["service", "--particles", str(particles), "--seconds", "0.3", "--clients", ",".join(map(str, clients)),
+               "--scene", str(DROP), "--frames", str(frames), "--templates", str(template_dir)], out)
+    report, md = read_report(out, "service")
+    idle = report["idle_server"]
+    assert idle["rss_mb"] > 0
+    assert md_row("RSS of `flowclip serve` without a session, MB", f"{idle['rss_mb']:.1f}") in md
+
+    enc = report["encoding"]
+    assert enc["particles"] == particles
+    rec = enc["recorded"]
+    assert rec["ms_per_frame"] > 0 and rec["repetitions"] >= 5
+    assert rec["ns_per_particle"] == pytest.approx(rec["ms_per_frame"] * 1e6 / particles)
+    # 3D: 6 bytes of position, 1 of kind, 1 of phase per particle, plus the message's header and instances.
+    assert 8 <= enc["message"]["bytes_per_particle"] < 9
+    assert enc["message"]["mb_per_frame"] == pytest.approx(enc["message"]["bytes_per_particle"] * particles / 1e6)
+    assert enc["history_bytes_per_particle_frame"] >= 14
+    assert md_row("recorded frame", particles, f"{rec['ms_per_frame']:.3f}", f"{rec['ns_per_particle']:.2f}",
+                  f"{enc['message']['bytes_per_particle']:.2f}", rec["repetitions"]) in md
+    # The live path's tank: a block of 0.93 × 0.93 × 0.46 m sampled for about `particles`.
+    liquid, boundary = enc["live"]
+    radius = 0.5 * (0.93 * 0.93 * 0.46 / particles) ** (1 / 3)
+    assert liquid["particles"] == lattice_particles([0, 0, 0], [0.93, 0.93, 0.46], radius)
+    assert boundary["particles"] > liquid["particles"]
+    for live in (liquid, boundary):
+        assert live["ms_per_frame"] > 0 and live["bytes_per_particle"] >= 8
+        assert md_row(f"live, {live['layers']}", live["particles"], f"{live['ms_per_frame']:.3f}",
+                      f"{live['ns_per_particle']:.2f}", f"{live['bytes_per_particle']:.2f}",
+                      live["repetitions"]) in md
+
+    stream = report["streaming"]
+    assert stream["particles"] == particles and [r["clients"] for r in stream["runs"]] == clients
+    for r in stream["runs"]:
+        assert 0 < r["min_frames_per_s"] <= r["frames_per_s_each"] and r["mb_per_s_total"] > 0
+        assert r["published_per_s"] > 0
+        assert md_row(r["clients"], *(f"{r[k]:.1f}" for k in ("frames_per_s_each", "min_frames_per_s",
+                                                                "mb_per_s_total", "published_per_s"))) in md
+
+    mem = report["session_memory"]
+    assert mem["liquid_particles"] == block_particles(DROP) and mem["frames"] == frames
+    assert mem["simulation_state_mb"] > 0 and mem["history_mb_per_1000_frames"] > 0
+    assert md_row("history per 1000 frames, counted by the session", f"{mem['history_mb_per_1000_frames']:.2f}") in md
