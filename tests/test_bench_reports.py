@@ -125,5 +125,6 @@ def test_service_report(template_dir, tmp_path):
 
     mem = report["session_memory"]
     assert mem["liquid_particles"] == block_particles(DROP) and mem["frames"] == frames
-    assert mem["simulation_state_mb"] > 0 and mem["history_mb_per_1000_frames"] > 0
+    assert mem["simulation_state_mb"] > 0 and mem["history_mb_per_1000_frames"] > 0 and mem["checkpoints_mb"] >= 0
     assert md_row("history per 1000 frames, counted by the session", f"{mem['history_mb_per_1000_frames']:.2f}") in md
+    assert md_row("checkpoints after the last frame, counted by the session", f"{mem['checkpoints_mb']:.2f}") in md

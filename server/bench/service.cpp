@@ -348,7 +348,8 @@ json benchSessionMemory(const ServiceBenchOptions& o) {
               {"session_rss_mb", rss1 - rss0},
               {"simulation_state_mb", s0["memory"]["simulation_bytes"].get<double>() / 1e6},
               {"history_mb_per_1000_frames", historyMb / frames * 1000},
-              {"history_rss_mb_per_1000_frames", (rss2 - rss1) / frames * 1000}};
+              {"history_rss_mb_per_1000_frames", (rss2 - rss1) / frames * 1000},
+              {"checkpoints_mb", s1["memory"].value("checkpoint_bytes", 0.0) / 1e6}};
   session.reset();
   HttpRequest del;
   del.method = "DELETE";
@@ -429,6 +430,7 @@ std::string markdown(const json& idle, const json& enc, const json& stream, cons
        {"simulation state counted by the session", fmt(mem["simulation_state_mb"], "%.2f")},
        {"history per 1000 frames, counted by the session", fmt(mem["history_mb_per_1000_frames"], "%.2f")},
        {"history per 1000 frames, RSS measured", fmt(mem["history_rss_mb_per_1000_frames"], "%.2f")},
+       {"checkpoints after the last frame, counted by the session", fmt(mem["checkpoints_mb"], "%.2f")},
        {"RSS above the start after DELETE", fmt(mem["after_delete_rss_mb"], "%.2f")}});
   return md;
 }
