@@ -51,6 +51,7 @@ def test_solver_report(tmp_path):
     assert dfsph["density_tolerance_pct"] == 0.1 and wcsph["density_tolerance_pct"] is None
     assert dfsph["density_iterations_per_substep"] >= 1
     ref = dfsph["splishsplash_fixed"]
+    assert ref["threads"] == 2
     assert ref["ours_us_pct"] == pytest.approx(100 * dfsph["us_per_particle_step"] / ref["us_per_particle_step"])
     assert "splishsplash_fixed" not in wcsph
 
@@ -87,8 +88,9 @@ def test_service_report(template_dir, tmp_path):
     out = tmp_path / "service"
     particles, frames, clients = 2000, 5, [1, 2]
     run_bench(["service", "--particles", str(particles), "--seconds", "0.3", "--clients", ",".join(map(str, clients)),
-               "--scene", str(DROP), "--frames", str(frames), "--templates", str(template_dir)], out)
+               "--scene", str(DROP), "--frames", str(frames), "--templates", str(template_dir), "--threads", "1"], out)
     report, md = read_report(out, "service")
+    assert report["settings"]["threads"] == report["machine"]["threads"] == 1
     idle = report["idle_server"]
     assert idle["rss_mb"] > 0
     assert md_row("RSS of `flowclip serve` without a session, MB", f"{idle['rss_mb']:.1f}") in md

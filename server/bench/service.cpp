@@ -54,6 +54,7 @@ struct ServiceBenchOptions {
   int frames = 300;
   std::string templates = "templates";
   std::string out = "bench/service";
+  int threads = 0;  // OpenMP threads of the encoding and the session; 0: all cores
 };
 
 constexpr double kIdleTargetMb = 20;    // the idle server's RSS target
@@ -449,16 +450,19 @@ void addBenchServiceCommand(CLI::App& bench) {
   cmd->add_option("--frames", o->frames, "frames simulated for the history figure (default 300)")
       ->check(CLI::Range(1, 100000));
   cmd->add_option("--templates", o->templates, "template directory (default: templates)");
+  cmd->add_option("--threads", o->threads, "OpenMP threads (default: all cores)")->check(CLI::PositiveNumber);
   cmd->add_option("--out", o->out, "report folder: service.md and service.json (default: bench/service)");
   cmd->callback([o] {
     try {
+      if (o->threads > 0) omp_set_num_threads(o->threads);
       const Report report("service", omp_get_max_threads());
       const json idle = benchIdleServer();
       const json encoding = benchEncode(o->particles);
       const json streaming = benchStreaming(o->particles, o->clients, o->seconds);
       const json memory = benchSessionMemory(*o);
       const json settings = {{"particles", o->particles}, {"seconds", o->seconds}, {"clients", o->clients},
-                             {"scene", o->scene},         {"frames", o->frames},   {"templates", o->templates}};
+                             {"scene", o->scene},         {"frames", o->frames},   {"templates", o->templates},
+                             {"threads", omp_get_max_threads()}};
       report.write(o->out, "Service", markdown(idle, encoding, streaming, memory),
                    {{"settings", settings},
                     {"idle_server", idle},

@@ -29,10 +29,11 @@ namespace fs = std::filesystem;
 using json = nlohmann::json;
 
 // SPlisHSPlasH DFSPH figures read once, on one machine (single precision,
-// AVX2, -O3 -march=native, OpenMP, 2 threads, volume-map boundaries): µs per
-// particle-step and wall s per simulated s. Figures from another machine do
+// AVX2, -O3 -march=native, OpenMP, kReferenceThreads threads, volume-map
+// boundaries): µs per particle-step and wall s per simulated s. Figures from another machine do
 // not divide; tools/bench_reference.py times SPlisHSPlasH on this one
 // (docs/benchmarks/solver.md).
+constexpr int kReferenceThreads = 2;
 struct Reference {
   double usPerParticleStep;
   double wallPerSimS;
@@ -104,6 +105,7 @@ json runRow(const std::string& scene, const std::string& solver, const json& sta
     row["splishsplash_fixed"] = {
         {"us_per_particle_step", it->second.usPerParticleStep},
         {"wall_s_per_simulated_s", it->second.wallPerSimS},
+        {"threads", kReferenceThreads},
         {"ours_us_pct", s.at("us_per_particle_step").get<double>() / it->second.usPerParticleStep * 100},
         {"ours_wall_pct", s.at("wall_s_per_simulated_s").get<double>() / it->second.wallPerSimS * 100}};
   return row;
@@ -149,8 +151,9 @@ std::string markdown(const json& rows, const json& failures) {
   md += markdownTable(header, stages);
   if (!reference.empty()) {
     md += "\n## Against fixed SPlisHSPlasH figures\n\nDFSPH runs divided by SPlisHSPlasH figures compiled into the "
-          "benchmark, read once on another machine: indicative only; tools/bench_reference.py runs both on the same "
-          "machine.\n\n";
+          "benchmark, read once on another machine with " +
+          std::to_string(kReferenceThreads) +
+          " threads: indicative only; tools/bench_reference.py runs both on the same machine.\n\n";
     md += markdownTable({"scene", "µs / particle-step", "SPlisHSPlasH", "ours / theirs", "wall s / simulated s",
                          "SPlisHSPlasH", "ours / theirs"},
                         reference);
