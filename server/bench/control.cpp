@@ -232,7 +232,7 @@ struct TableRow {
   std::string scene, mode, frames, liquid, control, repulsion, temporary, simulationMs, controlMs, controlPct, memory,
       storageMb, fidelity;
   std::vector<std::string> cells() const {
-    return {scene,     mode,      frames,     liquid, control,   repulsion, temporary,
+    return {scene,        mode,      frames,     liquid, control,   repulsion, temporary,
             simulationMs, controlMs, controlPct, memory, storageMb, fidelity};
   }
 };
@@ -264,7 +264,7 @@ TableRow ourRow(const ScenePlan& plan, const Mode& mode, const ControlRun& r) {
 }
 
 TableRow paperRow(const PaperRow& p) {
-  return {"paper",   p.scene,      "-",          p.liquid,   p.control,   p.repulsion, p.temporary,
+  return {"paper",        p.scene,     "-",          p.liquid, p.control,   p.repulsion, p.temporary,
           p.simulationMs, p.controlMs, p.controlPct, p.memory, p.storageMb, "-"};
 }
 
