@@ -6,15 +6,12 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import os
 import re
 import subprocess
-from pathlib import Path
 
 import requests
 
-ROOT = Path(__file__).resolve().parents[1]
-BIN = Path(os.environ.get("FLOWCLIP_BIN", ROOT / "build" / "flowclip"))
+from repo_paths import FLOWCLIP_BIN as BIN, ROOT
 
 
 def _hook():

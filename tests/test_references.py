@@ -14,7 +14,7 @@ import subprocess
 from collections import Counter
 from pathlib import Path
 
-from flowclip_client import ROOT
+from repo_paths import ROOT
 
 REFERENCES = "docs/references.md"
 KEY = re.compile(r"\[([A-Z][A-Za-z]{0,7})(\\?\*)?(\d{2}[a-z]?)\]")

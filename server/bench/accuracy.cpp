@@ -19,6 +19,7 @@
 #include "bench/accuracy_metrics.h"
 #include "bench/commands.h"
 #include "bench/exported_frames.h"
+#include "bench/report.h"
 #include "cli/exit_codes.h"
 #include "cli/json_file.h"
 #include "cli/process.h"
@@ -28,19 +29,18 @@
 #include "sph/settings.h"
 #include "sph/simulation.h"
 #include <nlohmann/json.hpp>
+#include <omp.h>
 #include <sys/resource.h>
 #include <unistd.h>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <map>
 #include <optional>
 #include <sstream>
-#include <thread>
 
 namespace fc::bench {
 
@@ -285,13 +285,6 @@ double childCpuSeconds() {
   rusage u{};
   getrusage(RUSAGE_CHILDREN, &u);
   return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) + 1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
-}
-
-double loadAverage() {
-  std::ifstream f("/proc/loadavg");
-  double l = -1;
-  f >> l;
-  return l;
 }
 
 // A number, or "n/a" where the quantity does not apply to the point.
@@ -569,11 +562,6 @@ PresetPick choosePresets(std::vector<Result>& results) {
 // ---------------------------------------------------------------------------
 // Output.
 
-std::string fmt(double v, const char* f = "%.6g") {
-  char b[64];
-  std::snprintf(b, sizeof b, f, v);
-  return b;
-}
 std::string cell(const Cell& c, const char* f = "%.6g") { return c ? fmt(*c, f) : "n/a"; }
 
 std::vector<std::string> csvHeader() {
@@ -656,13 +644,6 @@ json presetJson(const Result& r, const std::string& name, const std::string& des
                      {"volume_drift_pct", r.volumeDrift}, {"surge_front_rms", *r.surgeRms}}}};
 }
 
-std::string today() {
-  const std::time_t t = std::time(nullptr);
-  char b[32];
-  std::strftime(b, sizeof b, "%Y-%m-%d", std::localtime(&t));
-  return b;
-}
-
 struct Options {
   bool quick = false;
   std::string out = "build/accuracy";
@@ -674,16 +655,16 @@ struct Options {
 };
 
 void writeMarkdown(const fs::path& path, const Options& opt, const std::vector<Result>& results,
-                   const std::string& source, double meanLoad, const PresetPick& pick) {
+                   const Report& report, double meanLoad, const PresetPick& pick) {
   std::ofstream md(path);
-  md << "# Accuracy and cost (" << (opt.quick ? "quick run" : "full sweep") << ")\n\n";
-  md << "Made by `" << source << "`. " << results.size() << " points, each in its own `flowclip run` child ("
+  md << "# Accuracy and cost (" << (opt.quick ? "quick run" : "full sweep") << ")\n\n" << report.markdownHeader()
+     << "\n";
+  md << results.size() << " points, each in its own `flowclip run` child ("
      << (opt.threads > 0 ? std::to_string(opt.threads) : std::string("all")) << " OpenMP thread"
      << (opt.threads == 1 ? "" : "s") << " per run"
      << (opt.repeat > 1 ? ", cost of the fastest of " + std::to_string(opt.repeat) + " runs" : std::string())
      << "); "
-     << "load average " << fmt(meanLoad, "%.2f") << " on " << std::thread::hardware_concurrency()
-     << " cores (figures made under load are inflated). Real = "
+     << "load average " << fmt(meanLoad, "%.2f") << " over the points (figures made under load are inflated). Real = "
      << (opt.doubleBinary.empty() ? "float only (no `--double-binary` given: a double build was not measured)"
                                   : "float and double (`--double-binary " + opt.doubleBinary + "`)")
      << ".\n\n";
@@ -748,6 +729,7 @@ void writeMarkdown(const fs::path& path, const Options& opt, const std::vector<R
 
 int benchAccuracy(const Options& opt) {
   registerBuiltinSolversAndEffects();  // the knobs' declared defaults
+  const Report report("accuracy", opt.threads > 0 ? opt.threads : omp_get_max_threads());
   Context ctx;
   ctx.source = sourceDir();
   ctx.floatBinary = selfExecutable();
@@ -866,9 +848,9 @@ int benchAccuracy(const Options& opt) {
   if (!opt.doubleBinary.empty()) command += " --double-binary " + opt.doubleBinary;
   if (opt.threads > 0) command += " --threads " + std::to_string(opt.threads);
   if (opt.repeat > 1) command += " --repeat " + std::to_string(opt.repeat);
-  const std::string source = command + " (" + (opt.quick ? "quick run" : "full sweep") + ", " + today() +
+  const std::string source = command + " (" + (opt.quick ? "quick run" : "full sweep") + ", " + utcTimestamp() +
                              ", load avg " + fmt(meanLoad, "%.1f") + ")";
-  writeMarkdown(out / "accuracy.md", opt, results, command, meanLoad, pick);
+  writeMarkdown(out / "accuracy.md", opt, results, report, meanLoad, pick);
   {
     json presets = json::array();
     const std::map<std::string, std::string> descriptions = {

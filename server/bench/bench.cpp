@@ -21,7 +21,7 @@ std::vector<std::string> sceneFilesIn(const std::string& folder) {
 }
 
 void addBenchCommand(CLI::App& app) {
-  CLI::App* bench = app.add_subcommand("bench", "benchmarks that print their figures");
+  CLI::App* bench = app.add_subcommand("bench", "benchmarks: figures printed, reports written (bench/)");
   bench->require_subcommand(1);
   addBenchSolverCommand(*bench);
   addBenchTemplatesCommand(*bench);

@@ -2,10 +2,11 @@
 // Table 1) on every scene with template instances, with the control forces
 // evaluated once per frame (the paper) and at every substep
 // (control.forces_every_substep). Each run is a child `flowclip run --stats`
-// process, so that peak RSS is that run's alone.
+// process, so that peak RSS is that run's alone. Writes control.md and
+// control.json (bench/report.h) into --out.
 #include "bench/commands.h"
+#include "bench/report.h"
 #include "cli/exit_codes.h"
-#include "cli/json_file.h"
 #include "cli/process.h"
 #include "io/scene.h"
 #include "io/template_database.h"
@@ -72,7 +73,7 @@ struct ControlBenchOptions {
   std::string templates = "templates";
   int threads = 0;
   int repeat = 1;  // runs per scene and mode; the one of median control share is reported
-  std::string out;
+  std::string out = "bench/control";
 };
 
 // A scene file as the bench sees it before running it.
@@ -227,15 +228,13 @@ std::string count(double n) {
   return buf;
 }
 
-std::string fixed(double v, int decimals, const char* suffix = "") {
-  char buf[48];
-  std::snprintf(buf, sizeof(buf), "%.*f%s", decimals, v, suffix);
-  return buf;
-}
-
 struct TableRow {
   std::string scene, mode, frames, liquid, control, repulsion, temporary, simulationMs, controlMs, controlPct, memory,
       storageMb, fidelity;
+  std::vector<std::string> cells() const {
+    return {scene,        mode,      frames,     liquid, control,   repulsion, temporary,
+            simulationMs, controlMs, controlPct, memory, storageMb, fidelity};
+  }
 };
 
 void printRow(const TableRow& r) {
@@ -256,16 +255,16 @@ TableRow ourRow(const ScenePlan& plan, const Mode& mode, const ControlRun& r) {
           avg(r.control),
           avg(r.repulsion),
           avg(r.temporary),
-          any ? fixed(r.simulationMs, 1) : "-",
-          any ? fixed(r.controlMs, 2) : "-",
-          any ? fixed(r.controlPct(), 1, "%") : "-",
-          fixed(r.peakRssMb, 0, " MB"),
-          fixed(plan.storageMb, 2),
-          r.fidelity >= 0 ? fixed(r.fidelity, 3) : "-"};
+          any ? fmt(r.simulationMs, "%.1f") : "-",
+          any ? fmt(r.controlMs, "%.2f") : "-",
+          any ? fmt(r.controlPct(), "%.1f%%") : "-",
+          fmt(r.peakRssMb, "%.0f MB"),
+          fmt(plan.storageMb, "%.2f"),
+          r.fidelity >= 0 ? fmt(r.fidelity, "%.3f") : "-"};
 }
 
 TableRow paperRow(const PaperRow& p) {
-  return {"  paper",   p.scene,      "-",          p.liquid,   p.control,   p.repulsion, p.temporary,
+  return {"paper",        p.scene,     "-",          p.liquid, p.control,   p.repulsion, p.temporary,
           p.simulationMs, p.controlMs, p.controlPct, p.memory, p.storageMb, "-"};
 }
 
@@ -293,8 +292,8 @@ RepeatedRuns medianRun(const std::vector<ControlRun>& runs) {
 
 std::string spread(const RepeatedRuns& r) {
   if (r.pcts.size() < 2) return "";
-  return " (median of " + std::to_string(r.pcts.size()) + " runs, " + fixed(r.lowPct, 1) + "-" +
-         fixed(r.highPct, 1) + " %)";
+  return " (median of " + std::to_string(r.pcts.size()) + " runs, " + fmt(r.lowPct, "%.1f") + "-" +
+         fmt(r.highPct, "%.1f") + " %)";
 }
 
 std::string verdict(const ScenePlan& plan, const std::map<std::string, RepeatedRuns>& repeated) {
@@ -303,25 +302,39 @@ std::string verdict(const ScenePlan& plan, const std::map<std::string, RepeatedR
   const ControlRun& r = paper->second.median;
   if (!r.activeFrames)
     return plan.stem + ": no verdict (no frame with an active instance in " + std::to_string(r.frames) + " frames)";
-  std::string line = plan.stem + ": control is " + fixed(r.controlPct(), 1) + " %" + spread(paper->second) +
+  std::string line = plan.stem + ": control is " + fmt(r.controlPct(), "%.1f") + " %" + spread(paper->second) +
                      " of the simulation's time with forces once per frame: " +
                      (r.controlPct() < kTargetPct ? "meets" : "misses") + " the target (under " +
-                     fixed(kTargetPct, 0) + " %)";
+                     fmt(kTargetPct, "%.0f") + " %)";
   const auto substep = repeated.find(kModes[1].label);
   if (substep != repeated.end() && substep->second.median.activeFrames) {
     const ControlRun& s = substep->second.median;
-    line += "; every substep: " + fixed(s.controlPct(), 1) + " %" + spread(substep->second) + " (control " +
-            fixed(r.controlMs > 0 ? s.controlMs / r.controlMs : 0, 1) + "x, " +
+    line += "; every substep: " + fmt(s.controlPct(), "%.1f") + " %" + spread(substep->second) + " (control " +
+            fmt(r.controlMs > 0 ? s.controlMs / r.controlMs : 0, "%.1f") + "x, " +
             (s.controlPct() < kTargetPct ? "within" : "over") + " the target)";
   }
   return line;
 }
 
-double loadAverage() {
-  std::ifstream f("/proc/loadavg");
-  double load = -1;
-  f >> load;
-  return load;
+const TableRow kHeader{"scene",     "forces",     "frames", "liquid",   "control", "repulsion", "temporary",
+                       "sim ms/fr", "ctrl ms/fr", "ctrl %", "peak RSS", "tmpl MB", "fidelity"};
+
+std::string markdown(const std::vector<TableRow>& table, const std::vector<std::string>& skipped,
+                     const std::vector<std::string>& verdicts) {
+  std::vector<std::vector<std::string>> rows;
+  for (const TableRow& r : table) rows.push_back(r.cells());
+  std::string md = "Particles and ms are per frame, averaged over the frames with an active instance (frames: "
+                   "active/run); simulation = wall - control; control % = control / simulation. Each row is the run "
+                   "of median control share; the paper's rows are its Table 1 (i9-9900K, 8 cores). Target: control "
+                   "under " + fmt(kTargetPct, "%.0f") + " % of the simulation's time with forces once per frame.\n\n";
+  md += "## Verdict\n\n";
+  for (const auto& v : verdicts) md += "- " + v + "\n";
+  md += "\n## Table 1 columns\n\n" + markdownTable(kHeader.cells(), rows);
+  if (!skipped.empty()) {
+    md += "\n## Skipped\n\n";
+    for (const auto& s : skipped) md += "- " + s + "\n";
+  }
+  return md;
 }
 
 int benchControl(const ControlBenchOptions& opt) {
@@ -331,17 +344,21 @@ int benchControl(const ControlBenchOptions& opt) {
   const std::string tmp =
       (fs::temp_directory_path() / ("flowclip-bench-control-" + std::to_string(getpid()) + ".json")).string();
   const int threads = opt.threads > 0 ? opt.threads : omp_get_max_threads();
+  const Report report("control", threads);
 
   std::printf("# %d threads, load average %.2f at start; particles and ms are per frame, averaged over the frames "
               "with an active instance (frames: active/run); simulation = wall - control; control %% = control / "
               "simulation\n",
               threads, loadAverage());
-  const TableRow header{"scene",     "forces",     "frames", "liquid",   "control", "repulsion", "temporary",
-                        "sim ms/fr", "ctrl ms/fr", "ctrl %", "peak RSS", "tmpl MB", "fidelity"};
-  printRow(header);
+  printRow(kHeader);
 
-  json results = json::array();
-  std::vector<std::string> verdicts;
+  json results = json::array(), paperRows = json::array();
+  std::vector<TableRow> table;
+  std::vector<std::string> verdicts, skipped;
+  const auto skip = [&](const std::string& line) {
+    std::printf("%s\n", line.c_str());
+    skipped.push_back(line);
+  };
   int worst = Ok;
   size_t measured = 0;
   for (const auto& file : files) {
@@ -353,7 +370,7 @@ int benchControl(const ControlBenchOptions& opt) {
       continue;
     }
     if (plan.templates.empty()) {
-      std::printf("%-12s skipped: no template instances\n", plan.stem.c_str());
+      skip(plan.stem + ": skipped: no template instances");
       continue;
     }
     if (!plan.missing.empty()) {
@@ -366,8 +383,8 @@ int benchControl(const ControlBenchOptions& opt) {
       }
       const std::string dirArg = opt.templates == "templates" ? "" : " --templates " + opt.templates;
       for (const auto& [recipe, names] : byRecipe)
-        std::printf("%-12s skipped: no template %s in %s; record with `build/flowclip record %s%s`\n",
-                    plan.stem.c_str(), names.c_str(), db.directory().c_str(), recipe.c_str(), dirArg.c_str());
+        skip(plan.stem + ": skipped: no template " + names + " in " + db.directory() + "; record with "
+             "`build/flowclip record " + recipe + dirArg + "`");
       continue;
     }
     const int frames = opt.frames > 0 ? opt.frames : plan.frames;
@@ -387,14 +404,14 @@ int benchControl(const ControlBenchOptions& opt) {
         const int code = runChild(args);
         std::ifstream f(tmp);
         if (code != 0 || !f) {
-          std::printf("%-12s %-19s failed (exit %d)\n", plan.stem.c_str(), mode.label, code);
+          skip(plan.stem + " " + mode.label + ": failed (exit " + std::to_string(code) + ")");
           worst = Failure;
           continue;
         }
         try {
           runs[mode.label].push_back(summarise(json::parse(f)));
         } catch (const std::exception& e) {
-          std::printf("%-12s %-19s unreadable stats: %s\n", plan.stem.c_str(), mode.label, e.what());
+          skip(plan.stem + " " + mode.label + ": unreadable stats: " + e.what());
           worst = Failure;
         }
         f.close();
@@ -409,7 +426,8 @@ int benchControl(const ControlBenchOptions& opt) {
       repeated[mode.label] = rr;
       const ControlRun& r = rr.median;
       ++measured;
-      printRow(ourRow(plan, mode, r));
+      table.push_back(ourRow(plan, mode, r));
+      printRow(table.back());
       results.push_back({{"scene_file", plan.file},
                          {"scene", plan.stem},
                          {"control_setting", mode.setting},
@@ -430,12 +448,24 @@ int benchControl(const ControlBenchOptions& opt) {
                          {"threads", threads}});
     }
     const auto paper = paperTable1().find(plan.stem);
-    if (paper != paperTable1().end()) printRow(paperRow(paper->second));
+    if (paper != paperTable1().end()) {
+      table.push_back(paperRow(paper->second));
+      printRow(table.back());
+      const PaperRow& p = paper->second;
+      paperRows.push_back({{"scene", plan.stem}, {"paper_scene", p.scene}, {"liquid", p.liquid},
+                           {"control", p.control}, {"repulsion", p.repulsion}, {"temporary", p.temporary},
+                           {"simulation_ms", p.simulationMs}, {"control_ms", p.controlMs},
+                           {"control_pct", p.controlPct}, {"memory", p.memory}, {"storage_mb", p.storageMb}});
+    }
     verdicts.push_back(verdict(plan, repeated));
   }
   if (!verdicts.empty()) std::printf("\n");
   for (const auto& v : verdicts) std::printf("%s\n", v.c_str());
-  if (!opt.out.empty()) writeJsonAtomically(opt.out, results);
+  const json settings = {{"scenes", files},     {"frames", opt.frames},       {"templates", opt.templates},
+                         {"threads", threads},  {"repeat", opt.repeat},       {"target_control_pct", kTargetPct}};
+  report.write(opt.out, "Control overhead", markdown(table, skipped, verdicts),
+               {{"settings", settings}, {"runs", results}, {"paper", paperRows}, {"verdicts", verdicts},
+                {"skipped", skipped}});
   if (measured == 0 && worst == Ok) {
     std::fprintf(stderr, "error: nothing measured (no scene with template instances and its templates)\n");
     return BadInput;
@@ -460,9 +490,14 @@ void addBenchControlCommand(CLI::App& bench) {
                   "runs per scene and mode, alternating the modes; the run of median control share is reported "
                   "with the range")
       ->check(CLI::PositiveNumber);
-  cmd->add_option("--out", opt->out, "also write the results as JSON");
+  cmd->add_option("--out", opt->out, "report folder: control.md and control.json (default: bench/control)");
   cmd->callback([opt] {
-    const int code = benchControl(*opt);
+    int code = Ok;
+    try {
+      code = benchControl(*opt);
+    } catch (...) {
+      code = reportError("bench control", Failure);
+    }
     if (code != Ok) throw ExitCode(code);
   });
 }

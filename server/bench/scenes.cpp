@@ -4,14 +4,16 @@
 // et al. 2020 [SPDM20]) beside the paper's own figures: average liquid, control,
 // repulsion and temporary particles per frame (over the frames with an
 // active instance), simulation and control ms per frame, control share,
-// memory and template storage.
+// memory and template storage. Writes scenes.md and scenes.json
+// (bench/report.h) into --out.
 #include "bench/commands.h"
+#include "bench/report.h"
 #include "cli/exit_codes.h"
-#include "cli/json_file.h"
 #include "cli/process.h"
 #include "io/scene.h"
 #include "io/template_database.h"
 #include <nlohmann/json.hpp>
+#include <omp.h>
 #include <unistd.h>
 #include <cstdio>
 #include <filesystem>
@@ -57,7 +59,7 @@ struct Options {
   int frames = 60;
   std::string templates = "templates";
   int threads = 0;
-  std::string out;
+  std::string out = "bench/scenes";
 };
 
 std::string count(double v) {
@@ -68,28 +70,64 @@ std::string count(double v) {
   return b;
 }
 
+std::string markdown(const json& rows, const json& failures, int frames) {
+  std::vector<std::vector<std::string>> ours, paper;
+  for (const json& r : rows) {
+    ours.push_back({r["scene"], std::to_string(r["active_frames"].get<int>()) + " / " +
+                                    std::to_string(r["frames"].get<int>()),
+                    fmt(r["liquid"], "%.0f"), fmt(r["control"], "%.0f"), fmt(r["repulsion"], "%.0f"),
+                    fmt(r["temporary"], "%.0f"), fmt(r["simulation_ms_per_frame"], "%.1f"),
+                    fmt(r["control_ms_per_frame"], "%.1f"), fmt(r["control_pct"], "%.1f"),
+                    fmt(r["peak_rss_mb"], "%.0f"),
+                    fmt(r["template_storage_mb"], "%.2f")});
+    if (!r.contains("paper")) continue;
+    const json& p = r["paper"];
+    paper.push_back({r["scene"], p["name"], count(p["liquid"]), count(p["control"]), count(p["repulsion"]),
+                     count(p["temporary"]), fmt(p["simulation_ms_per_frame"], "%.1f"),
+                     fmt(p["control_ms_per_frame"], "%.1f"), fmt(p["control_pct"], "%.1f"), fmt(p["memory_gb"], "%.2f"),
+                     fmt(p["template_storage_mb"], "%.2f")});
+  }
+  std::string md = "Each scene for " + std::to_string(frames) + " frames in its own `flowclip run`. Particles are per "
+                   "frame, averaged over the frames with an active instance (frames: active / run), as the paper's; "
+                   "the ms per frame over every frame; control % is of the simulation ms, as the paper's; templates "
+                   "MB: the files of the templates the scene plays.\n\n## This machine\n\n";
+  md += markdownTable({"scene", "frames", "liquid", "control", "repulsion", "temporary", "simulation ms / frame",
+                       "control ms / frame", "control %", "peak RSS MB", "templates MB"},
+                      ours);
+  if (!paper.empty()) {
+    md += "\n## The paper's Table 1 (i9-9900K, 8 cores)\n\n";
+    md += markdownTable({"scene", "paper's scene", "liquid", "control", "repulsion", "temporary",
+                         "simulation ms / frame", "control ms / frame", "control %", "memory GB", "templates MB"},
+                        paper);
+  }
+  if (!failures.empty()) {
+    md += "\n## Failed runs\n\n";
+    for (const json& f : failures)
+      md += "- " + f["scene"].get<std::string>() + ": " + f["error"].get<std::string>() + "\n";
+  }
+  return md;
+}
+
 int benchScenes(const Options& opt) {
   const std::vector<std::string> scenes = opt.scenes.empty() ? sceneFilesIn("scenes") : opt.scenes;
   if (scenes.empty()) {
     std::fprintf(stderr, "error: no scenes found (scenes/*.json)\n");
     return BadInput;
   }
+  const int threads = opt.threads > 0 ? opt.threads : omp_get_max_threads();
+  const Report report("scenes", threads);
   const std::string self = selfExecutable();
   const fs::path tmp = fs::temp_directory_path() / ("flowclip-bench-scenes-" + std::to_string(getpid()));
   fs::create_directories(tmp);
-  json results = json::array();
-  std::printf("%-15s %7s %7s %6s %5s %9s %9s %6s %7s %7s | %-27s %7s %7s %6s %5s %8s %7s %6s %6s %7s\n", "scene",
-              "liquid", "control", "repul", "temp", "sim ms", "ctl ms", "ctl %", "RSS MB", "tpl MB", "paper (Table 1)", "liquid",
-              "control", "repul", "temp", "sim ms", "ctl ms", "ctl %", "GB", "MB");
-  int failures = 0;
+  json results = json::array(), failures = json::array();
   for (size_t k = 0; k < scenes.size(); ++k) {
     const std::string& scene = scenes[k];
     const std::string stem = fs::path(scene).stem().string();
     std::fprintf(stderr, "[%zu/%zu] %s: %d frames…\n", k + 1, scenes.size(), stem.c_str(), opt.frames);
     const std::string statsPath = (tmp / (stem + ".json")).string();
-    std::vector<std::string> args = {self, "run", scene, "--frames", std::to_string(opt.frames), "--stats", statsPath,
-                                     "--templates", opt.templates, "--quiet"};
-    if (opt.threads > 0) args.insert(args.end(), {"--threads", std::to_string(opt.threads)});
+    const std::vector<std::string> args = {self, "run", scene, "--frames", std::to_string(opt.frames), "--stats",
+                                           statsPath, "--templates", opt.templates, "--threads",
+                                           std::to_string(threads), "--quiet"};
     const int rc = runChild(args);
     json stats;
     try {
@@ -98,11 +136,12 @@ int benchScenes(const Options& opt) {
     } catch (const std::exception&) {
     }
     if (rc != 0 || !stats.contains("summary")) {
-      std::printf("%-15s failed (exit %d%s)\n", stem.c_str(), rc,
-                  stats.contains("summary") && stats["summary"].contains("error")
-                      ? (", " + stats["summary"]["error"].get<std::string>()).c_str()
-                      : "");
-      ++failures;
+      const std::string error = "exit " + std::to_string(rc) +
+                                (stats.contains("summary") && stats["summary"].contains("error")
+                                     ? ", " + stats["summary"]["error"].get<std::string>()
+                                     : std::string());
+      std::printf("%s: failed (%s)\n", stem.c_str(), error.c_str());
+      failures.push_back({{"scene", stem}, {"error", error}});
       continue;
     }
     // Averages over the frames where an instance plays (as the paper's),
@@ -140,37 +179,46 @@ int benchScenes(const Options& opt) {
     const double rss = stats["summary"].value("peak_rss_mb", 0.0);
     const double sim = simMs / nf, ctl = controlMs / nf;
     const double pct = sim > 0 ? 100.0 * ctl / sim : 0;
-    std::printf("%-15s %7s %7s %6s %5s %9.1f %9.1f %5.1f%% %7.0f %7.2f", stem.c_str(), count(liquid / na).c_str(),
-                count(control / na).c_str(), count(repulsion / na).c_str(), count(temporary / na).c_str(), sim, ctl, pct, rss,
-                storage);
+    std::printf("%s: %.0f liquid, %.0f control particles; %.1f simulation ms and %.1f control ms per frame (%.1f %%); "
+                "peak RSS %.0f MB\n",
+                stem.c_str(), liquid / na, control / na, sim, ctl, pct, rss);
+    std::fflush(stdout);
+    json row = {{"scene", stem},
+                {"scene_file", scene},
+                {"frames", frames},
+                {"active_frames", active},
+                {"liquid", liquid / na},
+                {"control", control / na},
+                {"repulsion", repulsion / na},
+                {"temporary", temporary / na},
+                {"simulation_ms_per_frame", sim},
+                {"control_ms_per_frame", ctl},
+                {"control_pct", pct},
+                {"peak_rss_mb", rss},
+                {"template_storage_mb", storage}};
     const auto it = paperTable().find(stem);
     if (it != paperTable().end()) {
       const PaperRow& p = it->second;
-      std::printf(" | %-27s %7s %7s %6s %5s %8.1f %7.1f %5.1f%% %6.2f %7.2f", p.name, count(p.liquid).c_str(),
-                  count(p.control).c_str(), count(p.repulsion).c_str(), count(p.temporary).c_str(), p.simMs, p.controlMs,
-                  100.0 * p.controlMs / p.simMs, p.memoryGb, p.storageMb);
+      row["paper"] = {{"name", p.name},
+                      {"liquid", p.liquid},
+                      {"control", p.control},
+                      {"repulsion", p.repulsion},
+                      {"temporary", p.temporary},
+                      {"simulation_ms_per_frame", p.simMs},
+                      {"control_ms_per_frame", p.controlMs},
+                      {"control_pct", 100.0 * p.controlMs / p.simMs},
+                      {"memory_gb", p.memoryGb},
+                      {"template_storage_mb", p.storageMb}};
     }
-    std::printf("\n");
-    std::fflush(stdout);
-    results.push_back({{"scene", stem},
-                       {"frames", frames},
-                       {"active_frames", active},
-                       {"liquid", liquid / na},
-                       {"control", control / na},
-                       {"repulsion", repulsion / na},
-                       {"temporary", temporary / na},
-                       {"simulation_ms_per_frame", sim},
-                       {"control_ms_per_frame", ctl},
-                       {"control_pct", pct},
-                       {"peak_rss_mb", rss},
-                       {"template_storage_mb", storage}});
+    results.push_back(row);
   }
   std::error_code ec;
   fs::remove_all(tmp, ec);
-  std::printf("(ours: this machine, %s threads; control %% is of the simulation ms, as the paper's. Paper: i9-9900K, 8 cores.)\n",
-              opt.threads > 0 ? std::to_string(opt.threads).c_str() : "all");
-  if (!opt.out.empty()) writeJsonAtomically(opt.out, json{{"scenes", results}});
-  return failures ? SimulationFailed : Ok;
+  const json settings = {{"scenes", scenes}, {"frames", opt.frames}, {"templates", opt.templates},
+                         {"threads", threads}};
+  report.write(opt.out, "The paper's scenes", markdown(results, failures, opt.frames),
+               {{"settings", settings}, {"scenes", results}, {"failures", failures}});
+  return failures.empty() ? Ok : SimulationFailed;
 }
 
 }  // namespace
@@ -182,9 +230,14 @@ void addBenchScenesCommand(CLI::App& bench) {
   cmd->add_option("--frames", opt->frames, "frames per scene (default 60)")->check(CLI::PositiveNumber);
   cmd->add_option("--templates", opt->templates, "template database directory (default: templates)");
   cmd->add_option("--threads", opt->threads, "OpenMP threads (default: all cores)")->check(CLI::PositiveNumber);
-  cmd->add_option("--out", opt->out, "also write the results as JSON");
+  cmd->add_option("--out", opt->out, "report folder: scenes.md and scenes.json (default: bench/scenes)");
   cmd->callback([opt] {
-    const int code = benchScenes(*opt);
+    int code = Ok;
+    try {
+      code = benchScenes(*opt);
+    } catch (...) {
+      code = reportError("bench scenes", Failure);
+    }
     if (code != Ok) throw ExitCode(code);
   });
 }

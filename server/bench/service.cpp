@@ -6,8 +6,10 @@
 // Streaming is measured without the simulation in the way: a pump session
 // publishes two prepared 100k-particle frames alternately as fast as the
 // streams take them, so the figures are the network path's (encode, write,
-// loopback, client read), not the solver's.
+// loopback, client read), not the solver's. Writes service.md and
+// service.json (bench/report.h) into --out.
 #include "bench/commands.h"
+#include "bench/report.h"
 #include "cli/exit_codes.h"
 #include "cli/process.h"
 #include "io/scene.h"
@@ -16,6 +18,7 @@
 #include "service/rest_api.h"
 
 #include <malloc.h>
+#include <omp.h>
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -50,7 +53,13 @@ struct ServiceBenchOptions {
   std::string scene = "scenes/drop2d.json";
   int frames = 300;
   std::string templates = "templates";
+  std::string out = "bench/service";
+  int threads = 0;  // OpenMP threads of the encoding and the session; 0: all cores
 };
+
+constexpr double kIdleTargetMb = 20;    // the idle server's RSS target
+constexpr double kPaperIdleMb = 71.2;   // the paper's system, idle
+constexpr int kHistoryCapMb = 4096;     // the session memory's history cap
 
 // A 3D frame of n particles spread through a 1 m box, moving, 5 % of them
 // temporary, with two instance records: what a 3D scene streams.
@@ -182,9 +191,23 @@ double rssMbOf(pid_t pid) {
   return 0;
 }
 
+// Runs `encode` for at least a second and 5 times: ms per call.
+template <class F>
+std::pair<double, int> timeRepeated(F&& encode) {
+  int reps = 0;
+  const auto t0 = Clock::now();
+  double elapsed = 0;
+  while (elapsed < 1.0 || reps < 5) {
+    encode();
+    ++reps;
+    elapsed = std::chrono::duration<double>(Clock::now() - t0).count();
+  }
+  return {elapsed / reps * 1e3, reps};
+}
+
 // The live path: a 3D tank of about n particles encoded straight from the
 // simulation (quantization included), plain and with the boundary layer.
-void benchLiveEncode(int n) {
+json benchLiveEncode(int n) {
   // A block filling 0.93 × 0.93 × 0.46 of a 1 m tank at spacing 2r.
   const double r = 0.5 * std::cbrt(0.93 * 0.93 * 0.46 / n);
   const json scene = {{"dimension", 3},
@@ -196,49 +219,39 @@ void benchLiveEncode(int n) {
   stats.frame = 1;
   stats.time = 1 / 60.0;
   flatbuffers::FlatBufferBuilder fbb(1 << 20);
+  json out = json::array();
   for (const bool boundary : {false, true}) {
     wire::LayerFlags layers;
     layers.boundary = boundary;
-    wire::encodeFrame<3>(sim, stats, nullptr, "s1", layers, fbb);
-    int reps = 0;
-    const auto t0 = Clock::now();
-    double elapsed = 0;
-    while (elapsed < 1.0 || reps < 5) {
-      wire::encodeFrame<3>(sim, stats, nullptr, "s1", layers, fbb);
-      ++reps;
-      elapsed = std::chrono::duration<double>(Clock::now() - t0).count();
-    }
+    wire::encodeFrame<3>(sim, stats, nullptr, "s1", layers, fbb);  // warm the builder's memory
+    const auto [ms, reps] = timeRepeated([&] { wire::encodeFrame<3>(sim, stats, nullptr, "s1", layers, fbb); });
     const size_t total = sim.fluid.size() + (boundary ? sim.boundary.size() : 0);
-    std::printf("  live, %-18s %8.3f ms per frame  (%zu particles, %.1f ns and %.2f bytes per particle)\n",
-                boundary ? "+ boundary layer" : "liquid only", elapsed / reps * 1e3, total, elapsed / reps * 1e9 / total,
-                double(fbb.GetSize()) / total);
+    out.push_back({{"layers", boundary ? "liquid + boundary" : "liquid only"},
+                   {"particles", total},
+                   {"ms_per_frame", ms},
+                   {"ns_per_particle", ms * 1e6 / double(total)},
+                   {"bytes_per_particle", double(fbb.GetSize()) / double(total)},
+                   {"repetitions", reps}});
   }
+  return out;
 }
 
-void benchEncode(int n) {
+json benchEncode(int n) {
   const FramePtr f = syntheticFrame(n, 1);
   flatbuffers::FlatBufferBuilder fbb(1 << 20);
   encodeSnapshot(*f, "s1", wire::LayerFlags{}, fbb);  // warm the builder's memory
-  int reps = 0;
-  const auto t0 = Clock::now();
-  double elapsed = 0;
-  while (elapsed < 1.0 || reps < 5) {
-    encodeSnapshot(*f, "s1", wire::LayerFlags{}, fbb);
-    ++reps;
-    elapsed = std::chrono::duration<double>(Clock::now() - t0).count();
-  }
-  const double msPerFrame = elapsed / reps * 1e3;
-  std::printf("frame encoding (3D, %d particles, 2 instances)\n", n);
-  std::printf("  recorded frame       %8.3f ms per frame  (%.1f ns per particle, %d repetitions)\n", msPerFrame,
-              msPerFrame * 1e6 / n, reps);
-  std::printf("  message size         %8.2f bytes per particle  (%.2f MB per frame)\n", double(fbb.GetSize()) / n,
-              fbb.GetSize() / 1e6);
-  std::printf("  history              %8.2f bytes per particle-frame in memory (positions, velocities, kind, phase)\n",
-              double(FrameSnapshot::estimateBytes(3, size_t(n), 2)) / n);
-  benchLiveEncode(n);
+  const auto [ms, reps] = timeRepeated([&] { encodeSnapshot(*f, "s1", wire::LayerFlags{}, fbb); });
+  std::printf("encoding: %.3f ms per recorded %d-particle frame, %.2f bytes per particle\n", ms, n,
+              double(fbb.GetSize()) / n);
+  return {{"particles", n},
+          {"instances", 2},
+          {"recorded", {{"ms_per_frame", ms}, {"ns_per_particle", ms * 1e6 / n}, {"repetitions", reps}}},
+          {"message", {{"bytes_per_particle", double(fbb.GetSize()) / n}, {"mb_per_frame", fbb.GetSize() / 1e6}}},
+          {"history_bytes_per_particle_frame", double(FrameSnapshot::estimateBytes(3, size_t(n), 2)) / n},
+          {"live", benchLiveEncode(n)}};
 }
 
-void benchStreaming(int n, const std::vector<int>& clientCounts, double seconds) {
+json benchStreaming(int n, const std::vector<int>& clientCounts, double seconds) {
   const fs::path tmp = fs::temp_directory_path() / ("flowclip-bench-service-" + std::to_string(::getpid()));
   ServiceOptions so;
   so.templatesDir = (tmp / "templates").string();
@@ -253,8 +266,7 @@ void benchStreaming(int n, const std::vector<int>& clientCounts, double seconds)
   std::thread serverThread([&] { server.run(false); });
   pump->start();
 
-  std::printf("\nWebSocket streaming, loopback, %d-particle 3D frames (newest frame only, no queue)\n", n);
-  std::printf("  %-8s %14s %14s %14s %14s\n", "clients", "frames/s each", "min frames/s", "MB/s total", "published/s");
+  json rows = json::array();
   for (int k : clientCounts) {
     std::vector<uint64_t> frames(size_t(k), 0), bytes(size_t(k), 0);
     std::atomic<int> ready{0};
@@ -288,21 +300,28 @@ void benchStreaming(int n, const std::vector<int>& clientCounts, double seconds)
       totalFrames += frames[size_t(c)];
       minFrames = std::min(minFrames, frames[size_t(c)]);
     }
-    std::printf("  %-8d %14.1f %14.1f %14.1f %14.1f\n", k, double(totalFrames) / k / seconds, double(minFrames) / seconds,
-                double(totalBytes) / 1e6 / seconds, double(published) / seconds);
+    rows.push_back({{"clients", k},
+                    {"frames_per_s_each", double(totalFrames) / k / seconds},
+                    {"min_frames_per_s", double(minFrames) / seconds},
+                    {"mb_per_s_total", double(totalBytes) / 1e6 / seconds},
+                    {"published_per_s", double(published) / seconds}});
+    std::printf("streaming: %d client(s), %.1f frames/s each, %.1f MB/s in all\n", k,
+                rows.back()["frames_per_s_each"].get<double>(), rows.back()["mb_per_s_total"].get<double>());
   }
   pump->stop();
   server.stop();
   serverThread.join();
   std::error_code ec;
   fs::remove_all(tmp, ec);
+  return {{"particles", n}, {"seconds", seconds}, {"runs", rows}};
 }
 
-void benchSessionMemory(const ServiceBenchOptions& o) {
+json benchSessionMemory(const ServiceBenchOptions& o) {
   ServiceOptions so;
   so.templatesDir = o.templates;
   so.scenesDir = fs::path(o.scene).parent_path().string();
   so.exportsDir = (fs::temp_directory_path() / "flowclip-bench-exports").string();
+  so.historyCapBytes = size_t(kHistoryCapMb) << 20;  // no frame dropped: the history's growth is measured
   ServiceHub hub(so);
   const json scene = loadSceneJson(o.scene);
   malloc_trim(0);
@@ -310,7 +329,7 @@ void benchSessionMemory(const ServiceBenchOptions& o) {
   HttpRequest create;
   create.method = "POST";
   create.path = "/api/sessions";
-  create.body = json{{"scene", scene}, {"history_cap_mb", 4096}}.dump();
+  create.body = json{{"scene", scene}, {"history_cap_mb", kHistoryCapMb}}.dump();
   HttpResponse r = hub.handle(create);
   if (r.status != 201) throw std::runtime_error("cannot create a session of " + o.scene + ": " + r.body);
   const std::string id = json::parse(r.body)["id"];
@@ -324,22 +343,27 @@ void benchSessionMemory(const ServiceBenchOptions& o) {
   const double rss2 = currentRssMb();
   const double frames = s1["history"]["frames"].get<double>() - 1;
   const double historyMb = (s1["memory"]["history_bytes"].get<double>() - s0["memory"]["history_bytes"].get<double>()) / 1e6;
-  std::printf("\nsession memory (%s: %d particles, %d frames)\n", o.scene.c_str(), s1["particles"]["liquid"].get<int>(),
-              int(frames));
-  std::printf("  session, frame 0      %8.2f MB RSS  (simulation state %.2f MB counted by the session)\n", rss1 - rss0,
-              s0["memory"]["simulation_bytes"].get<double>() / 1e6);
-  std::printf("  history per 1000 fr.  %8.2f MB counted  (%.2f MB RSS measured over %d frames)\n",
-              historyMb / frames * 1000, (rss2 - rss1) / frames * 1000, int(frames));
+  json out = {{"scene", o.scene},
+              {"liquid_particles", s1["particles"]["liquid"]},
+              {"frames", frames},
+              {"session_rss_mb", rss1 - rss0},
+              {"simulation_state_mb", s0["memory"]["simulation_bytes"].get<double>() / 1e6},
+              {"history_mb_per_1000_frames", historyMb / frames * 1000},
+              {"history_rss_mb_per_1000_frames", (rss2 - rss1) / frames * 1000},
+              {"checkpoints_mb", s1["memory"].value("checkpoint_bytes", 0.0) / 1e6}};
   session.reset();
   HttpRequest del;
   del.method = "DELETE";
   del.path = "/api/sessions/" + id;
   hub.handle(del);
   malloc_trim(0);
-  std::printf("  after DELETE          %8.2f MB RSS above the start\n", currentRssMb() - rss0);
+  out["after_delete_rss_mb"] = currentRssMb() - rss0;
+  std::printf("session memory: %.2f MB RSS at frame 0, %.2f MB history per 1000 frames\n",
+              out["session_rss_mb"].get<double>(), out["history_mb_per_1000_frames"].get<double>());
+  return out;
 }
 
-void benchIdleServer() {
+json benchIdleServer() {
   int out[2];
   if (pipe(out) != 0) throw std::runtime_error("pipe failed");
   const std::string exe = selfExecutable();
@@ -361,8 +385,55 @@ void benchIdleServer() {
   waitpid(pid, &status, 0);
   if (f) fclose(f);
   if (!started) throw std::runtime_error("flowclip serve did not start");
-  std::printf("\nidle server: %.1f MB RSS (flowclip serve, no session; the paper's system: 71.2 MB; target < 20 MB)\n",
-              rss);
+  std::printf("idle server: %.1f MB RSS\n", rss);
+  return {{"rss_mb", rss}, {"target_mb", kIdleTargetMb}, {"paper_mb", kPaperIdleMb}};
+}
+
+std::string markdown(const json& idle, const json& enc, const json& stream, const json& mem) {
+  std::string md = "## Idle server\n\n";
+  md += markdownTable({"figure", "value"},
+                      {{"RSS of `flowclip serve` without a session, MB", fmt(idle["rss_mb"], "%.1f")},
+                       {"target, MB", fmt(idle["target_mb"], "%.0f")},
+                       {"the paper's system, MB", fmt(idle["paper_mb"], "%.1f")}});
+  md += "\n## Frame encoding\n\nA 3D frame of " + std::to_string(enc["particles"].get<int>()) +
+        " particles with 2 instances: a recorded frame (already quantized: sending it is a copy) and the live "
+        "path, encoded straight from a simulation of about as many particles.\n\n";
+  const json& rec = enc["recorded"];
+  std::vector<std::vector<std::string>> rows = {
+      {"recorded frame", std::to_string(enc["particles"].get<int>()), fmt(rec["ms_per_frame"], "%.3f"),
+       fmt(rec["ns_per_particle"], "%.2f"), fmt(enc["message"]["bytes_per_particle"], "%.2f"),
+       std::to_string(rec["repetitions"].get<int>())}};
+  for (const json& l : enc["live"])
+    rows.push_back({"live, " + l["layers"].get<std::string>(), std::to_string(l["particles"].get<long>()),
+                    fmt(l["ms_per_frame"], "%.3f"), fmt(l["ns_per_particle"], "%.2f"),
+                    fmt(l["bytes_per_particle"], "%.2f"), std::to_string(l["repetitions"].get<int>())});
+  md += markdownTable({"frame", "particles", "ms / frame", "ns / particle", "message bytes / particle", "repetitions"},
+                      rows);
+  md += "\nMessage: " + fmt(enc["message"]["mb_per_frame"], "%.2f") + " MB per recorded frame. History in memory: " +
+        fmt(enc["history_bytes_per_particle_frame"], "%.2f") +
+        " bytes per particle-frame (positions, velocities, kind, phase).\n";
+  md += "\n## WebSocket streaming\n\nLoopback, " + std::to_string(stream["particles"].get<int>()) +
+        "-particle 3D frames, newest frame only (no queue), " + fmt(stream["seconds"], "%g") +
+        " s per client count; a pump session publishes prepared frames, so these are the network path's figures "
+        "alone.\n\n";
+  rows.clear();
+  for (const json& s : stream["runs"])
+    rows.push_back({std::to_string(s["clients"].get<int>()), fmt(s["frames_per_s_each"], "%.1f"),
+                    fmt(s["min_frames_per_s"], "%.1f"), fmt(s["mb_per_s_total"], "%.1f"),
+                    fmt(s["published_per_s"], "%.1f")});
+  md += markdownTable({"clients", "frames/s each", "min frames/s", "MB/s in all", "published frames/s"}, rows);
+  md += "\n## Session memory\n\n`" + mem["scene"].get<std::string>() + "`: " +
+        std::to_string(mem["liquid_particles"].get<int>()) + " liquid particles, " + fmt(mem["frames"], "%.0f") +
+        " frames simulated.\n\n";
+  md += markdownTable(
+      {"figure", "MB"},
+      {{"session at frame 0, RSS", fmt(mem["session_rss_mb"], "%.2f")},
+       {"simulation state counted by the session", fmt(mem["simulation_state_mb"], "%.2f")},
+       {"history per 1000 frames, counted by the session", fmt(mem["history_mb_per_1000_frames"], "%.2f")},
+       {"history per 1000 frames, RSS measured", fmt(mem["history_rss_mb_per_1000_frames"], "%.2f")},
+       {"checkpoints after the last frame, counted by the session", fmt(mem["checkpoints_mb"], "%.2f")},
+       {"RSS above the start after DELETE", fmt(mem["after_delete_rss_mb"], "%.2f")}});
+  return md;
 }
 
 }  // namespace
@@ -379,12 +450,25 @@ void addBenchServiceCommand(CLI::App& bench) {
   cmd->add_option("--frames", o->frames, "frames simulated for the history figure (default 300)")
       ->check(CLI::Range(1, 100000));
   cmd->add_option("--templates", o->templates, "template directory (default: templates)");
+  cmd->add_option("--threads", o->threads, "OpenMP threads (default: all cores)")->check(CLI::PositiveNumber);
+  cmd->add_option("--out", o->out, "report folder: service.md and service.json (default: bench/service)");
   cmd->callback([o] {
     try {
-      benchIdleServer();
-      benchEncode(o->particles);
-      benchStreaming(o->particles, o->clients, o->seconds);
-      benchSessionMemory(*o);
+      if (o->threads > 0) omp_set_num_threads(o->threads);
+      const Report report("service", omp_get_max_threads());
+      const json idle = benchIdleServer();
+      const json encoding = benchEncode(o->particles);
+      const json streaming = benchStreaming(o->particles, o->clients, o->seconds);
+      const json memory = benchSessionMemory(*o);
+      const json settings = {{"particles", o->particles}, {"seconds", o->seconds}, {"clients", o->clients},
+                             {"scene", o->scene},         {"frames", o->frames},   {"templates", o->templates},
+                             {"threads", omp_get_max_threads()}};
+      report.write(o->out, "Service", markdown(idle, encoding, streaming, memory),
+                   {{"settings", settings},
+                    {"idle_server", idle},
+                    {"encoding", encoding},
+                    {"streaming", streaming},
+                    {"session_memory", memory}});
     } catch (const std::exception& e) {
       std::fprintf(stderr, "error: %s\n", e.what());
       throw ExitCode(Failure);

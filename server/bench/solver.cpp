@@ -1,19 +1,21 @@
 // `flowclip bench solver`: the pressure solvers on the reference dam breaks
 // (scenes/bench). Each (scene, solver) pair runs in its own child process
-// (`flowclip run --stats`), so that peak RSS is that run's alone.
+// (`flowclip run --stats`), so that peak RSS is that run's alone. Writes
+// solver.md and solver.json (bench/report.h) into --out.
 #include "bench/commands.h"
+#include "bench/report.h"
 #include "cli/exit_codes.h"
-#include "cli/json_file.h"
 #include "cli/process.h"
 #include <nlohmann/json.hpp>
+#include <omp.h>
 #include <unistd.h>
 #include <algorithm>
+#include <array>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <map>
 #include <memory>
-#include <sstream>
 #include <string>
 #include <vector>
 
@@ -24,12 +26,14 @@ using namespace fc::cli;
 namespace {
 
 namespace fs = std::filesystem;
+using json = nlohmann::json;
 
 // SPlisHSPlasH DFSPH figures read once, on one machine (single precision,
-// AVX2, -O3 -march=native, OpenMP, 2 threads, volume-map boundaries): µs per
-// particle-step and wall s per simulated s. Figures from another machine do
+// AVX2, -O3 -march=native, OpenMP, kReferenceThreads threads, volume-map
+// boundaries): µs per particle-step and wall s per simulated s. Figures from another machine do
 // not divide; tools/bench_reference.py times SPlisHSPlasH on this one
 // (docs/benchmarks/solver.md).
+constexpr int kReferenceThreads = 2;
 struct Reference {
   double usPerParticleStep;
   double wallPerSimS;
@@ -44,13 +48,124 @@ const std::map<std::string, Reference>& splishsplashReference() {
   return ref;
 }
 
+// The solver's stages as the frames' stats time them (wall ms per frame).
+constexpr std::array<std::pair<const char*, const char*>, 5> kStages = {{
+    {"neighbor_ms", "neighbour search"},
+    {"density_ms", "densities and gradients"},
+    {"divergence_ms", "divergence solve"},
+    {"non_pressure_ms", "viscosity and other accelerations"},
+    {"pressure_ms", "density solve"},
+}};
+
 struct BenchOptions {
   std::vector<std::string> scenes;
   std::vector<std::string> solvers{"dfsph", "wcsph"};
   double seconds = 2;
   int threads = 0;
-  std::string out;
+  std::string out = "bench/solver";
 };
+
+// One run's row: the child's summary, with what the bench reads from its
+// frames (density errors, iterations and stage times per substep) and the
+// fixed SPlisHSPlasH figures where there are some.
+json runRow(const std::string& scene, const std::string& solver, const json& stats) {
+  const json& s = stats.at("summary");
+  double avgErr = 0, maxErr = 0, divergenceIterations = 0, densityIterations = 0;
+  std::map<std::string, double> stageMs;
+  for (const auto& fr : stats.at("frames")) {
+    avgErr += fr.at("avg_density_error_pct").get<double>();
+    maxErr = std::max(maxErr, fr.at("max_density_error_pct").get<double>());
+    divergenceIterations += fr.at("divergence_iterations").get<double>();
+    densityIterations += fr.at("density_iterations").get<double>();
+    for (const auto& [key, label] : kStages) stageMs[key] += fr.at(key).get<double>();
+  }
+  if (!stats.at("frames").empty()) avgErr /= double(stats.at("frames").size());
+  const double substeps = std::max(1.0, s.at("substeps").get<double>());
+  json row = s;
+  const std::string stem = fs::path(scene).stem().string();
+  row["scene_file"] = scene;
+  row["bench_scene"] = stem;
+  row["mean_avg_density_error_pct"] = avgErr;
+  row["max_density_error_pct"] = maxErr;
+  row["divergence_iterations_per_substep"] = divergenceIterations / substeps;
+  row["density_iterations_per_substep"] = densityIterations / substeps;
+  json stages = json::object();
+  double total = 0;
+  for (const auto& [key, ms] : stageMs) {
+    stages[key] = ms / substeps;
+    total += ms / substeps;
+  }
+  stages["total_ms"] = total;
+  row["stage_ms_per_substep"] = stages;
+  // The density tolerance the run held (a solver without one: null).
+  const json params = s.value("solver_parameters", json::object());
+  row["density_tolerance_pct"] = params.value("density_tolerance_pct", json(nullptr));
+  const auto it = splishsplashReference().find(stem);
+  if (it != splishsplashReference().end() && solver == "dfsph")
+    row["splishsplash_fixed"] = {
+        {"us_per_particle_step", it->second.usPerParticleStep},
+        {"wall_s_per_simulated_s", it->second.wallPerSimS},
+        {"threads", kReferenceThreads},
+        {"ours_us_pct", s.at("us_per_particle_step").get<double>() / it->second.usPerParticleStep * 100},
+        {"ours_wall_pct", s.at("wall_s_per_simulated_s").get<double>() / it->second.wallPerSimS * 100}};
+  return row;
+}
+
+std::string markdown(const json& rows, const json& failures) {
+  std::vector<std::vector<std::string>> runs, stages, reference;
+  for (const json& r : rows) {
+    const std::string scene = r["bench_scene"], solver = r["solver"];
+    const json& tol = r["density_tolerance_pct"];
+    runs.push_back({scene, solver, std::to_string(r["liquid_particles"].get<long>()),
+                    std::to_string(r["substeps"].get<long>()), fmt(r["us_per_particle_step"], "%.3f"),
+                    fmt(r["substeps_per_frame"], "%.1f"), fmt(r["ms_per_frame"], "%.1f"),
+                    fmt(r["wall_s_per_simulated_s"], "%.2f"), fmt(r["mean_avg_density_error_pct"], "%.4f"),
+                    fmt(r["max_density_error_pct"], "%.3f"), tol.is_number() ? fmt(tol) : "-",
+                    fmt(r["peak_rss_mb"], "%.0f")});
+    const json& st = r["stage_ms_per_substep"];
+    std::vector<std::string> cells{scene, solver};
+    for (const auto& [key, label] : kStages) cells.push_back(fmt(st[key], "%.2f"));
+    cells.push_back(fmt(st["total_ms"], "%.2f"));
+    cells.push_back(fmt(r["divergence_iterations_per_substep"], "%.2f"));
+    cells.push_back(fmt(r["density_iterations_per_substep"], "%.2f"));
+    stages.push_back(cells);
+    if (r.contains("splishsplash_fixed")) {
+      const json& ref = r["splishsplash_fixed"];
+      reference.push_back({scene, fmt(r["us_per_particle_step"], "%.3f"), fmt(ref["us_per_particle_step"], "%.2f"),
+                           fmt(ref["ours_us_pct"], "%.0f") + " %", fmt(r["wall_s_per_simulated_s"], "%.2f"),
+                           fmt(ref["wall_s_per_simulated_s"], "%.1f"), fmt(ref["ours_wall_pct"], "%.0f") + " %"});
+    }
+  }
+  std::string md = "## Runs\n\nPer run: particles and steps (substeps) over the run; the density errors are the "
+                   "solver's own figures per frame (average over frames of the per-frame average, and the largest); "
+                   "the density tolerance is the one the run held.\n\n";
+  md += markdownTable({"scene", "solver", "particles", "steps", "µs / particle-step", "substeps / frame", "ms / frame",
+                       "wall s / simulated s", "avg density error %", "max density error %", "density tolerance %",
+                       "peak RSS MB"},
+                      runs);
+  md += "\n## Where the time goes\n\nWall ms per substep in each stage of the step, and solver iterations per "
+        "substep.\n\n";
+  std::vector<std::string> header{"scene", "solver"};
+  for (const auto& [key, label] : kStages) header.push_back(label);
+  for (const char* h : {"total", "divergence iterations", "density iterations"}) header.push_back(h);
+  md += markdownTable(header, stages);
+  if (!reference.empty()) {
+    md += "\n## Against fixed SPlisHSPlasH figures\n\nDFSPH runs divided by SPlisHSPlasH figures compiled into the "
+          "benchmark, read once on another machine with " +
+          std::to_string(kReferenceThreads) +
+          " threads: indicative only; tools/bench_reference.py runs both on the same machine.\n\n";
+    md += markdownTable({"scene", "µs / particle-step", "SPlisHSPlasH", "ours / theirs", "wall s / simulated s",
+                         "SPlisHSPlasH", "ours / theirs"},
+                        reference);
+  }
+  if (!failures.empty()) {
+    md += "\n## Failed runs\n\n";
+    for (const json& f : failures)
+      md += "- " + f["scene"].get<std::string>() + " with " + f["solver"].get<std::string>() + ": exit " +
+            std::to_string(f["exit_code"].get<int>()) + "\n";
+  }
+  return md;
+}
 
 int benchSolver(const BenchOptions& opt) {
   const std::vector<std::string> scenes = opt.scenes.empty() ? sceneFilesIn("scenes/bench") : opt.scenes;
@@ -58,73 +173,42 @@ int benchSolver(const BenchOptions& opt) {
     std::fprintf(stderr, "error: no bench scenes found (scenes/bench/*.json)\n");
     return BadInput;
   }
+  const int threads = opt.threads > 0 ? opt.threads : omp_get_max_threads();
+  const Report report("solver", threads);
   const std::string self = selfExecutable();
   const std::string tmp = (fs::temp_directory_path() / ("flowclip-bench-" + std::to_string(getpid()) + ".json")).string();
-  nlohmann::json results = nlohmann::json::array();
-
-  std::printf("%-18s %-6s %9s %8s %10s %10s %9s %10s %9s %9s %8s %8s  %s\n", "scene", "solver", "particles",
-              "steps", "us/p-step", "substep/fr", "ms/frame", "wall/sim-s", "avg err%", "max err%", "tol %", "RSS MB",
-              "SPlisHSPlasH DFSPH (us/p-step, wall/sim-s)");
-  std::fflush(stdout);
+  json rows = json::array(), failures = json::array();
   int worst = Ok;
   for (const auto& scene : scenes) {
     const std::string stem = fs::path(scene).stem().string();
     for (const auto& solver : opt.solvers) {
-      std::vector<std::string> args{self,      "run",   scene, "--seconds", std::to_string(opt.seconds),
-                                    "--solver", solver, "--stats", tmp,     "--quiet"};
-      if (opt.threads > 0) {
-        args.push_back("--threads");
-        args.push_back(std::to_string(opt.threads));
-      }
+      const std::vector<std::string> args{self,       "run",  scene,   "--seconds", fmt(opt.seconds),
+                                          "--solver", solver, "--stats", tmp,       "--threads",
+                                          std::to_string(threads), "--quiet"};
       std::fprintf(stderr, "bench: %s with %s ...\n", stem.c_str(), solver.c_str());
       const int code = runChild(args);
-      nlohmann::json stats;
       std::ifstream f(tmp);
       if (code != 0 || !f) {
-        std::printf("%-18s %-6s failed (exit %d)\n", stem.c_str(), solver.c_str(), code);
+        std::printf("%s with %s: failed (exit %d)\n", stem.c_str(), solver.c_str(), code);
+        failures.push_back({{"scene", stem}, {"solver", solver}, {"exit_code", code}});
         worst = Failure;
         continue;
       }
-      f >> stats;
+      const json row = runRow(scene, solver, json::parse(f));
+      f.close();
       fs::remove(tmp);
-      const auto& s = stats["summary"];
-      double avgErr = 0, maxErr = 0;
-      for (const auto& fr : stats["frames"]) {
-        avgErr += fr["avg_density_error_pct"].get<double>();
-        maxErr = std::max(maxErr, fr["max_density_error_pct"].get<double>());
-      }
-      if (!stats["frames"].empty()) avgErr /= double(stats["frames"].size());
-      std::string ref = "-";
-      const auto it = splishsplashReference().find(stem);
-      if (it != splishsplashReference().end() && solver == "dfsph") {
-        std::ostringstream o;
-        o.precision(3);
-        o << it->second.usPerParticleStep << ", " << it->second.wallPerSimS << "  (ours: "
-          << s["us_per_particle_step"].get<double>() / it->second.usPerParticleStep * 100 << "%, "
-          << s["wall_s_per_simulated_s"].get<double>() / it->second.wallPerSimS * 100 << "%)";
-        ref = o.str();
-      }
-      // The density tolerance the run held (a solver without one: "-").
-      std::string tol = "-";
-      if (s.contains("solver_parameters") && s["solver_parameters"].contains("density_tolerance_pct")) {
-        std::ostringstream o;
-        o << s["solver_parameters"]["density_tolerance_pct"].get<double>();
-        tol = o.str();
-      }
-      std::printf("%-18s %-6s %9zu %8zu %10.3f %10.1f %9.1f %10.2f %9.4f %9.3f %8s %8.0f  %s\n", stem.c_str(),
-                  solver.c_str(), s["liquid_particles"].get<size_t>(), s["substeps"].get<size_t>(),
-                  s["us_per_particle_step"].get<double>(), s["substeps_per_frame"].get<double>(),
-                  s["ms_per_frame"].get<double>(), s["wall_s_per_simulated_s"].get<double>(), avgErr, maxErr,
-                  tol.c_str(), s["peak_rss_mb"].get<double>(), ref.c_str());
+      std::printf("%s with %s: %ld particles, %.3f us per particle-step, %.2f wall s per simulated s, %.2f density "
+                  "iterations per substep, peak RSS %.0f MB\n",
+                  stem.c_str(), solver.c_str(), row["liquid_particles"].get<long>(),
+                  row["us_per_particle_step"].get<double>(), row["wall_s_per_simulated_s"].get<double>(),
+                  row["density_iterations_per_substep"].get<double>(), row["peak_rss_mb"].get<double>());
       std::fflush(stdout);
-      nlohmann::json row = s;
-      row["scene_file"] = scene;
-      row["mean_avg_density_error_pct"] = avgErr;
-      row["max_density_error_pct"] = maxErr;
-      results.push_back(row);
+      rows.push_back(row);
     }
   }
-  if (!opt.out.empty()) writeJsonAtomically(opt.out, results);
+  const json settings = {{"scenes", scenes}, {"solvers", opt.solvers}, {"seconds", opt.seconds}, {"threads", threads}};
+  report.write(opt.out, "Solver benchmark", markdown(rows, failures),
+               {{"settings", settings}, {"runs", rows}, {"failures", failures}});
   return worst;
 }
 
@@ -136,10 +220,15 @@ void addBenchSolverCommand(CLI::App& bench) {
   solver->add_option("--scenes", opt->scenes, "scene files (default: scenes/bench/*.json)")->delimiter(',');
   solver->add_option("--solvers", opt->solvers, "solvers to compare")->delimiter(',');
   solver->add_option("--seconds", opt->seconds, "simulated seconds per run")->check(CLI::PositiveNumber);
-  solver->add_option("--threads", opt->threads, "OpenMP threads")->check(CLI::PositiveNumber);
-  solver->add_option("--out", opt->out, "also write the results as JSON");
+  solver->add_option("--threads", opt->threads, "OpenMP threads (default: all cores)")->check(CLI::PositiveNumber);
+  solver->add_option("--out", opt->out, "report folder: solver.md and solver.json (default: bench/solver)");
   solver->callback([opt] {
-    const int code = benchSolver(*opt);
+    int code = Ok;
+    try {
+      code = benchSolver(*opt);
+    } catch (...) {
+      code = reportError("bench solver", Failure);
+    }
     if (code != Ok) throw ExitCode(code);
   });
 }

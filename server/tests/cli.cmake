@@ -112,13 +112,16 @@ fc_cli_expect(cli_templates_inspect_path 2 "invalid template name '../x'" templa
 fc_cli_expect(cli_templates_inspect_missing 2 "no template 'nosuch'" templates inspect nosuch --templates ${FC_BAD_RECIPES})
 
 # bench control: both ways of applying the forces on drop2d, two frames past
-# the instance's start (t = 0.2 s); the table and a verdict are printed.
+# the instance's start (t = 0.2 s); the table and a verdict are printed, the
+# report written (its contents: tests/test_bench_reports.py).
 fc_cli_expect(cli_bench_control 0 "drop2d: control is"
-  bench control ${FC_CLI_TESTS_DIR}/../../scenes/drop2d.json --frames 14 --threads 1 --templates ${FC_TEST_TEMPLATES})
+  bench control ${FC_CLI_TESTS_DIR}/../../scenes/drop2d.json --frames 14 --threads 1 --templates ${FC_TEST_TEMPLATES}
+  --out ${CMAKE_BINARY_DIR}/cli-bench-control)
 set_tests_properties(cli_bench_control PROPERTIES FIXTURES_REQUIRED test_templates)
-# bench scenes: the paper's Table 1 columns beside its own row.
-fc_cli_expect(cli_bench_scenes 0 "2D Rectangular drop"
-  bench scenes ${FC_CLI_TESTS_DIR}/../../scenes/drop2d.json --frames 14 --threads 1 --templates ${FC_TEST_TEMPLATES})
+# bench scenes: the paper's Table 1 columns beside its own row, in the report.
+fc_cli_expect(cli_bench_scenes 0 "bench scenes: wrote ${CMAKE_BINARY_DIR}/cli-bench-scenes/scenes.md and scenes.json"
+  bench scenes ${FC_CLI_TESTS_DIR}/../../scenes/drop2d.json --frames 14 --threads 1 --templates ${FC_TEST_TEMPLATES}
+  --out ${CMAKE_BINARY_DIR}/cli-bench-scenes)
 set_tests_properties(cli_bench_scenes PROPERTIES FIXTURES_REQUIRED test_templates)
 # bench accuracy refuses a --double-binary that is not a double build and a
 # template database without drop2d, before it runs any point.
