@@ -20,13 +20,14 @@ namespace fc {
 
 enum class ParamType { Number, Integer, Boolean };
 
+// Members left out of a designated initializer take these defaults.
 struct ParamSpec {
-  std::string name;
-  std::string unit;
+  std::string name{};
+  std::string unit{};
   double min = 0;
   double max = 0;
   double def = 0;
-  std::string help;
+  std::string help{};
   ParamType type = ParamType::Number;
 };
 
@@ -68,13 +69,13 @@ using ParamMember = std::variant<double T::*, float T::*, int T::*, bool T::*>;
 //    .help = "XSPH smoothing factor c", .member = &XsphParams::coefficient}
 template <class T>
 struct Param {
-  std::string name;
-  std::string unit;
+  std::string name{};
+  std::string unit{};
   double min = 0;
   double max = 0;
   double def = 0;
-  std::string help;
-  ParamMember<T> member;
+  std::string help{};
+  ParamMember<T> member{};
 };
 
 // The declaration of a parameter struct T: its specs (for parsing, REST and
