@@ -8,8 +8,8 @@ CMAKE_FLAGS ?=
 PORT ?= 8080
 ABS_BUILD_DIR = $(abspath $(BUILD_DIR))
 
-.PHONY: all setup build web templates run run-headless docs test test-web test-web-only bench bench-accuracy bench-web clean \
-  fuzz fuzz-build fuzz-regress test-fuzz asan-build test-asan bench-soak bench-cache
+.PHONY: all setup build web templates run run-headless docs test test-parts test-ctest test-pytest test-web test-web-only bench bench-accuracy bench-web clean \
+  fuzz fuzz-build fuzz-regress test-fuzz asan-build test-asan bench-soak bench-cache bench-suite
 
 # 2D templates are recorded when missing (seconds); larger ones on demand:
 # build/flowclip record templates/recipes/letters3d.json
@@ -44,13 +44,22 @@ run: build templates web
 run-headless: build templates
 	$(BUILD_DIR)/flowclip run $(SCENE) --seconds 2 --stats $(BUILD_DIR)/last-run-stats.json
 
+# The parts of `make test`, in order (tools/time_suite.py times each).
+# ctest runs one test at a time: each uses both cores (OpenMP), and two at
+# once would make every barrier wait for a descheduled thread.
+TEST_PARTS = test-ctest test-pytest docs test-web-only test-fuzz test-asan
+
 test: build templates web
+	@for part in $(TEST_PARTS); do $(MAKE) --no-print-directory $$part || exit 1; done
+
+test-parts:
+	@echo $(TEST_PARTS)
+
+test-ctest:
 	cd $(BUILD_DIR) && ctest --output-on-failure -j 1
+
+test-pytest:
 	$(BUILD_DIR)/venv/bin/python -m pytest -q tests
-	@$(MAKE) --no-print-directory docs
-	@$(MAKE) --no-print-directory test-web-only
-	@$(MAKE) --no-print-directory test-fuzz
-	@$(MAKE) --no-print-directory test-asan
 
 # The editor's Playwright tests (headless Debian Chromium against a real
 # server); the last line is "N passed, N failed" from the JSON report.
@@ -133,6 +142,11 @@ bench-soak: build templates
 # 10 frames and without; report in bench/cache/ (about 5 min on 2 cores).
 # `make bench-cache BENCH_CACHE_ARGS=--quick` for a short smoke run.
 BENCH_CACHE_ARGS ?=
+# The test suite's wall time, part by part: three runs in a row, the third
+# with both cores kept busy by other processes; report in bench/suite/.
+bench-suite: build templates web
+	$(BUILD_DIR)/venv/bin/python tools/time_suite.py --out bench/suite $(BENCH_SUITE_ARGS)
+
 bench-cache: build templates
 	$(BUILD_DIR)/venv/bin/python tools/bench_cache.py --out bench/cache $(BENCH_CACHE_ARGS)
 
