@@ -49,7 +49,9 @@ def run_once(index: int, loaded: bool, procs: int, parts: list[str], log) -> dic
         result = {"run": index, "loaded": loaded, "load_procs": len(spinners), "loadavg_at_start": loadavg(),
                   "parts": []}
         prepare_s, status = 0.0, 0
-        for target in ("build", "templates", "web"):
+        # The builds the parts need, so that a part's time is its tests only.
+        builds = ["build", "templates", "web"] + ["fuzz-build"] * ("test-fuzz" in parts) + ["asan-build"] * ("test-asan" in parts)
+        for target in builds:
             seconds, st = make(target, log)
             prepare_s, status = prepare_s + seconds, status or st
         result["prepare_s"] = round(prepare_s, 1)
@@ -75,8 +77,9 @@ def write_report(out: Path, report: dict) -> None:
              f"- date: {report['date']}", f"- machine: {report['machine']['cpu']}, {report['machine']['cores']} cores",
              f"- command: `{report['command']}`",
              f"- verdict: **{'all green' if all(r['passed'] for r in runs) else 'FAILED'}**", "",
-             "Seconds of wall time per part of `make test`, after the warm build (`make build templates web`,",
-             "the column prepare). A loaded run shares the machine with busy processes at normal priority.", "",
+             "Seconds of wall time per part of `make test`, after the builds they need (the column prepare:",
+             "`make build templates web`, and the fuzz and sanitizer builds for their parts). A loaded run",
+             "shares the machine with busy processes at normal priority.", "",
              "| run | load | loadavg at start | prepare | " + " | ".join(parts) + " | tests total | outcome |",
              "|---|---|---|---|" + "---|" * len(parts) + "---|---|"]
     for r in runs:
@@ -98,9 +101,15 @@ def main() -> int:
     ap.add_argument("--load-procs", type=int, default=os.cpu_count() or 2, help="busy processes during a loaded run")
     ap.add_argument("--out", default="bench/suite", help="report folder (default bench/suite)")
     ap.add_argument("--log", default="build/time_suite.log", help="the runs' output (default build/time_suite.log)")
+    ap.add_argument("--parts", nargs="*", help="only these parts of `make test-parts` (default: all)")
     args = ap.parse_args()
     parts = subprocess.run(["make", "-s", "test-parts"], cwd=ROOT, capture_output=True, text=True,
                            check=True).stdout.split()
+    if args.parts:
+        unknown = sorted(set(args.parts) - set(parts))
+        if unknown:
+            ap.error(f"not parts of make test: {', '.join(unknown)} (they are: {' '.join(parts)})")
+        parts = [p for p in parts if p in args.parts]
     report = {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
               "machine": machine(), "command": " ".join(["tools/time_suite.py"] + sys.argv[1:]), "parts": parts,
               "runs": []}
