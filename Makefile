@@ -117,9 +117,12 @@ fuzz: fuzz-build
 fuzz-regress: fuzz-build
 	@server/fuzz/run.sh regress $(FUZZ_BUILD_DIR)
 
+# Fuzzing starts from the repository's corpus in a fresh folder each time, so
+# that its start-up does not grow with every earlier run's inputs.
 test-fuzz: fuzz-build
 	@server/fuzz/run.sh regress $(FUZZ_BUILD_DIR)
-	@FUZZ_JOBS=$(FUZZ_JOBS) server/fuzz/run.sh fuzz $(FUZZ_BUILD_DIR) $(FUZZ_TEST_SECONDS)
+	@scratch=$$(mktemp -d); FUZZ_SCRATCH=$$scratch FUZZ_JOBS=$(FUZZ_JOBS) server/fuzz/run.sh fuzz $(FUZZ_BUILD_DIR) $(FUZZ_TEST_SECONDS); \
+	  status=$$?; rm -rf $$scratch; exit $$status
 
 $(ASAN_BUILD_DIR)/build.ninja:
 	@CC=clang CXX=clang++ cmake -S server -B $(ASAN_BUILD_DIR) -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DFLOWCLIP_SANITIZE=ON $(CMAKE_FLAGS) >/dev/null

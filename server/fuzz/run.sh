@@ -6,7 +6,7 @@
 #
 # BUILD is a build directory configured with -DFLOWCLIP_FUZZ=ON (make fuzz-build:
 # build-fuzz). TARGETS="scene_parser rest_request" limits the targets. Fuzzing
-# reads server/fuzz/corpus/<target>/ and writes new inputs to BUILD/fuzz-corpus/<target>/
+# reads server/fuzz/corpus/<target>/ and writes new inputs to BUILD/fuzz-corpus/<target>/ (or $FUZZ_SCRATCH/<target>/)
 # (never into the repository), crash inputs to BUILD/fuzz-artifacts/<target>/, the
 # log to BUILD/fuzz-logs/<target>.log, and prints one line of figures per target.
 # Exit status: 0 when nothing crashed.
@@ -21,6 +21,9 @@ timeout=${FUZZ_TIMEOUT:-25}
 rss=${FUZZ_RSS_MB:-2048}
 max_len=${FUZZ_MAX_LEN:-16384}
 corpus_root=server/fuzz/corpus
+# New inputs accumulate here across runs; FUZZ_SCRATCH (make test: a fresh
+# folder) keeps a run's start-up from loading every earlier run's inputs.
+scratch_root=${FUZZ_SCRATCH:-$build/fuzz-corpus}
 
 targets=()
 if [ -n "${TARGETS:-}" ]; then
@@ -90,7 +93,7 @@ regress_one() {  # target -> status
 
 fuzz_one() {  # target -> status; figures on one line
   local t=$1 bin="$build/fuzz/fuzz_$1" log="$logs/$1.log"
-  local scratch="$build/fuzz-corpus/$t" art="$build/fuzz-artifacts/$t/"
+  local scratch="$scratch_root/$t" art="$build/fuzz-artifacts/$t/"
   mkdir -p "$scratch" "$art"
   local dict=()
   [ -f "server/fuzz/$t.dict" ] && dict=(-dict="server/fuzz/$t.dict")
