@@ -81,6 +81,7 @@ def render(ref: dict) -> str:
         "## Simulation settings: `settings`", "", *_table(r2["settings"], r3["settings"]), "",
         *_registry("Pressure solvers: `solver.method`", "solvers", r2, r3),
         *_registry("Effects: `effects[]`", "effects", r2, r3),
+        *_registry("Boundary models: `boundary.method`", "boundaries", r2, r3),
         "## Control settings: `control`", "", *_table(r2["control"], r3["control"]), "",
         "## Instance parameters: `instances[i]`", "",
         "Written flat in the instance object, beside its name, template, transform and time map.", "",

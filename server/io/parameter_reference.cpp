@@ -51,6 +51,7 @@ json parameterReference() {
           {"settings", specsJson(simulationSettingsSpecs())},
           {"solvers", registryJson(PressureSolverRegistry<D>::instance())},
           {"effects", registryJson(EffectRegistry<D>::instance())},
+          {"boundaries", registryJson(BoundaryModelRegistry<D>::instance())},
           {"limits", limitsJson()}};
 }
 

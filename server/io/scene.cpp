@@ -44,6 +44,7 @@ constexpr double kMaxDuration = 1e6;          // s
 constexpr double kContainTolerance = 1e-6;    // m, fluid block inside domain
 constexpr size_t kMaxPhases = 256;            // phase index is stored as uint8_t
 const char* const kDefaultSolver = "dfsph";
+const char* const kDefaultBoundary = "akinci2012";
 
 // ----------------------------------------------------------- formatting ---
 // The shortest decimal that reads back as the same float, so that messages
@@ -626,6 +627,23 @@ NamedParams parseSolver(const json* j) {
   return solver;
 }
 
+// "boundary": {"method": NAME, ...its parameters}; absent, the default model.
+template <int D>
+NamedParams parseBoundary(const json* j) {
+  const std::string path = "boundary";
+  const auto& reg = BoundaryModelRegistry<D>::instance();
+  NamedParams boundary{kDefaultBoundary, {}};
+  const json empty = json::object();
+  const json& o = j ? expectObject(*j, path) : empty;
+  if (const json* m = member(o, "method")) boundary.name = getString(*m, keyPath(path, "method"));
+  const auto* entry = reg.find(boundary.name);
+  if (!entry)
+    fail(j && member(o, "method") ? keyPath(path, "method") : path,
+         "unknown boundary method '" + boundary.name + "'; known methods: " + joinNames(reg.names(), "(none registered)"));
+  boundary.values = parseParams(o, path, entry->params, {"method"}, "boundary '" + boundary.name + "'");
+  return boundary;
+}
+
 SimulationSettings parseSettings(const json* j) {
   const std::string path = "settings";
   if (!j) return simulationSettingsTable().defaults();
@@ -1046,7 +1064,8 @@ SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
     fail("dimension", "the scene is " + std::to_string(sceneDimension(root)) + "D but was loaded as " +
                           std::to_string(D) + "D");
   checkKeys(root, "", {"name", "dimension", "particle_radius", "domain", "gravity", "duration", "max_particles",
-                       "phases", "fluid_blocks", "obstacles", "bodies", "emitters", "solver", "settings", "effects",
+                       "phases", "fluid_blocks", "obstacles", "bodies", "emitters", "solver", "boundary", "settings",
+                       "effects",
                        "control", "instances"});
   // "control" and "instances" are read by parseSceneControl.
 
@@ -1102,6 +1121,7 @@ SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
   s.bodies = parseBodies<D>(member(root, "bodies"), s.domain);
   s.emitters = parseEmitters<D>(member(root, "emitters"), s.phases);
   s.solver = parseSolver<D>(member(root, "solver"));
+  s.boundary = parseBoundary<D>(member(root, "boundary"));
   s.effects = parseEffects<D>(member(root, "effects"));
 
   checkFluidBlocks(s, overridden);
@@ -1212,6 +1232,11 @@ json sceneToJson(const SimulationSetup<D>& s) {
   json solver = paramsToJson(s.solver.values, solverEntry ? &solverEntry->params : nullptr);
   solver["method"] = s.solver.name;
   j["solver"] = solver;
+
+  const auto* boundaryEntry = BoundaryModelRegistry<D>::instance().find(s.boundary.name);
+  json boundary = paramsToJson(s.boundary.values, boundaryEntry ? &boundaryEntry->params : nullptr);
+  boundary["method"] = s.boundary.name;
+  j["boundary"] = boundary;
 
   j["settings"] = paramsToJson(simulationSettingsTable().values(s.settings), &simulationSettingsSpecs());
 

@@ -2,7 +2,7 @@
 // Factories of the built-in solvers and effects; sph/registry.cpp puts them
 // in the registries. Each is defined in the file named after its method, in
 // the folder of its family: sph/pressure/dfsph.cpp, sph/viscosity/xsph.cpp,
-// sph/surface_tension/akinci2013.cpp.
+// sph/surface_tension/akinci2013.cpp, sph/boundary/adami2012.cpp.
 #include "sph/pipeline.h"
 
 namespace fc {
@@ -24,5 +24,11 @@ template <int D> std::unique_ptr<Effect<D>> makeViscosityXSPH(const ParamValues&
 
 const ParamSpecs& surfaceTensionAkinci2013Params();
 template <int D> std::unique_ptr<Effect<D>> makeSurfaceTensionAkinci2013(const ParamValues&);
+
+const ParamSpecs& boundaryAkinci2012Params();
+template <int D> std::unique_ptr<BoundaryModel<D>> makeBoundaryAkinci2012(const ParamValues&);
+
+const ParamSpecs& boundaryAdami2012Params();
+template <int D> std::unique_ptr<BoundaryModel<D>> makeBoundaryAdami2012(const ParamValues&);
 
 }  // namespace fc

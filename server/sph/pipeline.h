@@ -1,5 +1,6 @@
 #pragma once
-// Pluggable parts of the step: pressure solvers and non-pressure effects.
+// Pluggable parts of the step: pressure solvers, non-pressure effects and
+// boundary models.
 // Each registers by name in one table; the scene's lists pick which exist.
 #include "core/types.h"
 #include "sph/parameters.h"
@@ -92,6 +93,23 @@ class Effect {
 };
 
 // A name -> (parameter specs, factory) table.
+// How the liquid's pressure acts on it at solids (sph/boundary/). Every
+// model uses the same boundary samples and per-particle sums
+// (Simulation::boundaryGradW and the rest); the model says which pressure
+// p_b a sample carries in the pair term of the pressure force,
+//   a_i = -Σ_b Ψ_b (w p_i/ρ_i² + Δp_b/ρ0_i²) ∇W_ib,
+// w = 1 for Akinci et al.'s term alone, w = 2 where the sample mirrors p_i
+// in the symmetric pair term, and Δp_b the pressure extrapolated into the
+// solid beyond p_i (Simulation::boundaryExtrapolation).
+template <int D>
+class BoundaryModel {
+ public:
+  virtual ~BoundaryModel() = default;
+  virtual Real pressureWeight() const = 0;
+  // Whether samples carry the hydrostatic extrapolation Δp_b = ρ0_i (g - a_b)·(x_b - x_i).
+  virtual bool extrapolatesPressure() const = 0;
+};
+
 template <class Product>
 class Registry {
  public:
@@ -129,6 +147,7 @@ class Registry {
 
 template <int D> using PressureSolverRegistry = Registry<PressureSolver<D>>;
 template <int D> using EffectRegistry = Registry<Effect<D>>;
+template <int D> using BoundaryModelRegistry = Registry<BoundaryModel<D>>;
 
 // Registration happens in one place (sph/registry.cpp) so that static
 // libraries cannot drop it.

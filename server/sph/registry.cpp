@@ -17,6 +17,12 @@ void registerDim() {
   effects.add("viscosity_xsph", {"XSPH velocity smoothing", viscosityXSPHParams(), makeViscosityXSPH<D>});
   effects.add("surface_tension_akinci2013", {"Surface tension and adhesion (Akinci, Akinci & Teschner 2013)",
                                              surfaceTensionAkinci2013Params(), makeSurfaceTensionAkinci2013<D>});
+  auto& boundaries = BoundaryModelRegistry<D>::instance();
+  boundaries.add("akinci2012", {"Boundary particles, the particle's own pressure term (Akinci et al. 2012)",
+                                boundaryAkinci2012Params(), makeBoundaryAkinci2012<D>});
+  boundaries.add("adami2012", {"Boundary particles whose pressure is the liquid's, extrapolated into the wall "
+                               "(Adami, Hu & Adams 2012)",
+                               boundaryAdami2012Params(), makeBoundaryAdami2012<D>});
 }
 }  // namespace
 

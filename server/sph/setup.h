@@ -136,6 +136,7 @@ struct SimulationSetup {
   std::vector<Body<D>> bodies;          // moving solids (none: no stage, no cost)
   std::vector<Emitter<D>> emitters;     // inflows (none: no stage, no cost)
   NamedParams solver;                   // pressure solver name and its parameters
+  NamedParams boundary{"akinci2012", {}};  // boundary model name and its parameters
   SimulationSettings settings = simulationSettingsTable().defaults();  // the scene's "settings"
   std::vector<NamedParams> effects;     // in the order the scene lists them
   double duration = 2;                  // s, default run length

@@ -81,6 +81,17 @@ Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
   pressure_ = entry->make(sp);
   stageNames_.push_back("pressure:" + solverName);
 
+  {
+    const std::string name = setup_.boundary.name.empty() ? "akinci2012" : setup_.boundary.name;
+    const auto* be = BoundaryModelRegistry<D>::instance().find(name);
+    if (!be) throw std::invalid_argument("unknown boundary method '" + name + "'");
+    ParamValues bv(be->params);
+    for (const auto& [k, v] : setup_.boundary.values.all()) bv.set(k, v);
+    boundaryModel_ = be->make(bv);
+    boundaryWeight_ = boundaryModel_->pressureWeight();
+    extrapolateBoundary_ = boundaryModel_->extrapolatesPressure();
+  }
+
   for (const auto& e : setup_.effects) {
     const auto* ee = EffectRegistry<D>::instance().find(e.name);
     if (!ee) throw std::invalid_argument("unknown effect '" + e.name + "'");
@@ -401,6 +412,7 @@ void Simulation<D>::computeDensitiesWith() {
   boundaryGradW.resize(size_t(n));
   boundaryFlux.resize(size_t(n));
   boundaryNeighbors.resize(size_t(n));
+  boundaryExtrapolation.resize(extrapolateBoundary_ ? size_t(n) : 0);
   const Real w0 = kernel.W0();
   const Real h = kernel.radius();
   const uint32_t* nbr = nf.indices.data();
@@ -439,7 +451,7 @@ void Simulation<D>::computeDensitiesWith() {
       Real w;
       Vec<D> g;
       Real volume = 0, flux = 0;
-      Vec<D> gb = Vec<D>::Zero();
+      Vec<D> gb = Vec<D>::Zero(), extrapolated = Vec<D>::Zero();
       unsigned count = 0;
       search.forEachStaticNear(xi, h, [&](uint32_t b, const Vec<D>& xb) {
         kernel.evaluate(xi - xb, w, g);
@@ -447,8 +459,11 @@ void Simulation<D>::computeDensitiesWith() {
         volume += vb * w;
         gb += vb * g;
         flux += vb * boundary.v[b].dot(g);
+        // [AHA12]'s wall pressure, per pair: Δp_ib / ρ0_i = g·(x_b - x_i) (sph/boundary/adami2012.cpp).
+        if (extrapolateBoundary_) extrapolated += (vb * gravity_.dot(xb - xi)) * g;
         ++count;
       });
+      if (extrapolateBoundary_) boundaryExtrapolation[i] = extrapolated;
       fluid.density[i] = rho + restDensity_[fluid.phase[i]] * volume;
       boundaryGradW[i] = gb;
       boundaryFlux[i] = flux;
@@ -726,6 +741,9 @@ FrameStats Simulation<D>::advanceFrame() {
     {
       const auto [first, last] = threadParticles();
       for (long i = first; i < last; ++i) fluid.a[i] = gravity_;
+      // The samples' extrapolated hydrostatic pressure pushes like a body force.
+      if (extrapolateBoundary_)
+        for (long i = first; i < last; ++i) fluid.a[i] -= boundaryExtrapolation[i];
     }
     for (Effect<D>* e : accelerationStages_) e->addAccelerations(*this);
     fs.nonPressureMs += took();
@@ -743,6 +761,20 @@ FrameStats Simulation<D>::advanceFrame() {
     {
       const auto [first, last] = threadParticles();
       for (long i = first; i < last; ++i) fluid.v[i] += dt * fluid.a[i];
+    }
+    if (extrapolateBoundary_) {
+      // What the walls gave the liquid through the extrapolated pressure.
+      double ix = 0, iy = 0, iz = 0;
+#pragma omp parallel for reduction(+ : ix, iy, iz)
+      for (long i = 0; i < long(fluid.size()); ++i) {
+        const double m = -double(dt) * double(fluid.mass[i]);
+        ix += m * boundaryExtrapolation[i][0];
+        iy += m * boundaryExtrapolation[i][1];
+        if constexpr (D == 3) iz += m * boundaryExtrapolation[i][2];
+      }
+      fs.boundaryImpulse[0] += ix;
+      fs.boundaryImpulse[1] += iy;
+      fs.boundaryImpulse[2] += iz;
     }
 
     bool substepConverged = div.converged;

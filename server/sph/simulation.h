@@ -175,6 +175,10 @@ class Simulation {
   // particles; temporary particles copy theirs): rest density times the
   // lattice volume.
   Real particleMass(int phase) const { return restDensity_.at(size_t(phase)) * latticeVolume_; }
+  // The scene's boundary model (sph/boundary/, pipeline.h): w, the weight of
+  // p_i/ρ_i² in the boundary term of the pressure force, read by the
+  // pressure solvers and the bodies' reactions.
+  Real boundaryPressureWeight() const { return boundaryWeight_; }
 
   // State shared with solvers and effects.
   FluidParticles<D> fluid;
@@ -214,6 +218,10 @@ class Simulation {
   std::vector<Vec<D>> boundaryGradW;  // Σ_b V_b ∇W_ib
   std::vector<Real> boundaryFlux;     // Σ_b V_b v_b·∇W_ib
   std::vector<uint16_t> boundaryNeighbors;  // how many b
+  // Only where the boundary model extrapolates the wall pressure (empty
+  // otherwise): Σ_b V_b (g·(x_b - x_i)) ∇W_ib, the hydrostatic part of the
+  // samples' pressure force per unit mass with its sign reversed.
+  std::vector<Vec<D>> boundaryExtrapolation;
   std::vector<Real> restDensity_;   // per phase
 
  private:
@@ -237,6 +245,9 @@ class Simulation {
   Real latticeVolume_ = 0;  // volume per particle of the initial lattice
   Vec<D> gravity_;
   std::unique_ptr<PressureSolver<D>> pressure_;
+  std::unique_ptr<BoundaryModel<D>> boundaryModel_;
+  Real boundaryWeight_ = 1;
+  bool extrapolateBoundary_ = false;
   std::vector<std::unique_ptr<Effect<D>>> effects_;
   std::unique_ptr<RigidBodies<D>> bodies_;
   std::vector<Effect<D>*> accelerationStages_, implicitStages_, velocityStages_, frameStages_;

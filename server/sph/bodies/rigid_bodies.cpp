@@ -196,9 +196,12 @@ void RigidBodies<D>::integrate(const Simulation<D>& sim, Real dt, const AABB<D>&
   const size_t nb = bodies_.size();
   const long n = long(f.size());
   const Real h = sim.supportRadius();
+  const Real weight = sim.boundaryPressureWeight();
+  const bool extrapolated = !sim.boundaryExtrapolation.empty();
   // The pressure force of the liquid on each boundary particle b of a
   // dynamic body, the reaction of the one the particle exerts on the liquid:
-  // F_b = m_i Ψ_b (p_i / ρ_i²) ∇W_ib, Ψ_b = ρ0_i V_b ([AIA*12], Sec. 4).
+  // F_b = m_i Ψ_b (w p_i / ρ_i²) ∇W_ib, Ψ_b = ρ0_i V_b ([AIA*12], Sec. 4; w
+  // the boundary model's weight, pipeline.h).
   // Summed per fixed block of particles, then the blocks in order: the
   // bodies' motion must not depend on how many threads split the liquid.
   const size_t stride = nb * size_t(D + A);
@@ -209,16 +212,20 @@ void RigidBodies<D>::integrate(const Simulation<D>& sim, Real dt, const AABB<D>&
     Real w;
     Vec<D> g;
     for (long i = blk * kBlock; i < std::min(n, (blk + 1) * kBlock); ++i) {
-      if (sim.boundaryNeighbors[size_t(i)] == 0 || !(f.pressure[size_t(i)] > 0)) continue;
+      const bool pressed = f.pressure[size_t(i)] > 0;
+      if (sim.boundaryNeighbors[size_t(i)] == 0 || !(pressed || extrapolated)) continue;
       const Vec<D> xi = f.x[size_t(i)];
       const Real rho = f.density[size_t(i)];
-      const double scale = double(f.mass[size_t(i)]) * double(sim.restDensity(size_t(i))) *
-                           double(f.pressure[size_t(i)] / (rho * rho));
+      const double scale = pressed ? double(f.mass[size_t(i)]) * double(sim.restDensity(size_t(i))) *
+                                         double(weight * f.pressure[size_t(i)] / (rho * rho))
+                                   : 0.0;
       sim.search.forEachStaticNear(xi, h, [&](uint32_t b, const Vec<D>& xb) {
         const int k = owner(b);
         if (k < 0 || bodies_[size_t(k)].spec.motion != BodyMotion::Dynamic) return;
         sim.kernel.evaluate(Vec<D>(xi - xb), w, g);
-        const VecD F = (scale * double(boundary.volume[b])) * g.template cast<double>();
+        // Plus the sample's extrapolated pressure, m_i V_b (g·(x_b - x_i)) ∇W_ib (sph/boundary/adami2012.cpp).
+        const double hydro = extrapolated ? double(f.mass[size_t(i)]) * gravity_.dot(Vec<D>(xb - xi).template cast<double>()) : 0.0;
+        const VecD F = ((scale + hydro) * double(boundary.volume[b])) * g.template cast<double>();
         const VecD r = xb.template cast<double>() - bodies_[size_t(k)].centre;
         const Ang tq = crossRF(r, F);
         double* o = local + size_t(k) * size_t(D + A);

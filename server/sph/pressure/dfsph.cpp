@@ -211,6 +211,7 @@ class DFSPH final : public PressureSolver<D> {
     const uint32_t* off = sim.pairOffsets();
     const uint32_t* nbr = sim.pairNeighbors();
     const auto& f = sim.fluid;
+    const Real w = sim.boundaryPressureWeight();
 #pragma omp parallel
     {
       const auto [first, last] = sim.threadParticles();
@@ -218,19 +219,23 @@ class DFSPH final : public PressureSolver<D> {
         const Real rho0 = sim.restDensity_[f.phase[i]];
         Real s, floor;
         if constexpr (!ND) {
-          Vec<D> sum = rho0 * sim.boundaryGradW[i];
+          // With the boundary weight w (pipeline.h, BoundaryModel) K_i moves v_i along
+          // G + (w - 1) Ψ_b-sum but changes ρ_i along G (sum): the diagonal is their product.
+          const Vec<D> gb = rho0 * sim.boundaryGradW[i];
+          Vec<D> sum = gb;
           Real sumSq = 0;
           for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
             const Vec<D> g = sim.massGradWAt(k);
             sum += g;
             sumSq += g.squaredNorm();
           }
-          s = sum.squaredNorm() + sumSq;
+          s = (w == 1 ? sum.squaredNorm() : sum.dot(sum + (w - 1) * gb)) + sumSq;
           floor = Real(1e-6) * rho0 * rho0;
         } else {
           // S_i = |Σ_j ∇W_ij + (ρ0_i/m_i) Σ_b V_b ∇W_ib|² + Σ_j (m_i/m_j)|∇W_ij|² (the diagonal; see the top).
           const Real mi = f.mass[i];
-          Vec<D> sum = (rho0 / mi) * sim.boundaryGradW[i];
+          const Vec<D> gb = (rho0 / mi) * sim.boundaryGradW[i];
+          Vec<D> sum = gb;
           Real sumSq = 0;
           for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
             Vec<D> g;
@@ -238,9 +243,11 @@ class DFSPH final : public PressureSolver<D> {
             sum += g;
             sumSq += g.squaredNorm() / f.mass[nbr[k]];
           }
-          s = sum.squaredNorm() + mi * sumSq;
+          s = (w == 1 ? sum.squaredNorm() : sum.dot(sum + (w - 1) * gb)) + mi * sumSq;
           floor = Real(1e-6) * (rho0 / mi) * (rho0 / mi);
         }
+        // A negative diagonal (w > 1, the wall's term opposing the liquid's) means
+        // pushing would compress the particle further: it is left to its neighbours.
         factor_[i] = s > floor ? Real(1) / s : Real(0);
         // Too few neighbours: a surface particle cannot be compressed, and its
         // divergence estimate is unreliable ([BK17], Section 4).
@@ -268,8 +275,9 @@ class DFSPH final : public PressureSolver<D> {
     else updateVelocitiesWith<false>(sim);
   }
 
-  // Mass sum: Δv_i = -Σ_j m_j (K_i + K_j) ∇W_ij - K_i Σ_b Ψ_b ∇W_ib (eqs. (9) and (12) in [BK17]).
-  // Number density: Δv_i = -(1/m_i) [Σ_j (K_i + K_j) ∇W_ij + K_i (ρ0_i/m_i) Σ_b V_b ∇W_ib],
+  // Mass sum: Δv_i = -Σ_j m_j (K_i + K_j) ∇W_ij - w K_i Σ_b Ψ_b ∇W_ib (eqs. (9) and (12) in [BK17];
+  // w the boundary model's weight, 1 in [BK17]).
+  // Number density: Δv_i = -(1/m_i) [Σ_j (K_i + K_j) ∇W_ij + w K_i (ρ0_i/m_i) Σ_b V_b ∇W_ib],
   // the pressure force of [SP08] Section 4, F_i = -Σ_j (p_i/δ_i² + p_j/δ_j²) ∇W_ij, with K = Δt p/δ².
   template <bool ND>
   void updateVelocitiesWith(Simulation<D>& sim) {
@@ -280,6 +288,7 @@ class DFSPH final : public PressureSolver<D> {
     const Real* gx = grad[0].data();
     const Real* gy = grad[1].data();
     auto& f = sim.fluid;
+    const Real w = sim.boundaryPressureWeight();
     double ix = 0, iy = 0, iz = 0;
     // Named scalar accumulators with `omp simd`, so the neighbour loop
     // vectorises (the reduction may be reordered).
@@ -307,7 +316,7 @@ class DFSPH final : public PressureSolver<D> {
             dz += s * gz[k];
           }
         }
-        Real kb = ki * sim.restDensity_[f.phase[i]];
+        Real kb = w * ki * sim.restDensity_[f.phase[i]];
         if constexpr (ND) {
           // Both terms carry 1/m_i, the boundary one once more (its weight V_b/V_i).
           const Real inv = Real(1) / f.mass[i];

@@ -57,7 +57,8 @@ class WCSPH final : public PressureSolver<D> {
     SolverReport rep;
     for (long i = 0; i < n; ++i) {
       const Real pi = f.pressure[i] / (f.density[i] * f.density[i]);
-      const Vec<D> j = (-double(dt) * f.mass[i] * sim.restDensity_[f.phase[i]] * pi) * sim.boundaryGradW[i];
+      const Vec<D> j =
+          (-double(dt) * f.mass[i] * sim.boundaryPressureWeight() * sim.restDensity_[f.phase[i]] * pi) * sim.boundaryGradW[i];
       for (int d = 0; d < D; ++d) rep.boundaryImpulse[d] += double(j[d]);
     }
     rep.avgErrorPct = n ? sum / double(n) * 100.0 : 0;
@@ -67,7 +68,8 @@ class WCSPH final : public PressureSolver<D> {
 
  private:
   // Mass sum: symmetric pressure acceleration, eq. (6) in [BT07]; boundaries
-  // mirror the particle's own pressure (Akinci et al. 2012 [AIA*12], eq. (10)).
+  // act with the particle's own pressure term (Akinci et al. 2012 [AIA*12],
+  // eq. (10)), times the boundary model's weight w (pipeline.h).
   // Number density (Solenthaler & Pajarola 2008 [SP08], see dfsph.cpp): the
   // pressure from the equation of state of ρ_i = m_i δ_i, and the force of
   // [SP08] Section 4, a_i = -(1/m_i) Σ_j (p_i/δ_i² + p_j/δ_j²) ∇W_ij, the
@@ -90,7 +92,7 @@ class WCSPH final : public PressureSolver<D> {
     for (long i = 0; i < n; ++i) {
       const Real rho0 = sim.restDensity_[f.phase[i]];
       const Real pi = f.pressure[i] / (f.density[i] * f.density[i]);
-      Vec<D> a = -(rho0 * pi) * sim.boundaryGradW[i];
+      Vec<D> a = -(sim.boundaryPressureWeight() * rho0 * pi) * sim.boundaryGradW[i];
       if constexpr (!ND) {
         for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
           const uint32_t j = sim.pairNeighbors()[k];
