@@ -41,13 +41,16 @@ def make(target: str, log) -> tuple[float, int]:
     return time.monotonic() - start, status
 
 
-def run_once(index: int, loaded: bool, procs: int, parts: list[str], log) -> dict:
+def run_once(index: int, loaded: bool, procs: int, parts: list[str], log, report: dict, out: Path) -> dict:
+    """One run, appended to report["runs"] at its start and the report rewritten after every part, so
+    that a run stopped part-way keeps what it measured (marked incomplete)."""
     spinners = [multiprocessing.Process(target=spin, daemon=True) for _ in range(procs if loaded else 0)]
     for p in spinners:
         p.start()
     try:
         result = {"run": index, "loaded": loaded, "load_procs": len(spinners), "loadavg_at_start": loadavg(),
-                  "parts": []}
+                  "parts": [], "prepare_s": 0.0, "tests_s": 0.0, "passed": False, "complete": False}
+        report["runs"].append(result)
         prepare_s, status = 0.0, 0
         # The builds the parts need, so that a part's time is its tests only.
         builds = ["build", "templates", "web"] + ["fuzz-build"] * ("test-fuzz" in parts) + ["asan-build"] * ("test-asan" in parts)
@@ -58,10 +61,13 @@ def run_once(index: int, loaded: bool, procs: int, parts: list[str], log) -> dic
         for part in parts:
             seconds, st = make(part, log)
             result["parts"].append({"part": part, "seconds": round(seconds, 1), "status": st})
+            result["tests_s"] = round(sum(p["seconds"] for p in result["parts"]), 1)
+            write_report(out, report)
             print(f"run {index}{' (loaded)' if loaded else ''}: {part} {seconds:.0f} s, "
                   f"{'ok' if st == 0 else f'FAILED ({st})'}", flush=True)
         result["tests_s"] = round(sum(p["seconds"] for p in result["parts"]), 1)
         result["passed"] = status == 0 and all(p["status"] == 0 for p in result["parts"])
+        result["complete"] = True
         result["loadavg_at_end"] = loadavg()
         return result
     finally:
@@ -70,13 +76,25 @@ def run_once(index: int, loaded: bool, procs: int, parts: list[str], log) -> dic
             p.join()
 
 
+def verdict(runs: list[dict]) -> str:
+    if any(outcome(r) == "FAIL" for r in runs):
+        return "FAILED"
+    return "all green" if all(r.get("complete", True) for r in runs) else "green so far (a run was stopped)"
+
+
+def outcome(run: dict) -> str:
+    if not run.get("complete", True):
+        return "incomplete (stopped)" if all(p["status"] == 0 for p in run["parts"]) else "FAIL"
+    return "pass" if run["passed"] else "FAIL"
+
+
 def write_report(out: Path, report: dict) -> None:
     runs = report["runs"]
     parts = [p["part"] for p in runs[0]["parts"]] if runs else []
     lines = [f"# The test suite's wall time: {len(runs)} runs in a row", "",
              f"- date: {report['date']}", f"- machine: {report['machine']['cpu']}, {report['machine']['cores']} cores",
              f"- command: `{report['command']}`",
-             f"- verdict: **{'all green' if all(r['passed'] for r in runs) else 'FAILED'}**", "",
+             f"- verdict: **{verdict(runs)}**", "",
              "Seconds of wall time per part of `make test`, after the builds they need (the column prepare:",
              "`make build templates web`, and the fuzz and sanitizer builds for their parts). A loaded run",
              "shares the machine with busy processes at normal priority.", "",
@@ -84,9 +102,10 @@ def write_report(out: Path, report: dict) -> None:
              "|---|---|---|---|" + "---|" * len(parts) + "---|---|"]
     for r in runs:
         cells = [f"{p['seconds']:.0f}" + ("" if p["status"] == 0 else " (failed)") for p in r["parts"]]
+        cells += ["not run"] * (len(parts) - len(cells))
         load = f"{r['load_procs']} busy processes" if r["loaded"] else "quiet"
         lines.append(f"| {r['run']} | {load} | {r['loadavg_at_start']} | {r['prepare_s']:.0f} | " + " | ".join(cells)
-                     + f" | {r['tests_s']:.0f} ({r['tests_s'] / 60:.1f} min) | {'pass' if r['passed'] else 'FAIL'} |")
+                     + f" | {r['tests_s']:.0f} ({r['tests_s'] / 60:.1f} min) | {outcome(r)} |")
     out.mkdir(parents=True, exist_ok=True)
     for name, text in (("suite.md", "\n".join(lines) + "\n"), ("suite.json", json.dumps(report, indent=1) + "\n")):
         tmp = out / f".{name}.tmp"
@@ -116,8 +135,8 @@ def main() -> int:
     out = ROOT / args.out
     with open(ROOT / args.log, "w") as log:
         for i in range(1, args.runs + 1):
-            report["runs"].append(run_once(i, i in args.loaded, args.load_procs, parts, log))
-            write_report(out, report)  # after every run: a long session keeps what it measured
+            run_once(i, i in args.loaded, args.load_procs, parts, log, report, out)
+            write_report(out, report)
     print(f"report: {out / 'suite.md'}")
     return 0 if all(r["passed"] for r in report["runs"]) else 1
 
