@@ -92,7 +92,6 @@ class Effect {
   virtual void archiveState(StateArchive&) {}
 };
 
-// A name -> (parameter specs, factory) table.
 // How the liquid's pressure acts on it at solids (sph/boundary/). Every
 // model uses the same boundary samples and per-particle sums
 // (Simulation::boundaryGradW and the rest); the model says which pressure
@@ -110,6 +109,7 @@ class BoundaryModel {
   virtual bool extrapolatesPressure() const = 0;
 };
 
+// A name -> (parameter specs, factory) table.
 template <class Product>
 class Registry {
  public:
