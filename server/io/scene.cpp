@@ -611,37 +611,30 @@ void checkEmitters(const SimulationSetup<D>& s) {
                          " m, more than max_particles = " + std::to_string(s.maxParticles));
 }
 
-template <int D>
-NamedParams parseSolver(const json* j) {
-  const std::string path = "solver";
-  const auto& reg = PressureSolverRegistry<D>::instance();
-  NamedParams solver{kDefaultSolver, {}};
+// "solver" or "boundary": {"method": NAME, ...its parameters}; absent, the
+// registry's default method `fallback` with its defaults.
+template <class Registry>
+NamedParams parseMethod(const json* j, const std::string& path, const char* fallback) {
+  const auto& reg = Registry::instance();
+  NamedParams method{fallback, {}};
   const json empty = json::object();
   const json& o = j ? expectObject(*j, path) : empty;
-  if (const json* m = member(o, "method")) solver.name = getString(*m, keyPath(path, "method"));
-  const auto* entry = reg.find(solver.name);
+  if (const json* m = member(o, "method")) method.name = getString(*m, keyPath(path, "method"));
+  const auto* entry = reg.find(method.name);
   if (!entry)
     fail(j && member(o, "method") ? keyPath(path, "method") : path,
-         "unknown solver method '" + solver.name + "'; known methods: " + joinNames(reg.names(), "(none registered)"));
-  solver.values = parseParams(o, path, entry->params, {"method"}, "solver '" + solver.name + "'");
-  return solver;
+         "unknown " + path + " method '" + method.name + "'; known methods: " + joinNames(reg.names(), "(none registered)"));
+  method.values = parseParams(o, path, entry->params, {"method"}, path + " '" + method.name + "'");
+  return method;
 }
 
-// "boundary": {"method": NAME, ...its parameters}; absent, the default model.
-template <int D>
-NamedParams parseBoundary(const json* j) {
-  const std::string path = "boundary";
-  const auto& reg = BoundaryModelRegistry<D>::instance();
-  NamedParams boundary{kDefaultBoundary, {}};
-  const json empty = json::object();
-  const json& o = j ? expectObject(*j, path) : empty;
-  if (const json* m = member(o, "method")) boundary.name = getString(*m, keyPath(path, "method"));
-  const auto* entry = reg.find(boundary.name);
-  if (!entry)
-    fail(j && member(o, "method") ? keyPath(path, "method") : path,
-         "unknown boundary method '" + boundary.name + "'; known methods: " + joinNames(reg.names(), "(none registered)"));
-  boundary.values = parseParams(o, path, entry->params, {"method"}, "boundary '" + boundary.name + "'");
-  return boundary;
+// The inverse of parseMethod: the method's name and every parameter.
+template <class Registry>
+json methodToJson(const NamedParams& method) {
+  const auto* entry = Registry::instance().find(method.name);
+  json o = paramsToJson(method.values, entry ? &entry->params : nullptr);
+  o["method"] = method.name;
+  return o;
 }
 
 SimulationSettings parseSettings(const json* j) {
@@ -1120,8 +1113,8 @@ SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
   s.obstacles = parseObstacles<D>(member(root, "obstacles"), s.particleRadius, Real(s.settings.contactDistance));
   s.bodies = parseBodies<D>(member(root, "bodies"), s.domain);
   s.emitters = parseEmitters<D>(member(root, "emitters"), s.phases);
-  s.solver = parseSolver<D>(member(root, "solver"));
-  s.boundary = parseBoundary<D>(member(root, "boundary"));
+  s.solver = parseMethod<PressureSolverRegistry<D>>(member(root, "solver"), "solver", kDefaultSolver);
+  s.boundary = parseMethod<BoundaryModelRegistry<D>>(member(root, "boundary"), "boundary", kDefaultBoundary);
   s.effects = parseEffects<D>(member(root, "effects"));
 
   checkFluidBlocks(s, overridden);
@@ -1228,15 +1221,8 @@ json sceneToJson(const SimulationSetup<D>& s) {
     j["emitters"] = emitters;
   }
 
-  const auto* solverEntry = PressureSolverRegistry<D>::instance().find(s.solver.name);
-  json solver = paramsToJson(s.solver.values, solverEntry ? &solverEntry->params : nullptr);
-  solver["method"] = s.solver.name;
-  j["solver"] = solver;
-
-  const auto* boundaryEntry = BoundaryModelRegistry<D>::instance().find(s.boundary.name);
-  json boundary = paramsToJson(s.boundary.values, boundaryEntry ? &boundaryEntry->params : nullptr);
-  boundary["method"] = s.boundary.name;
-  j["boundary"] = boundary;
+  j["solver"] = methodToJson<PressureSolverRegistry<D>>(s.solver);
+  j["boundary"] = methodToJson<BoundaryModelRegistry<D>>(s.boundary);
 
   j["settings"] = paramsToJson(simulationSettingsTable().values(s.settings), &simulationSettingsSpecs());
 

@@ -48,6 +48,18 @@ Real latticeParticleVolume(const CubicSpline<D>& kernel, Real s) {
 
 }  // namespace
 
+namespace {
+// A registered part from its name and the scene's values over its defaults.
+template <class Registry>
+auto makeNamed(const Registry& registry, const std::string& name, const ParamValues& values, const char* what) {
+  const auto* entry = registry.find(name);
+  if (!entry) throw std::invalid_argument(std::string("unknown ") + what + " '" + name + "'");
+  ParamValues v(entry->params);
+  for (const auto& [k, x] : values.all()) v.set(k, x);
+  return entry->make(v);
+}
+}  // namespace
+
 template <int D>
 Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
   registerBuiltinSolversAndEffects();
@@ -74,30 +86,17 @@ Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
   }
 
   const std::string solverName = setup_.solver.name.empty() ? "dfsph" : setup_.solver.name;
-  const auto* entry = PressureSolverRegistry<D>::instance().find(solverName);
-  if (!entry) throw std::invalid_argument("unknown pressure solver '" + solverName + "'");
-  ParamValues sp(entry->params);
-  for (const auto& [k, v] : setup_.solver.values.all()) sp.set(k, v);
-  pressure_ = entry->make(sp);
+  pressure_ = makeNamed(PressureSolverRegistry<D>::instance(), solverName, setup_.solver.values, "pressure solver");
   stageNames_.push_back("pressure:" + solverName);
 
-  {
-    const std::string name = setup_.boundary.name.empty() ? "akinci2012" : setup_.boundary.name;
-    const auto* be = BoundaryModelRegistry<D>::instance().find(name);
-    if (!be) throw std::invalid_argument("unknown boundary method '" + name + "'");
-    ParamValues bv(be->params);
-    for (const auto& [k, v] : setup_.boundary.values.all()) bv.set(k, v);
-    boundaryModel_ = be->make(bv);
-    boundaryWeight_ = boundaryModel_->pressureWeight();
-    extrapolateBoundary_ = boundaryModel_->extrapolatesPressure();
-  }
+  boundaryModel_ = makeNamed(BoundaryModelRegistry<D>::instance(),
+                             setup_.boundary.name.empty() ? "akinci2012" : setup_.boundary.name,
+                             setup_.boundary.values, "boundary method");
+  boundaryWeight_ = boundaryModel_->pressureWeight();
+  extrapolateBoundary_ = boundaryModel_->extrapolatesPressure();
 
   for (const auto& e : setup_.effects) {
-    const auto* ee = EffectRegistry<D>::instance().find(e.name);
-    if (!ee) throw std::invalid_argument("unknown effect '" + e.name + "'");
-    ParamValues ev(ee->params);
-    for (const auto& [k, v] : e.values.all()) ev.set(k, v);
-    effects_.push_back(ee->make(ev));
+    effects_.push_back(makeNamed(EffectRegistry<D>::instance(), e.name, e.values, "effect"));
     addStages(effects_.back().get());
     stageNames_.push_back("effect:" + e.name);
   }

@@ -16,7 +16,7 @@
 // mirror alone, p_b = p_i: twice Akinci's push, without the gradient that
 // carries the weight of the liquid above a wall row.
 // Band et al. [BGI*18] compare such approximations in IISPH and solve for
-// the boundary pressure instead; that solve is not implemented here.
+// the boundary pressure within the pressure system instead.
 #include "sph/builtin.h"
 
 namespace fc {
