@@ -2,9 +2,10 @@
 // owns the simulation and every transition of its state (transport, edits,
 // re-simulation, history) happens under one lock in one place. What does not
 // need that lock lives in its own file: recorded frames (frame_snapshot.h),
-// edit parsing (edit.h), edit scopes (edit_scope.h), checkpoints
-// (checkpoints.h), layers of recorded frames (replay_layers.h) and exports
-// (history_export.h).
+// the history and its stale range (frame_history.h), listeners
+// (session_listeners.h), edit parsing (edit.h), edit scopes (edit_scope.h),
+// checkpoints (checkpoints.h), layers of recorded frames (replay_layers.h)
+// and exports (history_export.h).
 #include "service/session.h"
 
 #include "control/control.h"
@@ -13,8 +14,10 @@
 #include "service/checkpoints.h"
 #include "service/replay_layers.h"
 #include "service/edit_scope.h"
+#include "service/frame_history.h"
 #include "service/history_export.h"
 #include "service/history_template.h"
+#include "service/session_listeners.h"
 #include "sph/state_archive.h"
 
 #include <omp.h>
@@ -198,8 +201,8 @@ class SessionImpl final : public Session {
     FramePtr f;
     {
       std::lock_guard lk(mutex_);
-      f = findFrame(frame);
-      if (!f) throw std::out_of_range("frame " + std::to_string(frame) + " is not in the history (" + keptText() + ")");
+      f = history_.find(frame);
+      if (!f) throw std::out_of_range("frame " + std::to_string(frame) + " is not in the history (" + history_.keptText() + ")");
       if (status_ != SessionStatus::Error) status_ = SessionStatus::Paused;
       stepsLeft_ = 0;
       replayPlaying_ = false;
@@ -257,12 +260,12 @@ class SessionImpl final : public Session {
 
   FramePtr frame(int frame) const override {
     std::lock_guard lk(mutex_);
-    return findFrame(frame);
+    return history_.find(frame);
   }
 
   std::vector<FramePtr> history() const override {
     std::lock_guard lk(mutex_);
-    return {history_.begin(), history_.end()};
+    return history_.all();
   }
 
   HistoryExport exportHistory(const std::string& h5Path, int firstFrame, int lastFrame) const override {
@@ -272,17 +275,16 @@ class SessionImpl final : public Session {
       std::lock_guard lk(mutex_);
       // Empty only when one frame exceeds the history's cap.
       if (history_.empty()) throw std::invalid_argument("no recorded frame: the history is empty");
-      const int first = firstFrame < 0 ? history_.front()->frame : firstFrame;
-      const int last = lastFrame < 0 ? history_.back()->frame : lastFrame;
+      const int first = firstFrame < 0 ? history_.first() : firstFrame;
+      const int last = lastFrame < 0 ? history_.last() : lastFrame;
       if (first > last)
         throw std::invalid_argument("the first frame (" + std::to_string(first) + ") is after the last frame (" +
                                     std::to_string(last) + ")");
-      throwIfStaleLocked(first, last);
-      for (const FramePtr& f : history_)
-        if (f->frame >= first && f->frame <= last) frames.push_back(f);
+      history_.throwIfStale(first, last, live_->frame);
+      frames = history_.within(first, last);
       if (frames.empty())
         throw std::invalid_argument("no recorded frame in frames " + std::to_string(first) + " to " +
-                                    std::to_string(last) + " (" + keptText() + ")");
+                                    std::to_string(last) + " (" + history_.keptText() + ")");
       header.sceneName = info_.sceneName;
       header.dimension = D;
       header.particleRadius = info_.particleRadius;
@@ -304,14 +306,8 @@ class SessionImpl final : public Session {
     std::string recipe;
     {
       std::lock_guard lk(mutex_);
-      throwIfStaleLocked(firstFrame, lastFrame);
-      auto it = std::lower_bound(history_.begin(), history_.end(), firstFrame,
-                                 [](const FramePtr& f, int n) { return f->frame < n; });
-      for (long long f = firstFrame; f <= lastFrame; ++f, ++it) {
-        if (it == history_.end() || (*it)->frame != f)
-          throw std::out_of_range("frame " + std::to_string(f) + " is not in the history (" + keptText() + ")");
-        frames.push_back(*it);
-      }
+      history_.throwIfStale(firstFrame, lastFrame, live_->frame);
+      frames = history_.contiguous(firstFrame, lastFrame);
       info = info_;
       recipe = sceneShared_.dump();
     }
@@ -341,16 +337,9 @@ class SessionImpl final : public Session {
 
   // ---- listeners ----
 
-  uint64_t subscribe(SessionListener listener) override {
-    std::lock_guard lk(listenerMutex_);
-    listeners_[++lastListenerId_] = std::make_shared<SessionListener>(std::move(listener));
-    return lastListenerId_;
-  }
+  uint64_t subscribe(SessionListener listener) override { return listeners_.subscribe(std::move(listener)); }
 
-  void unsubscribe(uint64_t id) override {
-    std::lock_guard lk(listenerMutex_);
-    listeners_.erase(id);
-  }
+  void unsubscribe(uint64_t id) override { listeners_.unsubscribe(id); }
 
   bool waitIdle(std::chrono::milliseconds timeout) const override {
     std::unique_lock lk(mutex_);
@@ -391,13 +380,6 @@ class SessionImpl final : public Session {
   int nextFrame() const { return sim_->frame() + 1; }
 
   std::string createdBy() const { return std::string("flowclip ") + FLOWCLIP_VERSION + " session " + id_; }
-
-  // With mutex_ held: which frames the history keeps, for error messages.
-  std::string keptText() const {
-    return history_.empty() ? std::string("the history is empty")
-                            : "frames " + std::to_string(history_.front()->frame) + " to " +
-                                  std::to_string(history_.back()->frame) + " are kept";
-  }
 
   FramePtr makeSnapshot(const FrameStats& fs) const { return snapshotOf<D>(*sim_, setup_.domain, bound_, fs); }
 
@@ -454,8 +436,6 @@ class SessionImpl final : public Session {
   void recordInitialFrame() {
     publishSceneInfoLocked();
     history_.clear();
-    historyBytes_ = 0;
-    dropped_ = 0;
     replay_ = nullptr;
     layered_.reset();  // frame numbers restart: an old layered frame 0 must not match
     layersTried_ = nullptr;
@@ -466,22 +446,14 @@ class SessionImpl final : public Session {
   }
 
   void recordLocked(const FramePtr& f) {
-    history_.push_back(f);
-    historyBytes_ += f->byteSize;
+    history_.append(f);
     fitMemoryLocked();
   }
 
   // With mutex_ held: the history and the checkpoints within the session's
   // cap, the oldest frames dropped first (the checkpoints hold their own
   // share, checkpointCap).
-  void fitMemoryLocked() {
-    const size_t cap = options_.historyCapBytes, held = checkpointFigures_.bytes;
-    while (historyBytes_ + held > cap && !history_.empty()) {
-      historyBytes_ -= history_.front()->byteSize;
-      history_.pop_front();
-      ++dropped_;
-    }
-  }
+  void fitMemoryLocked() { history_.fit(options_.historyCapBytes, checkpointFigures_.bytes); }
 
   static size_t checkpointCap(const SessionOptions& o) { return o.checkpointsEnabled() ? o.historyCapBytes / 4 : 0; }
 
@@ -598,7 +570,7 @@ class SessionImpl final : public Session {
       replayPlaying_ = false;
       replay_ = nullptr;
     } else {
-      FramePtr f = findFrame(next);
+      FramePtr f = history_.find(next);
       if (!f) {
         replayPlaying_ = false;  // dropped by the memory cap: go live
         replay_ = nullptr;
@@ -648,7 +620,7 @@ class SessionImpl final : public Session {
       const bool resim = fs.frame <= resimTarget_;
       // Between the checkpoint and the first stale frame the frames come out
       // the same: the recorded snapshots stay (no viewer sees a change).
-      const FramePtr kept = resim && fs.frame < staleFrom_ ? findFrame(fs.frame) : nullptr;
+      const FramePtr kept = resim && !history_.stale(fs.frame) ? history_.find(fs.frame) : nullptr;
       if (kept) snap = kept;
       live_ = snap;
       storeLocked(snap);
@@ -711,23 +683,9 @@ class SessionImpl final : public Session {
     checkpoints_.put(frame, a.bytes());
   }
 
-  // With mutex_ held: records a computed frame, replacing the recorded one
-  // of that number (re-simulation) or appending it; the stale range moves
-  // past it.
+  // With mutex_ held: records a computed frame (FrameHistory::store) within the cap.
   void storeLocked(const FramePtr& f) {
-    if (!history_.empty() && f->frame <= history_.back()->frame) {
-      auto it = std::lower_bound(history_.begin(), history_.end(), f->frame,
-                                 [](const FramePtr& g, int n) { return g->frame < n; });
-      if (it != history_.end() && (*it)->frame == f->frame) {
-        historyBytes_ = historyBytes_ - (*it)->byteSize + f->byteSize;
-        *it = f;
-      }
-      // else: dropped by the memory cap before; it stays dropped.
-    } else {
-      recordLocked(f);
-    }
-    if (staleFrom_ <= f->frame) staleFrom_ = f->frame + 1;
-    if (history_.empty() || staleFrom_ > history_.back()->frame) staleFrom_ = INT_MAX;
+    history_.store(f);
     fitMemoryLocked();
   }
 
@@ -740,15 +698,6 @@ class SessionImpl final : public Session {
 
   bool resimulatingLocked() const { return resimTarget_ >= 0 && live_->frame < resimTarget_; }
 
-  // With mutex_ held: frames [first, last] must not be stale (exports and
-  // templates take only frames of the scene as it is).
-  void throwIfStaleLocked(int first, int last) const {
-    if (staleFrom_ == INT_MAX || staleFrom_ > last) return;
-    throw StaleFramesError("frames " + std::to_string(std::max(first, staleFrom_)) + " to " + std::to_string(last) +
-                           " are stale: an edit changed them and the session is re-simulating them (now at frame " +
-                           std::to_string(live_->frame) + "); try again once the cache is valid");
-  }
-
   // The first recorded frame an accepted edit changed is `first`
   // (edit_scope.h): frames from there on become stale, and the simulation,
   // if already past it, goes back to the newest checkpoint before it (frame
@@ -757,7 +706,7 @@ class SessionImpl final : public Session {
     int reached = 0, simFrame = 0;
     {
       std::lock_guard lk(mutex_);
-      reached = history_.empty() ? live_->frame : std::max(history_.back()->frame, live_->frame);
+      reached = history_.reached(live_->frame);
       simFrame = live_->frame;
     }
     if (first > reached) return;  // only frames not simulated yet change
@@ -786,7 +735,7 @@ class SessionImpl final : public Session {
           status_ = SessionStatus::Error;
           errorFrame_ = live_->frame;
           errorMessage_ = std::string("re-simulation could not rebuild the scene: ") + e.what();
-          staleFrom_ = std::min(staleFrom_, first);
+          history_.markStaleFrom(first);
           return;
         }
       }
@@ -795,15 +744,14 @@ class SessionImpl final : public Session {
       std::lock_guard lk(mutex_);
       // The restored frame is the live one (its recorded snapshot is the
       // same frame: before the edit's first change).
-      if (FramePtr kept = findFrame(at->frame)) at = kept;
+      if (FramePtr kept = history_.find(at->frame)) at = kept;
       live_ = at;
       resimFrom_ = at->frame;
     }
     std::lock_guard lk(mutex_);
     if (layered_ && layered_->frame >= first) layered_.reset();  // of the timeline before the edit
     layersTried_ = nullptr;
-    staleFrom_ = std::min(staleFrom_, first);
-    if (history_.empty() || staleFrom_ > history_.back()->frame) staleFrom_ = INT_MAX;
+    history_.markStaleFrom(first);
     resimTarget_ = std::max(resimTarget_, reached);
     if (simFrame < first) resimFrom_ = std::min(resimFrom_ < 0 ? simFrame : resimFrom_, simFrame);
     lastResimState_ = Clock::time_point{};
@@ -825,7 +773,7 @@ class SessionImpl final : public Session {
     {
       std::lock_guard lk(mutex_);
       publishCheckpointsLocked();
-      staleFrom_ = INT_MAX;
+      history_.setStaleFrom(INT_MAX);
       resimTarget_ = resimFrom_ = -1;
       replayPlaying_ = false;
       if (failure.empty()) {
@@ -920,7 +868,7 @@ class SessionImpl final : public Session {
     const wire::LayerFlags want = wantedLayersLocked();
     if (!want.control && !want.repulsion && !want.boundary) return false;
     const FramePtr& shown = replay_ ? replay_ : live_;
-    if (!shown || shown == layersTried_ || shown->frame >= staleFrom_) return false;
+    if (!shown || shown == layersTried_ || history_.stale(shown->frame)) return false;
     if (!layered_ || layered_->frame != shown->frame) return true;
     const wire::LayerFlags& has = layered_->layers;
     return (want.control && !has.control) || (want.repulsion && !has.repulsion) || (want.boundary && !has.boundary);
@@ -993,9 +941,10 @@ class SessionImpl final : public Session {
       }
     }
     op.promise->set_value(r);
-    notify([&](const SessionListener& l) {
-      if (l.edit) l.edit(r);
-    });
+    listeners_.notify([&] { return r; },
+                      [](const SessionListener& l, const EditResult& result) {
+                        if (l.edit) l.edit(result);
+                      });
     if (r.accepted) notifyState();
   }
 
@@ -1118,22 +1067,20 @@ class SessionImpl final : public Session {
     FramePtr zero = makeSnapshot(initialStats());
     std::lock_guard lk(mutex_);
     publishCheckpointsLocked();
-    const int reached = history_.empty() ? live_->frame : std::max(history_.back()->frame, live_->frame);
+    const int reached = history_.reached(live_->frame);
     const double newRate = 1.0 / sim_->frameDuration();
     int target = reached;
     if (std::abs(newRate - oldFrameRate) > 1e-9 * oldFrameRate) {
       target = int(std::lround(double(reached) / oldFrameRate * newRate));
       history_.clear();
-      historyBytes_ = 0;
       replay_ = nullptr;
       replayPlaying_ = false;
       recordLocked(zero);
-      staleFrom_ = INT_MAX;
       endFrame_ = sceneEndFrame();
       playUntil_ = std::min(playUntil_, endFrame_);
     } else {
       storeLocked(zero);
-      staleFrom_ = history_.empty() || history_.back()->frame < 1 ? INT_MAX : 1;
+      history_.setStaleFrom(1);
       if (replay_ && replay_->frame == 0) replay_ = zero;
     }
     layered_.reset();
@@ -1158,12 +1105,6 @@ class SessionImpl final : public Session {
            (status_ == SessionStatus::Paused || status_ == SessionStatus::Error);
   }
 
-  FramePtr findFrame(int frame) const {
-    auto it = std::lower_bound(history_.begin(), history_.end(), frame,
-                               [](const FramePtr& f, int n) { return f->frame < n; });
-    return it != history_.end() && (*it)->frame == frame ? *it : nullptr;
-  }
-
   std::string errorText() const {
     return "session '" + id_ + "' is in the error state: " + errorMessage_;
   }
@@ -1179,12 +1120,7 @@ class SessionImpl final : public Session {
 
   json stateLocked() const {
     const FramePtr shown = replay_ ? replay_ : live_;
-    json history = {{"frames", history_.size()},
-                    {"bytes", historyBytes_},
-                    {"cap", options_.historyCapBytes},
-                    {"dropped", dropped_},
-                    {"first", history_.empty() ? json(nullptr) : json(history_.front()->frame)},
-                    {"last", history_.empty() ? json(nullptr) : json(history_.back()->frame)}};
+    const size_t historyBytes = history_.bytes();
     const size_t frameBytes = live_->byteSize;
     json j = {{"id", id_},
               {"name", name_},
@@ -1194,7 +1130,7 @@ class SessionImpl final : public Session {
               {"time", live_->time},
               {"playback_speed", speed_},
               {"shown", {{"live", replay_ == nullptr}, {"frame", shown->frame}}},
-              {"history", history},
+              {"history", history_.summary(options_.historyCapBytes)},
               {"stats", frameStatsToJson(live_->stats, hasControl_)},
               {"particles", {{"liquid", liquid_ - temporary_}, {"temporary", temporary_}, {"boundary", boundary_}}},
               {"instances", instances_},
@@ -1202,17 +1138,17 @@ class SessionImpl final : public Session {
               {"steps_left", stepsLeft_},
               {"computing", computing_},
               {"memory",
-               {{"history_bytes", historyBytes_},
+               {{"history_bytes", historyBytes},
                 {"frame_bytes", frameBytes},
                 {"history_bytes_per_1000_frames", frameBytes * 1000},
                 {"simulation_bytes", simBytes_},
-                {"total_bytes", historyBytes_ + simBytes_}}}};
+                {"total_bytes", historyBytes + simBytes_}}}};
     if (status_ == SessionStatus::Error) j["error"] = {{"message", errorMessage_}, {"frame", errorFrame_}};
     j["end_frame"] = endFrame_;
     j["play_until"] = playUntil_;
     j["replaying"] = replayPlaying_;
     j["memory"]["checkpoint_bytes"] = checkpointFigures_.bytes;
-    j["memory"]["total_bytes"] = historyBytes_ + simBytes_ + checkpointFigures_.bytes;
+    j["memory"]["total_bytes"] = historyBytes + simBytes_ + checkpointFigures_.bytes;
     j["cache"] = cacheLocked();
     return j;
   }
@@ -1221,19 +1157,12 @@ class SessionImpl final : public Session {
   //  reached, checkpoints: [...], checkpoint_every, checkpoint_bytes,
   //  checkpoint_raw_bytes, checkpoint_save_ms, checkpoint_restore_ms}
   json cacheLocked() const {
-    json valid = json::array(), stale = json::array();
-    if (!history_.empty()) {
-      const int first = history_.front()->frame, last = history_.back()->frame;
-      const int staleFrom = std::max(first, staleFrom_);
-      if (staleFrom > first) valid.push_back({first, std::min(last, staleFrom - 1)});
-      if (staleFrom <= last) stale.push_back({staleFrom, last});
-    }
-    const int reached = history_.empty() ? live_->frame : std::max(history_.back()->frame, live_->frame);
+    const int reached = history_.reached(live_->frame);
     json simulating = nullptr;
     if (resimulatingLocked())
       simulating = {{"from", resimFrom_ < 0 ? live_->frame : resimFrom_}, {"to", resimTarget_}, {"frame", live_->frame}};
-    return {{"valid", valid},
-            {"stale", stale},
+    return {{"valid", history_.validRanges()},
+            {"stale", history_.staleRanges()},
             {"simulating", simulating},
             {"reached", reached},
             {"checkpoints", checkpointFrames_},
@@ -1253,43 +1182,20 @@ class SessionImpl final : public Session {
     idleCv_.notify_all();
   }
 
-  template <class F>
-  void notify(F&& call) {
-    std::lock_guard lk(listenerMutex_);
-    std::vector<std::shared_ptr<SessionListener>> ls;
-    ls.reserve(listeners_.size());
-    for (auto& [id, l] : listeners_) ls.push_back(l);
-    for (size_t k = 0; k < ls.size(); ++k) {
-      // Unsubscribed by an earlier listener of this round: skip.
-      bool still = false;
-      for (auto& [id, l] : listeners_) still = still || l == ls[k];
-      if (!still) continue;
-      try {
-        call(*ls[k]);
-      } catch (...) {
-        // A listener's failure is its own; the session goes on.
-      }
-    }
-  }
-
-  // The latest slot is read under the listener lock, so that the last
+  // The latest slot is read under the listeners' lock, so that the last
   // notification always carries the current slot (calls may repeat a frame).
   void notifyFrame() {
-    std::lock_guard lk(listenerMutex_);
-    if (listeners_.empty()) return;
-    const FramePtr f = latestFrame();
-    notify([&](const SessionListener& l) {
-      if (l.frame) l.frame(f);
-    });
+    listeners_.notify([&] { return latestFrame(); },
+                      [](const SessionListener& l, const FramePtr& f) {
+                        if (l.frame) l.frame(f);
+                      });
   }
 
   void notifyState() {
-    std::lock_guard lk(listenerMutex_);
-    if (listeners_.empty()) return;
-    const json s = state();
-    notify([&](const SessionListener& l) {
-      if (l.state) l.state(s);
-    });
+    listeners_.notify([&] { return state(); },
+                      [](const SessionListener& l, const json& s) {
+                        if (l.state) l.state(s);
+                      });
   }
 
   // ---- immutable ----
@@ -1330,18 +1236,14 @@ class SessionImpl final : public Session {
   flatbuffers::FlatBufferBuilder layerBuilder_{1 << 16};  // session thread only
   uint64_t lastEditId_ = 0;
   std::map<uint64_t, EditResult> results_;
-  std::deque<FramePtr> history_;
-  size_t historyBytes_ = 0;
-  size_t dropped_ = 0;
+  FrameHistory history_;  // recorded frames and their stale range
   FramePtr live_;            // newest simulated frame
   FramePtr replay_;          // frame selected by seek (null: live)
   bool replayPlaying_ = false;  // playing through recorded frames (replay_ advances)
   int endFrame_ = 1;         // the scene's duration in frames: where play stops by default
   int playUntil_ = 1;        // where the current play stops
-  // The cache: recorded frames from staleFrom_ on were changed by an edit
-  // (INT_MAX: none); re-simulation runs the simulation from resimFrom_ up
-  // to resimTarget_ (-1: not re-simulating), replacing them.
-  int staleFrom_ = INT_MAX;
+  // Re-simulation runs the simulation from resimFrom_ up to resimTarget_
+  // (-1: not re-simulating), replacing the stale frames.
   int resimFrom_ = -1, resimTarget_ = -1;
   Clock::time_point lastResimState_{};
   CheckpointStore::Figures checkpointFigures_;
@@ -1354,9 +1256,7 @@ class SessionImpl final : public Session {
   bool hasControl_ = false;
 
   // ---- listeners ----
-  std::recursive_mutex listenerMutex_;
-  std::map<uint64_t, std::shared_ptr<SessionListener>> listeners_;
-  uint64_t lastListenerId_ = 0;
+  SessionListeners listeners_;
 
   std::thread thread_;
 };
