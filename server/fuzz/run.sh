@@ -9,6 +9,8 @@
 # reads server/fuzz/corpus/<target>/ and writes new inputs to BUILD/fuzz-corpus/<target>/ (or $FUZZ_SCRATCH/<target>/)
 # (never into the repository), crash inputs to BUILD/fuzz-artifacts/<target>/, the
 # log to BUILD/fuzz-logs/<target>.log, and prints one line of figures per target.
+# A target's dictionary is server/fuzz/<target>.dict followed by BUILD/fuzz/make_fuzz_dict's
+# declared parameters and methods (BUILD/fuzz-dicts/<target>.dict).
 # Exit status: 0 when nothing crashed.
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -96,7 +98,14 @@ fuzz_one() {  # target -> status; figures on one line
   local scratch="$scratch_root/$t" art="$build/fuzz-artifacts/$t/"
   mkdir -p "$scratch" "$art"
   local dict=()
-  [ -f "server/fuzz/$t.dict" ] && dict=(-dict="server/fuzz/$t.dict")
+  if [ -f "server/fuzz/$t.dict" ]; then
+    # The hand-written structure, then the declared parameters and methods.
+    local merged="$build/fuzz-dicts/$t.dict"
+    mkdir -p "$build/fuzz-dicts"
+    cat "server/fuzz/$t.dict" >"$merged"
+    [ -x "$build/fuzz/make_fuzz_dict" ] && "$build/fuzz/make_fuzz_dict" >>"$merged"
+    dict=(-dict="$merged")
+  fi
   local seeds=()
   [ -d "$corpus_root/$t" ] && seeds=("$corpus_root/$t")
   nice "$bin" -max_total_time="$seconds" -timeout="$timeout" -rss_limit_mb="$rss" -max_len="$max_len" \
