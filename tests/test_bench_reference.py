@@ -1,16 +1,18 @@
 """tools/bench_reference.py without SPlisHSPlasH itself: the reference scenes
-it writes carry our bench scenes' settings, and a SPlisHSPlasH run's printed
-summary becomes the figures the README quotes."""
+it writes carry our bench scenes' settings, a SPlisHSPlasH run's printed
+summary becomes its figures, and the report divides them pair by pair."""
 
 from __future__ import annotations
 
 import importlib.util
 import json
 import pathlib
+import sys
 
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tools"))  # its helper module bench_report
 _spec = importlib.util.spec_from_file_location("bench_reference", ROOT / "tools" / "bench_reference.py")
 bench_reference = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(bench_reference)
@@ -101,3 +103,36 @@ def test_reference_output_missing_a_figure_is_an_error(drop):
     out = "\n".join(line for line in OUTPUT.splitlines() if not line.startswith(drop))
     with pytest.raises(RuntimeError):
         bench_reference.parse_reference_output(out)
+
+
+def run_figures(us, wall, particles=5476, steps=1600):
+    return {"particles": particles, "steps": steps, "simulated_s": 2.0, "us_per_particle_step": us,
+            "wall_s_per_simulated_s": wall, "density_iterations_per_step": 3.5,
+            "divergence_iterations_per_step": 1.0, "peak_rss_mb": 20.0}
+
+
+def report_of(results, target_met):
+    scenes = {name: {**runs, "ratios": bench_reference.ratios(runs)} for name, runs in results.items()}
+    return {"benchmark": "reference", "date": "2026-01-01T00:00:00Z", "command": "tools/bench_reference.py --repeat 2",
+            "machine": {"cpu": "Test CPU", "cores": 2, "loadavg_at_start": "0.1 0.1 0.1"}, "loadavg_at_end": "0.2 0.1 0.1",
+            "settings": {"threads": 2, "seconds": 2.0, "repeat": 2, "reference": bench_reference.WHEEL,
+                         "flowclip": "build/flowclip", "flowclip_version": "0.1.0"},
+            "target": {"max_pct_of_reference": bench_reference.TARGET_PCT, "met": target_met},
+            "scenes": scenes, "scenes_runs": results}
+
+
+def test_report_divides_each_pair_and_writes_markdown_and_json(tmp_path):
+    results = {"2d_r010": {"flowclip": [run_figures(0.30, 1.5), run_figures(0.40, 1.6)],
+                           "splishsplash": [run_figures(1.00, 5.0, steps=1500), run_figures(1.00, 4.0, steps=1500)]}}
+    q = bench_reference.ratios(results["2d_r010"])
+    assert q["us_pct"] == pytest.approx([30.0, 40.0]) and q["wall_pct"] == pytest.approx([30.0, 40.0])
+    bench_reference.write_report(tmp_path, report_of(results, True))
+    md = (tmp_path / "reference.md").read_text()
+    data = json.loads((tmp_path / "reference.json").read_text())
+    assert data["machine"]["cpu"] == "Test CPU" and data["command"] in md and "Test CPU" in md
+    assert "scenes_runs" not in data and data["scenes"]["2d_r010"]["ratios"] == q
+    row = next(line for line in md.splitlines() if line.startswith("| 2d_r010 |"))
+    # Medians with ranges, both figures divided pair by pair.
+    assert "0.350 (0.300–0.400) vs 1.000" in row and "35.0 (30.0–40.0) %, 35.0 (30.0–40.0) %" in row
+    assert "**met** (worst pair 40.0 %)" in md
+    assert not list(tmp_path.glob(".*.tmp")), "a temporary file was left"

@@ -1,10 +1,11 @@
 #!/usr/bin/env python3
 """Times SPlisHSPlasH and flowclip on the same dam breaks, alternating runs on
-this machine, and prints each one's µs per particle-step and wall seconds
-per simulated second with our share of SPlisHSPlasH's.
+this machine, and writes each one's µs per particle-step and wall seconds
+per simulated second with our share of SPlisHSPlasH's into a report
+(reference.md and reference.json: machine, date, command, every run).
 
-    build/venv/bin/python tools/bench_reference.py                 # all four scenes/bench scenes, once each
-    build/venv/bin/python tools/bench_reference.py --only 3d_r0125 --repeat 3 --out ref.json
+    build/venv/bin/python tools/bench_reference.py                 # all four scenes/bench scenes, once each, into bench/reference
+    build/venv/bin/python tools/bench_reference.py --only 3d_r0125 --repeat 3 --out /tmp/ref
 
 Why: figures read on different machines, or on one virtual machine at
 different times, do not divide (the same executable ran up to 1.7x slower
@@ -27,13 +28,17 @@ timer (initialisation excluded, as ours); its steps are counted by a
 per-step callback.
 """
 import argparse
+import datetime
 import json
 import os
 import re
+import shlex
 import statistics
 import subprocess
 import sys
 import tempfile
+
+from bench_report import loadavg, machine  # tools/, beside this script
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 WHEEL = "pysplishsplash==2.19.0"
@@ -194,6 +199,64 @@ def spread(values, fmt):
     return fmt.format(med) if lo == hi else (fmt + " ({}–{})").format(med, fmt.format(lo), fmt.format(hi))
 
 
+# At most half of SPlisHSPlasH's µs per particle-step and wall time per simulated second.
+TARGET_PCT = 50.0
+
+
+def ratios(runs):
+    """Our share of SPlisHSPlasH's figures, pair by pair (percent)."""
+    o, r = runs["flowclip"], runs["splishsplash"]
+    return {"us_pct": [100 * a["us_per_particle_step"] / b["us_per_particle_step"] for a, b in zip(o, r)],
+            "wall_pct": [100 * a["wall_s_per_simulated_s"] / b["wall_s_per_simulated_s"] for a, b in zip(o, r)]}
+
+
+def table(results):
+    lines = ["| scene | particles (FlowClip / SPlisHSPlasH) | steps | density / divergence iterations per step "
+             "| µs / particle-step (FlowClip vs SPlisHSPlasH) | wall s / simulated s | peak RSS MB "
+             "| FlowClip / SPlisHSPlasH: µs, wall |",
+             "|---|---|---|---|---|---|---|---|"]
+    for name, runs in results.items():
+        o, r = runs["flowclip"], runs["splishsplash"]
+        q = ratios(runs)
+        lines.append(
+            f"| {name} | {o[0]['particles']} / {r[0]['particles']} | {o[0]['steps']} / {r[0]['steps']} "
+            f"| {o[0]['density_iterations_per_step']:.2f} / {o[0]['divergence_iterations_per_step']:.2f} vs "
+            f"{r[0]['density_iterations_per_step']:.2f} / {r[0]['divergence_iterations_per_step']:.2f} "
+            f"| {spread([x['us_per_particle_step'] for x in o], '{:.3f}')} vs "
+            f"{spread([x['us_per_particle_step'] for x in r], '{:.3f}')} "
+            f"| {spread([x['wall_s_per_simulated_s'] for x in o], '{:.1f}')} vs "
+            f"{spread([x['wall_s_per_simulated_s'] for x in r], '{:.1f}')} "
+            f"| {max(x['peak_rss_mb'] for x in o):.0f} vs {max(x['peak_rss_mb'] for x in r):.0f} "
+            f"| {spread(q['us_pct'], '{:.1f}')} %, {spread(q['wall_pct'], '{:.1f}')} % |")
+    return lines
+
+
+def write_report(out, report):
+    """reference.md and reference.json into `out`, each replaced whole."""
+    worst = max((max(v) for s in report["scenes"].values() for v in s["ratios"].values()), default=float("nan"))
+    met = report["target"]["met"]
+    md = ["# SPlisHSPlasH beside FlowClip on the same dam breaks", "",
+          f"- date: {report['date']}",
+          f"- machine: {report['machine']['cpu']}, {report['machine']['cores']} cores, "
+          f"load average at start {report['machine']['loadavg_at_start']}, at end {report['loadavg_at_end']}",
+          f"- command: `{report['command']}`",
+          f"- SPlisHSPlasH: {report['settings']['reference']} (its PyPI wheel); FlowClip: "
+          f"`{report['settings']['flowclip']}` {report['settings']['flowclip_version']}",
+          f"- {report['settings']['threads']} threads each, {report['settings']['seconds']:g} simulated s per run, "
+          f"{report['settings']['repeat']} alternating pair(s) of runs per scene", "",
+          "Medians, with the range over the pairs in brackets; the last column divides each pair's figures.", ""]
+    md += table(report["scenes_runs"])
+    md += ["", f"Target: at most {TARGET_PCT:g} % of SPlisHSPlasH's µs per particle-step and wall time per "
+           f"simulated second on every scene: **{'met' if met else 'not met'}** (worst pair {worst:.1f} %)."]
+    os.makedirs(out, exist_ok=True)
+    body = {k: v for k, v in report.items() if k != "scenes_runs"}
+    for name, text in (("reference.md", "\n".join(md) + "\n"), ("reference.json", json.dumps(body, indent=1) + "\n")):
+        tmp = os.path.join(out, "." + name + ".tmp")
+        with open(tmp, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, os.path.join(out, name))
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--only", nargs="+", choices=sorted(SCENES), help="scenes to run (default: all four)")
@@ -201,11 +264,16 @@ def main():
     ap.add_argument("--repeat", type=int, default=1, help="alternating pairs of runs per scene")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--binary", default=os.path.join(ROOT, "build", "flowclip"))
-    ap.add_argument("--out", help="also write every run as JSON")
+    ap.add_argument("--out", default=os.path.join(ROOT, "bench", "reference"),
+                    help="report folder: reference.md and reference.json (default bench/reference)")
     args = ap.parse_args()
     if args.repeat < 1 or args.seconds <= 0:
         ap.error("--repeat must be >= 1 and --seconds > 0")
 
+    command = "build/venv/bin/python tools/bench_reference.py" + "".join(" " + shlex.quote(a) for a in sys.argv[1:])
+    started = machine()
+    date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    version = subprocess.run([args.binary, "--version"], capture_output=True, text=True, check=True).stdout.strip()
     py, data = venv_python(os.path.join(ROOT, "build"))
     names = args.only or list(SCENES)
     results = {}
@@ -230,28 +298,21 @@ def main():
             results[name] = runs
 
     sys.stderr.flush()
-    print("| scene | particles (ours / SPlisHSPlasH) | steps | density / divergence iterations per step "
-          "| µs / particle-step | wall s / simulated s | peak RSS MB | ours / theirs (µs, wall) |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("\n".join(table(results)))
+    scenes = {}
     for name, runs in results.items():
-        o, r = runs["flowclip"], runs["splishsplash"]
-        us_ratio = [100 * a["us_per_particle_step"] / b["us_per_particle_step"] for a, b in zip(o, r)]
-        wall_ratio = [100 * a["wall_s_per_simulated_s"] / b["wall_s_per_simulated_s"] for a, b in zip(o, r)]
-        print(f"| {name} | {o[0]['particles']} / {r[0]['particles']} | {o[0]['steps']} / {r[0]['steps']} "
-              f"| {o[0]['density_iterations_per_step']:.2f} / {o[0]['divergence_iterations_per_step']:.2f} vs "
-              f"{r[0]['density_iterations_per_step']:.2f} / {r[0]['divergence_iterations_per_step']:.2f} "
-              f"| {spread([x['us_per_particle_step'] for x in o], '{:.3f}')} vs "
-              f"{spread([x['us_per_particle_step'] for x in r], '{:.3f}')} "
-              f"| {spread([x['wall_s_per_simulated_s'] for x in o], '{:.1f}')} vs "
-              f"{spread([x['wall_s_per_simulated_s'] for x in r], '{:.1f}')} "
-              f"| {max(x['peak_rss_mb'] for x in o):.0f} vs {max(x['peak_rss_mb'] for x in r):.0f} "
-              f"| {spread(us_ratio, '{:.1f}')} %, {spread(wall_ratio, '{:.1f}')} % |")
-    if args.out:
-        tmp = args.out + ".tmp"
-        with open(tmp, "w") as fh:
-            json.dump({"threads": args.threads, "seconds": args.seconds, "reference": WHEEL, "scenes": results},
-                      fh, indent=1)
-        os.replace(tmp, args.out)
+        scenes[name] = {"flowclip_scene": SCENES[name][0], "reference_scene": SCENES[name][1], **runs,
+                        "ratios": ratios(runs)}
+    met = all(max(v) <= TARGET_PCT for s in scenes.values() for v in s["ratios"].values())
+    report = {"benchmark": "reference", "date": date, "command": command, "machine": started,
+              "loadavg_at_end": loadavg(),
+              "settings": {"threads": args.threads, "seconds": args.seconds, "repeat": args.repeat,
+                           "reference": WHEEL, "flowclip": os.path.relpath(args.binary, ROOT),
+                           "flowclip_version": version},
+              "target": {"max_pct_of_reference": TARGET_PCT, "met": met},
+              "scenes": scenes, "scenes_runs": results}
+    write_report(args.out, report)
+    print(f"report: {os.path.join(args.out, 'reference.md')}", file=sys.stderr)
 
 
 if __name__ == "__main__":
