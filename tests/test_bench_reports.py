@@ -36,14 +36,16 @@ def test_solver_report(tmp_path):
         assert all(p >= 0 for p in parts) and stages["total_ms"] == pytest.approx(sum(parts))
         # The stages are part of the step: together no longer than the run's wall time per substep.
         assert stages["total_ms"] <= 1000 * r["wall_s"] / r["substeps"]
-        row = md_row(r["bench_scene"], r["solver"], r["liquid_particles"], r["substeps"],
+        assert r["boundary"] == "akinci2012" and r["boundary_setup_ms"] >= 0 and r["boundary_model_bytes"] == 0
+        row = md_row(r["bench_scene"], r["solver"], r["boundary"], r["liquid_particles"], r["substeps"],
                      f"{r['us_per_particle_step']:.3f}", f"{r['substeps_per_frame']:.1f}", f"{r['ms_per_frame']:.1f}",
                      f"{r['wall_s_per_simulated_s']:.2f}", f"{r['mean_avg_density_error_pct']:.4f}",
                      f"{r['max_density_error_pct']:.3f}",
                      "-" if r["density_tolerance_pct"] is None else f"{r['density_tolerance_pct']:g}",
-                     f"{r['peak_rss_mb']:.0f}")
+                     f"{r['peak_rss_mb']:.0f}", f"{r['boundary_setup_ms']:.1f}", "0.00")
         assert row in md, row
-        assert md_row(r["bench_scene"], r["solver"], *(f"{p:.2f}" for p in parts), f"{stages['total_ms']:.2f}",
+        assert md_row(r["bench_scene"], r["solver"], r["boundary"], *(f"{p:.2f}" for p in parts),
+                      f"{stages['total_ms']:.2f}",
                       f"{r['divergence_iterations_per_substep']:.2f}",
                       f"{r['density_iterations_per_substep']:.2f}") in md
     dfsph, wcsph = runs
@@ -54,6 +56,21 @@ def test_solver_report(tmp_path):
     assert ref["threads"] == 2
     assert ref["ours_us_pct"] == pytest.approx(100 * dfsph["us_per_particle_step"] / ref["us_per_particle_step"])
     assert "splishsplash_fixed" not in wcsph
+
+
+def test_solver_report_compares_boundary_models(tmp_path):
+    out = tmp_path / "solver"
+    run_bench(["solver", "--scenes", str(DAM), "--seconds", "0.05", "--threads", "1", "--solvers", "dfsph",
+               "--boundaries", "akinci2012,bender2019"], out)
+    report, md = read_report(out, "solver")
+    assert report["settings"]["boundaries"] == ["akinci2012", "bender2019"] and report["failures"] == []
+    akinci, bender = report["runs"]
+    assert (akinci["boundary"], bender["boundary"]) == ("akinci2012", "bender2019")
+    # The volume map is built once and held: it takes set-up time and memory the samples alone do not.
+    assert akinci["boundary_model_bytes"] == 0 and bender["boundary_model_bytes"] > 0
+    assert bender["boundary_setup_ms"] > 0
+    assert bender["liquid_particles"] == akinci["liquid_particles"]
+    assert f"| {bender['bench_scene']} | dfsph | bender2019 |" in md
 
 
 def test_scenes_report(template_dir, tmp_path):

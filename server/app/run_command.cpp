@@ -34,6 +34,7 @@ struct RunOptions {
   int threads = 0;
   double particleRadius = 0;
   std::string solver;
+  std::string boundary;
   std::string templates = "templates";
   std::vector<std::string> controlSettings;  // KEY=VALUE, over the scene's "control" object
   double frameTimeout = 0;                    // s of wall time per frame (0: no limit)
@@ -91,6 +92,15 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
     if (opt.solver != solverName) {
       setup.solver.name = solverName = opt.solver;
       setup.solver.values = ParamValues();
+    }
+  }
+  std::string boundaryName = setup.boundary.name.empty() ? "akinci2012" : setup.boundary.name;
+  if (!opt.boundary.empty()) {
+    if (!BoundaryModelRegistry<D>::instance().find(opt.boundary))
+      throw SceneError("boundary.method", "unknown boundary method '" + opt.boundary + "' given by --boundary");
+    if (opt.boundary != boundaryName) {
+      setup.boundary.name = boundaryName = opt.boundary;
+      setup.boundary.values = ParamValues();
     }
   }
   SceneControl<D> control = parseSceneControl<D>(sceneJson, setup.phases);
@@ -212,6 +222,9 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
       {"dimension", D},
       {"solver", solverName},
       {"solver_parameters", solverParameters},
+      {"boundary", boundaryName},
+      {"boundary_setup_ms", sim.boundarySetupMs()},
+      {"boundary_model_bytes", sim.boundaryModelBytes()},
       {"real", realName()},
       {"threads", omp_get_max_threads()},
       {"frames", framesJson.size()},
@@ -269,6 +282,8 @@ void addRunCommand(CLI::App& app) {
   run->add_option("--particle-radius", opt->particleRadius, "override the scene's particle radius (resolution), m")
       ->check(CLI::PositiveNumber);
   run->add_option("--solver", opt->solver, "override the scene's pressure solver (a different one runs with its default parameters)");
+  run->add_option("--boundary", opt->boundary,
+                  "override the scene's boundary model (a different one runs with its default parameters)");
   run->add_option("--templates", opt->templates, "template database directory (default: templates)");
   run->add_option("--frame-timeout", opt->frameTimeout,
                   "stop with exit status 3 if one frame takes longer than this many wall seconds (default: no limit)")

@@ -1,5 +1,6 @@
-// `flowclip bench solver`: the pressure solvers on the reference dam breaks
-// (scenes/bench). Each (scene, solver) pair runs in its own child process
+// `flowclip bench solver`: the pressure solvers (and, with --boundaries, the
+// boundary models) on the reference dam breaks (scenes/bench). Each (scene,
+// solver, boundary) runs in its own child process
 // (`flowclip run --stats`), so that peak RSS is that run's alone. Writes
 // solver.md and solver.json (bench/report.h) into --out.
 #include "bench/commands.h"
@@ -60,6 +61,7 @@ constexpr std::array<std::pair<const char*, const char*>, 5> kStages = {{
 struct BenchOptions {
   std::vector<std::string> scenes;
   std::vector<std::string> solvers{"dfsph", "wcsph"};
+  std::vector<std::string> boundaries;  // empty: each scene's own
   double seconds = 2;
   int threads = 0;
   std::string out = "bench/solver";
@@ -114,16 +116,17 @@ json runRow(const std::string& scene, const std::string& solver, const json& sta
 std::string markdown(const json& rows, const json& failures) {
   std::vector<std::vector<std::string>> runs, stages, reference;
   for (const json& r : rows) {
-    const std::string scene = r["bench_scene"], solver = r["solver"];
+    const std::string scene = r["bench_scene"], solver = r["solver"], boundary = r["boundary"];
     const json& tol = r["density_tolerance_pct"];
-    runs.push_back({scene, solver, std::to_string(r["liquid_particles"].get<long>()),
+    runs.push_back({scene, solver, boundary, std::to_string(r["liquid_particles"].get<long>()),
                     std::to_string(r["substeps"].get<long>()), fmt(r["us_per_particle_step"], "%.3f"),
                     fmt(r["substeps_per_frame"], "%.1f"), fmt(r["ms_per_frame"], "%.1f"),
                     fmt(r["wall_s_per_simulated_s"], "%.2f"), fmt(r["mean_avg_density_error_pct"], "%.4f"),
                     fmt(r["max_density_error_pct"], "%.3f"), tol.is_number() ? fmt(tol) : "-",
-                    fmt(r["peak_rss_mb"], "%.0f")});
+                    fmt(r["peak_rss_mb"], "%.0f"), fmt(r["boundary_setup_ms"], "%.1f"),
+                    fmt(r["boundary_model_bytes"].get<double>() / 1048576.0, "%.2f")});
     const json& st = r["stage_ms_per_substep"];
-    std::vector<std::string> cells{scene, solver};
+    std::vector<std::string> cells{scene, solver, boundary};
     for (const auto& [key, label] : kStages) cells.push_back(fmt(st[key], "%.2f"));
     cells.push_back(fmt(st["total_ms"], "%.2f"));
     cells.push_back(fmt(r["divergence_iterations_per_substep"], "%.2f"));
@@ -138,14 +141,15 @@ std::string markdown(const json& rows, const json& failures) {
   }
   std::string md = "## Runs\n\nPer run: particles and steps (substeps) over the run; the density errors are the "
                    "solver's own figures per frame (average over frames of the per-frame average, and the largest); "
-                   "the density tolerance is the one the run held.\n\n";
-  md += markdownTable({"scene", "solver", "particles", "steps", "µs / particle-step", "substeps / frame", "ms / frame",
-                       "wall s / simulated s", "avg density error %", "max density error %", "density tolerance %",
-                       "peak RSS MB"},
+                   "the density tolerance is the one the run held; the boundary model's set-up (a volume map's "
+                   "integration) and the memory it holds beside the boundary samples.\n\n";
+  md += markdownTable({"scene", "solver", "boundary", "particles", "steps", "µs / particle-step", "substeps / frame",
+                       "ms / frame", "wall s / simulated s", "avg density error %", "max density error %",
+                       "density tolerance %", "peak RSS MB", "boundary set-up ms", "boundary map MB"},
                       runs);
   md += "\n## Where the time goes\n\nWall ms per substep in each stage of the step, and solver iterations per "
         "substep.\n\n";
-  std::vector<std::string> header{"scene", "solver"};
+  std::vector<std::string> header{"scene", "solver", "boundary"};
   for (const auto& [key, label] : kStages) header.push_back(label);
   for (const char* h : {"total", "divergence iterations", "density iterations"}) header.push_back(h);
   md += markdownTable(header, stages);
@@ -161,7 +165,8 @@ std::string markdown(const json& rows, const json& failures) {
   if (!failures.empty()) {
     md += "\n## Failed runs\n\n";
     for (const json& f : failures)
-      md += "- " + f["scene"].get<std::string>() + " with " + f["solver"].get<std::string>() + ": exit " +
+      md += "- " + f["scene"].get<std::string>() + " with " + f["solver"].get<std::string>() + " (" +
+            f["boundary"].get<std::string>() + "): exit " +
             std::to_string(f["exit_code"].get<int>()) + "\n";
   }
   return md;
@@ -181,32 +186,37 @@ int benchSolver(const BenchOptions& opt) {
   int worst = Ok;
   for (const auto& scene : scenes) {
     const std::string stem = fs::path(scene).stem().string();
-    for (const auto& solver : opt.solvers) {
-      const std::vector<std::string> args{self,       "run",  scene,   "--seconds", fmt(opt.seconds),
-                                          "--solver", solver, "--stats", tmp,       "--threads",
-                                          std::to_string(threads), "--quiet"};
-      std::fprintf(stderr, "bench: %s with %s ...\n", stem.c_str(), solver.c_str());
-      const int code = runChild(args);
-      std::ifstream f(tmp);
-      if (code != 0 || !f) {
-        std::printf("%s with %s: failed (exit %d)\n", stem.c_str(), solver.c_str(), code);
-        failures.push_back({{"scene", stem}, {"solver", solver}, {"exit_code", code}});
-        worst = Failure;
-        continue;
+    const std::vector<std::string> boundaries = opt.boundaries.empty() ? std::vector<std::string>{""} : opt.boundaries;
+    for (const auto& solver : opt.solvers)
+      for (const auto& boundary : boundaries) {
+        std::vector<std::string> args{self,      "run",   scene, "--seconds", fmt(opt.seconds), "--solver",
+                                      solver,    "--stats", tmp, "--threads", std::to_string(threads), "--quiet"};
+        if (!boundary.empty()) args.insert(args.end(), {"--boundary", boundary});
+        const std::string label = stem + " with " + solver + (boundary.empty() ? "" : " (" + boundary + ")");
+        std::fprintf(stderr, "bench: %s ...\n", label.c_str());
+        const int code = runChild(args);
+        std::ifstream f(tmp);
+        if (code != 0 || !f) {
+          std::printf("%s: failed (exit %d)\n", label.c_str(), code);
+          failures.push_back({{"scene", stem}, {"solver", solver},
+                              {"boundary", boundary.empty() ? "the scene's" : boundary}, {"exit_code", code}});
+          worst = Failure;
+          continue;
+        }
+        const json row = runRow(scene, solver, json::parse(f));
+        f.close();
+        fs::remove(tmp);
+        std::printf("%s: %ld particles, %.3f us per particle-step, %.2f wall s per simulated s, %.2f density "
+                    "iterations per substep, peak RSS %.0f MB\n",
+                    label.c_str(), row["liquid_particles"].get<long>(), row["us_per_particle_step"].get<double>(),
+                    row["wall_s_per_simulated_s"].get<double>(), row["density_iterations_per_substep"].get<double>(),
+                    row["peak_rss_mb"].get<double>());
+        std::fflush(stdout);
+        rows.push_back(row);
       }
-      const json row = runRow(scene, solver, json::parse(f));
-      f.close();
-      fs::remove(tmp);
-      std::printf("%s with %s: %ld particles, %.3f us per particle-step, %.2f wall s per simulated s, %.2f density "
-                  "iterations per substep, peak RSS %.0f MB\n",
-                  stem.c_str(), solver.c_str(), row["liquid_particles"].get<long>(),
-                  row["us_per_particle_step"].get<double>(), row["wall_s_per_simulated_s"].get<double>(),
-                  row["density_iterations_per_substep"].get<double>(), row["peak_rss_mb"].get<double>());
-      std::fflush(stdout);
-      rows.push_back(row);
-    }
   }
-  const json settings = {{"scenes", scenes}, {"solvers", opt.solvers}, {"seconds", opt.seconds}, {"threads", threads}};
+  const json settings = {{"scenes", scenes},   {"solvers", opt.solvers}, {"boundaries", opt.boundaries},
+                         {"seconds", opt.seconds}, {"threads", threads}};
   report.write(opt.out, "Solver benchmark", markdown(rows, failures),
                {{"settings", settings}, {"runs", rows}, {"failures", failures}});
   return worst;
@@ -219,6 +229,8 @@ void addBenchSolverCommand(CLI::App& bench) {
   CLI::App* solver = bench.add_subcommand("solver", "pressure solvers on the reference dam breaks (scenes/bench)");
   solver->add_option("--scenes", opt->scenes, "scene files (default: scenes/bench/*.json)")->delimiter(',');
   solver->add_option("--solvers", opt->solvers, "solvers to compare")->delimiter(',');
+  solver->add_option("--boundaries", opt->boundaries, "boundary models to compare (default: each scene's own)")
+      ->delimiter(',');
   solver->add_option("--seconds", opt->seconds, "simulated seconds per run")->check(CLI::PositiveNumber);
   solver->add_option("--threads", opt->threads, "OpenMP threads (default: all cores)")->check(CLI::PositiveNumber);
   solver->add_option("--out", opt->out, "report folder: solver.md and solver.json (default: bench/solver)");

@@ -339,7 +339,7 @@ void FrameExporter<D>::writeFrame(int frameIndex, double time, const FluidPartic
   static_assert(PhaseDs == 4 && Kind == 5, "elementSize() knows the uint8 columns by number");
   if (!open_) throw std::runtime_error("cannot export frames to '" + path_ + "': the exporter is closed");
   const size_t n = fluid.x.size();
-  if (fluid.v.size() != n || fluid.density.size() != n || fluid.pressure.size() != n || fluid.phase.size() != n ||
+  if (fluid.v.size() != n || fluid.density.size() != n || fluid.meanPressure.size() != n || fluid.phase.size() != n ||
       fluid.kind.size() != n || fluid.id.size() != n)
     throw std::runtime_error("cannot export frames to '" + path_ + "': frame " + std::to_string(frameIndex) +
                              " has particle arrays of different lengths");
@@ -359,7 +359,7 @@ void FrameExporter<D>::writeFrame(int frameIndex, double time, const FluidPartic
     stage(Position, asFloat(fluid.x.data()->data(), n * D), n);
     stage(Velocity, asFloat(fluid.v.data()->data(), n * D), n);
     if (datasets_[Density] >= 0) stage(Density, asFloat(fluid.density.data(), n), n);
-    if (datasets_[Pressure] >= 0) stage(Pressure, asFloat(fluid.pressure.data(), n), n);
+    if (datasets_[Pressure] >= 0) stage(Pressure, asFloat(fluid.meanPressure.data(), n), n);
     stage(PhaseDs, fluid.phase.data(), n);
     stage(Kind, fluid.kind.data(), n);
     if (datasets_[Id] >= 0) stage(Id, fluid.id.data(), n);

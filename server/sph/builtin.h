@@ -31,4 +31,10 @@ template <int D> std::unique_ptr<BoundaryModel<D>> makeBoundaryAkinci2012(const 
 const ParamSpecs& boundaryAdami2012Params();
 template <int D> std::unique_ptr<BoundaryModel<D>> makeBoundaryAdami2012(const ParamValues&);
 
+const ParamSpecs& boundaryBender2019Params();
+template <int D> std::unique_ptr<BoundaryModel<D>> makeBoundaryBender2019(const ParamValues&);
+
+const ParamSpecs& boundaryKoschier2017Params();
+template <int D> std::unique_ptr<BoundaryModel<D>> makeBoundaryKoschier2017(const ParamValues&);
+
 }  // namespace fc

@@ -26,7 +26,8 @@ struct FluidParticles {
   std::vector<Vec<D>> a;        // non-pressure acceleration, m/s^2
   std::vector<Real> mass;       // kg
   std::vector<Real> density;    // kg/m^3
-  std::vector<Real> pressure;   // Pa (implied by the pressure solver)
+  std::vector<Real> pressure;   // Pa (implied by the pressure solver), this substep's
+  std::vector<Real> meanPressure;  // Pa: `pressure` averaged over the settings' pressure_window (what exports show)
   std::vector<uint8_t> phase;   // index into the scene's phases
   std::vector<uint8_t> kind;    // ParticleKind
   std::vector<uint32_t> id;     // stable identity across reorders
@@ -39,6 +40,7 @@ struct FluidParticles {
     mass.push_back(m);
     density.push_back(0);
     pressure.push_back(0);
+    meanPressure.push_back(0);
     phase.push_back(ph);
     kind.push_back(uint8_t(k));
     id.push_back(uint32_t(id.size()));
@@ -50,6 +52,7 @@ struct FluidParticles {
     mass.resize(n);
     density.resize(n);
     pressure.resize(n);
+    meanPressure.resize(n);
     phase.resize(n);
     kind.resize(n);
     id.resize(n);
@@ -70,6 +73,7 @@ struct FluidParticles {
     applyPermutation(mass, perm, sr);
     applyPermutation(density, perm, sr);
     applyPermutation(pressure, perm, sr);
+    applyPermutation(meanPressure, perm, sr);
     applyPermutation(phase, perm, s8);
     applyPermutation(kind, perm, s8);
     applyPermutation(id, perm, s32);

@@ -99,7 +99,18 @@ class Effect {
 //   a_i = -Σ_b Ψ_b (w p_i/ρ_i² + Δp_b/ρ0_i²) ∇W_ib,
 // w = 1 for Akinci et al.'s term alone, w = 2 where the sample mirrors p_i
 // in the symmetric pair term, and Δp_b the pressure extrapolated into the
-// solid beyond p_i (Simulation::boundaryExtrapolation).
+// solid beyond p_i (Simulation::boundaryExtrapolation). A model that maps
+// the static solids (mapsStaticSolids) replaces their samples in those
+// per-particle sums by its own terms (staticTerms); moving bodies keep their
+// samples.
+template <int D>
+struct StaticBoundaryTerms {
+  Real volume = 0;                       // Σ_b V_b W_ib
+  Vec<D> grad = Vec<D>::Zero();          // Σ_b V_b ∇W_ib
+  Vec<D> extrapolation = Vec<D>::Zero(); // Σ_b V_b (g·(x_b - x_i)) ∇W_ib
+  unsigned samples = 0;                  // how many lattice samples that stands for
+};
+
 template <int D>
 class BoundaryModel {
  public:
@@ -107,6 +118,12 @@ class BoundaryModel {
   virtual Real pressureWeight() const = 0;
   // Whether samples carry the hydrostatic extrapolation Δp_b = ρ0_i (g - a_b)·(x_b - x_i).
   virtual bool extrapolatesPressure() const = 0;
+  virtual bool mapsStaticSolids() const { return false; }
+  // Once, after the boundary is built; `latticeVolume` is a fluid particle's rest volume.
+  virtual void setUp(const Simulation<D>&, Real /*latticeVolume*/) {}
+  // The static solids' terms for a particle at x under gravity g; false: none (out of their reach).
+  virtual bool staticTerms(const Vec<D>& /*x*/, const Vec<D>& /*g*/, StaticBoundaryTerms<D>&) const { return false; }
+  virtual size_t memoryBytes() const { return 0; }
 };
 
 // A name -> (parameter specs, factory) table.

@@ -23,6 +23,12 @@ void registerDim() {
   boundaries.add("adami2012", {"Boundary particles whose pressure is the liquid's, extrapolated into the wall "
                                "(Adami, Hu & Adams 2012)",
                                boundaryAdami2012Params(), makeBoundaryAdami2012<D>});
+  boundaries.add("bender2019", {"Volume maps of the static solids: one virtual sample per particle "
+                                "(Bender, Kugelstadt, Weiler & Koschier 2019)",
+                                boundaryBender2019Params(), makeBoundaryBender2019<D>});
+  boundaries.add("koschier2017", {"Density maps of the static solids: their density contribution and its gradient "
+                                  "from a grid (Koschier & Bender 2017)",
+                                  boundaryKoschier2017Params(), makeBoundaryKoschier2017<D>});
 }
 }  // namespace
 

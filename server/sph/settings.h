@@ -16,6 +16,7 @@ struct SimulationSettings {
   double unconvergedStepScale;
   double stepRecovery;
   int maxSubstepsPerFrame;
+  double pressureWindow;
   bool operator==(const SimulationSettings&) const = default;
 };
 
@@ -62,6 +63,11 @@ inline const ParamTable<SimulationSettings>& simulationSettingsTable() {
                "flowclip run exits with status 3) instead of running on: a time step that collapsed means the "
                "simulation has become unstable",
        .member = &S::maxSubstepsPerFrame},
+      {.name = "pressure_window", .unit = "s", .min = 0, .max = 10, .def = 0,
+       .help = "the exported pressure is the solver's pressure averaged over about this much simulated time "
+               "(an exponential average over the substeps; 0: one frame), in Pa: steady for a liquid at rest, "
+               "where the solver's own value varies from substep to substep",
+       .member = &S::pressureWindow},
   };
   return table;
 }

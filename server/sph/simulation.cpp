@@ -94,6 +94,7 @@ Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
                              setup_.boundary.values, "boundary method");
   boundaryWeight_ = boundaryModel_->pressureWeight();
   extrapolateBoundary_ = boundaryModel_->extrapolatesPressure();
+  mapStaticSolids_ = boundaryModel_->mapsStaticSolids();
 
   for (const auto& e : setup_.effects) {
     effects_.push_back(makeNamed(EffectRegistry<D>::instance(), e.name, e.values, "effect"));
@@ -104,6 +105,11 @@ Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
   search.setGrid(setup_.domain, kernel.radius());
   latticeVolume_ = latticeParticleVolume(kernel, 2 * radius_);
   buildBoundary();
+  {
+    const auto t0 = std::chrono::steady_clock::now();
+    boundaryModel_->setUp(*this, latticeVolume_);
+    boundarySetupMs_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  }
   buildFluid();
   if (fluid.size() > setup_.maxParticles)
     throw std::invalid_argument("scene has " + std::to_string(fluid.size()) + " particles, more than max_particles " +
@@ -151,13 +157,14 @@ void Simulation<D>::archiveState(StateArchive& a) {
   a.io(fluid.mass);
   a.io(fluid.density);
   a.io(fluid.pressure);
+  a.io(fluid.meanPressure);
   a.io(fluid.phase);
   a.io(fluid.kind);
   a.io(fluid.id);
   const size_t n = fluid.x.size();
   if (a.loading()) {
     if (fluid.v.size() != n || fluid.mass.size() != n || fluid.density.size() != n || fluid.pressure.size() != n ||
-        fluid.phase.size() != n || fluid.kind.size() != n || fluid.id.size() != n)
+        fluid.meanPressure.size() != n || fluid.phase.size() != n || fluid.kind.size() != n || fluid.id.size() != n)
       throw StateArchiveError("checkpoint particle arrays differ in length");
     if (n > setup_.maxParticles) throw StateArchiveError("checkpoint holds more particles than max_particles");
     fluid.a.assign(n, Vec<D>::Zero());  // every substep starts it from gravity
@@ -304,6 +311,7 @@ void Simulation<D>::buildBoundary() {
     }
   }
   boundary.x = pts;
+  staticSamples_ = pts.size();
   boundary.v.assign(pts.size(), Vec<D>::Zero());
   boundary.volume.assign(pts.size(), 0);
   search.setStaticPoints(boundary.x);
@@ -453,6 +461,7 @@ void Simulation<D>::computeDensitiesWith() {
       Vec<D> gb = Vec<D>::Zero(), extrapolated = Vec<D>::Zero();
       unsigned count = 0;
       search.forEachStaticNear(xi, h, [&](uint32_t b, const Vec<D>& xb) {
+        if (mapStaticSolids_ && b < staticSamples_) return;  // the virtual sample below stands for them
         kernel.evaluate(xi - xb, w, g);
         const Real vb = boundary.volume[b];
         volume += vb * w;
@@ -462,6 +471,15 @@ void Simulation<D>::computeDensitiesWith() {
         if (extrapolateBoundary_) extrapolated += (vb * gravity_.dot(xb - xi)) * g;
         ++count;
       });
+      if (mapStaticSolids_) {
+        StaticBoundaryTerms<D> t;
+        if (boundaryModel_->staticTerms(xi, gravity_, t)) {
+          volume += t.volume;
+          gb += t.grad;
+          if (extrapolateBoundary_) extrapolated += t.extrapolation;
+          count += t.samples;  // DFSPH's neighbour-deficiency test
+        }
+      }
       if (extrapolateBoundary_) boundaryExtrapolation[i] = extrapolated;
       fluid.density[i] = rho + restDensity_[fluid.phase[i]] * volume;
       boundaryGradW[i] = gb;
@@ -530,6 +548,25 @@ void Simulation<D>::updateStepScale(bool converged) {
   constexpr Real kMinStepScale = Real(1) / 64;
   if (converged) stepScale_ = std::min(Real(1), stepScale_ * Real(setup_.settings.stepRecovery));
   else stepScale_ = std::max(kMinStepScale, stepScale_ * Real(setup_.settings.unconvergedStepScale));
+}
+
+// The pressure exports show: the solver's pressure (Pa, as it acts in the
+// momentum equation over the substep) averaged exponentially over the
+// settings' pressure_window τ (one frame by default), p̄ += min(1, Δt/τ)
+// (p - p̄). A density solve stops at its tolerance after a varying number of
+// iterations, so its pressure at rest jumps from substep to substep around
+// the hydrostatic one; the average over a frame's substeps is that
+// hydrostatic pressure. The first substep of a run starts it at p; a
+// particle added later starts from 0.
+template <int D>
+void Simulation<D>::averagePressure(Real dt) {
+  const double window = setup_.settings.pressureWindow > 0 ? setup_.settings.pressureWindow : frameDuration();
+  const Real alpha = totalSubsteps_ == 0 ? Real(1) : Real(std::min(1.0, double(dt) / window));
+#pragma omp parallel
+  {
+    const auto [first, last] = threadParticles();
+    for (long i = first; i < last; ++i) fluid.meanPressure[i] += alpha * (fluid.pressure[i] - fluid.meanPressure[i]);
+  }
 }
 
 template <int D>
@@ -791,6 +828,7 @@ FrameStats Simulation<D>::advanceFrame() {
     }
 
     const SolverReport dens = pressure_->correctDensity(*this, dt);
+    averagePressure(dt);
     fs.pressureMs += took();
     fs.densityIterations += dens.iterations;
     for (int d = 0; d < 3; ++d) fs.boundaryImpulse[d] += dens.boundaryImpulse[d];

@@ -179,6 +179,9 @@ class Simulation {
   // p_i/ρ_i² in the boundary term of the pressure force, read by the
   // pressure solvers and the bodies' reactions.
   Real boundaryPressureWeight() const { return boundaryWeight_; }
+  // The boundary model's set-up time (a volume map's integration) and memory.
+  double boundarySetupMs() const { return boundarySetupMs_; }
+  size_t boundaryModelBytes() const { return boundaryModel_->memoryBytes(); }
 
   // State shared with solvers and effects.
   FluidParticles<D> fluid;
@@ -235,6 +238,7 @@ class Simulation {
   std::optional<Real> cflTimeStep() const;
   void updateStepScale(bool converged);
   void relaxInitialState();
+  void averagePressure(Real dt);
   void reorderParticles();
   void enforceSolidContact(FrameStats& fs);
   void addStages(Effect<D>* eff);
@@ -248,6 +252,9 @@ class Simulation {
   std::unique_ptr<BoundaryModel<D>> boundaryModel_;
   Real boundaryWeight_ = 1;
   bool extrapolateBoundary_ = false;
+  bool mapStaticSolids_ = false;  // the boundary model stands in for the static samples
+  size_t staticSamples_ = 0;      // boundary samples of static solids (the bodies' follow)
+  double boundarySetupMs_ = 0;
   std::vector<std::unique_ptr<Effect<D>>> effects_;
   std::unique_ptr<RigidBodies<D>> bodies_;
   std::vector<Effect<D>*> accelerationStages_, implicitStages_, velocityStages_, frameStages_;

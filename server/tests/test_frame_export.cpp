@@ -54,7 +54,7 @@ FluidParticles<D> makeFluid(size_t n, unsigned seed) {
     }
     f.add(x, v, Real(0.1), uint8_t(i % 2), i % 5 == 4 ? ParticleKind::Temporary : ParticleKind::Liquid);
     f.density.back() = Real(1000 + 10 * u(rng));
-    f.pressure.back() = Real(500 * u(rng));
+    f.meanPressure.back() = Real(500 * u(rng));
     f.id.back() = uint32_t(seed * 1000 + (n - i));  // not simply the row number
   }
   return f;
@@ -193,7 +193,7 @@ void expectFileHolds(const std::string& path, const ExportHeader& h, const std::
         ASSERT_EQ(vel[r * D + d], float(fr.v[i][d])) << "frame " << k << " particle " << i;
       }
       ASSERT_EQ(dens[r], float(fr.density[i]));
-      ASSERT_EQ(pres[r], float(fr.pressure[i]));
+      ASSERT_EQ(pres[r], float(fr.meanPressure[i]));
       ASSERT_EQ(phase[r], fr.phase[i]);
       ASSERT_EQ(kind[r], fr.kind[i]);
       ASSERT_EQ(id[r], fr.id[i]);
