@@ -68,7 +68,6 @@ class VolumeMap {
   double integral(const Vec<D>& x) const;
 
  private:
-  Real rawDistance(const Vec<D>& x) const;
   Vec<D> normal(const Vec<D>& x) const;
   size_t index(const std::array<long, D>& c) const;
 
