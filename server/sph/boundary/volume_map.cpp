@@ -111,14 +111,17 @@ VolumeMap<D>::VolumeMap(const AABB<D>& domain, const std::vector<Obstacle<D>>& o
   spacing_ = options.spacing;
   invSpacing_ = Real(1) / spacing_;
   origin_ = domain_.min - Vec<D>::Constant(spacing_);
-  size_t total = 1;
+  double nodes = 1;
   for (int d = 0; d < D; ++d) {
-    count_[d] = long(std::ceil(double(domain_.size()[d] + 2 * spacing_) / double(spacing_))) + 1;
-    total *= size_t(count_[d]);
-    if (total > options.maxNodes)
+    const double along = std::ceil((double(domain_.size()[d]) + 2 * double(spacing_)) / double(spacing_)) + 1;
+    nodes *= along;
+    // Checked in floating point first: a huge domain must not overflow the count.
+    if (!(nodes <= double(options.maxNodes)))
       throw std::invalid_argument("volume map: the grid would have more than " + std::to_string(options.maxNodes) +
                                   " nodes (the domain is large for the particle radius; raise map_spacing)");
+    count_[d] = long(along);
   }
+  const size_t total = size_t(nodes);
   values_.assign(total, 0.0f);
 
   // Only nodes a particle's interpolation can reach need the integral: those
@@ -193,10 +196,11 @@ Real VolumeMap<D>::volume(const Vec<D>& x) const {
   std::array<long, D> base{};
   std::array<Real, D> t{};
   for (int d = 0; d < D; ++d) {
-    const Real u = (x[d] - origin_[d]) * invSpacing_;
-    const long c = std::clamp(long(std::floor(u)), 0L, count_[d] - 2);
+    // Clamped before the conversion: a point far outside must not overflow the index.
+    const double u = std::clamp(double((x[d] - origin_[d]) * invSpacing_), 0.0, double(count_[d] - 1));
+    const long c = std::min(long(u), count_[d] - 2);
     base[d] = c;
-    t[d] = std::clamp(u - Real(c), Real(0), Real(1));
+    t[d] = std::clamp(Real(u - double(c)), Real(0), Real(1));
   }
   Real v = 0;
   for (int corner = 0; corner < (1 << D); ++corner) {
@@ -245,7 +249,7 @@ Real VolumeMap<D>::virtualSample(const Vec<D>& x, Vec<D>& xb) const {
 template <int D>
 bool VolumeMap<D>::densityTerms(const Vec<D>& x, const Vec<D>& gravity, StaticBoundaryTerms<D>& t) const {
   const Real phi = distance(x);
-  if (!(phi < h_)) return false;
+  if (!(phi < h_ && phi > -h_)) return false;
   const Real b = volume(x);
   if (!(b > 0)) return false;
   // ∇B over one grid cell each way: the multilinear interpolant's slope
