@@ -3,7 +3,7 @@
 // its virtual sample, the map falls with the distance to zero at the
 // support radius, a corner holds more solid than a flat wall, the virtual
 // sample lies along the surface normal (also of a curved obstacle), and a
-// grid too large is refused with a message.
+// grid too large or too long to integrate is refused with a message.
 #include "sph/boundary/volume_map.h"
 
 #include <gtest/gtest.h>
@@ -138,6 +138,16 @@ TEST(VolumeMap, TooLargeAGridIsRefused) {
     FAIL() << "a grid of more than 1000 nodes was built";
   } catch (const std::invalid_argument& e) {
     EXPECT_NE(std::string(e.what()).find("map_spacing"), std::string::npos) << e.what();
+  }
+  // So is one whose integration would take too long (a scene may ask for 32 points per support radius).
+  auto q = f.options();
+  q.quadrature = 32;
+  q.maxEvaluations = 1e6;
+  try {
+    VolumeMap<3> map(f.domain, {}, f.kernel, f.r, f.vlat, q);
+    FAIL() << "a map of more than 1e6 evaluations was integrated";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("quadrature"), std::string::npos) << e.what();
   }
 }
 

@@ -127,17 +127,29 @@ VolumeMap<D>::VolumeMap(const AABB<D>& domain, const std::vector<Obstacle<D>>& o
   // Only nodes a particle's interpolation can reach need the integral: those
   // within a cell's diagonal of the band 0 < Φ < h.
   const Real reach = spacing_ * std::sqrt(Real(D)) * Real(1.01);
+  const auto nodeAt = [&](long flat) {
+    Vec<D> x;
+    for (int d = 0; d < D; ++d) {
+      x[d] = origin_[d] + Real(flat % count_[d]) * spacing_;
+      flat /= count_[d];
+    }
+    return x;
+  };
+  size_t band = 0;
+#pragma omp parallel for schedule(static) reduction(+ : band)
+  for (long flat = 0; flat < long(total); ++flat) {
+    const Real phi = distance(nodeAt(flat));
+    band += phi > -reach && phi < h_ + reach ? 1 : 0;
+  }
+  const double evaluations = double(band) * double(offsets_.size());
+  if (evaluations > options.maxEvaluations)
+    throw std::invalid_argument("volume map: integrating it would take " + std::to_string(evaluations) +
+                                " distance evaluations, more than " + std::to_string(options.maxEvaluations) +
+                                " (lower quadrature or raise map_spacing)");
   size_t integrated = 0;
 #pragma omp parallel for schedule(dynamic, 64) reduction(+ : integrated)
   for (long flat = 0; flat < long(total); ++flat) {
-    std::array<long, D> c{};
-    long rest = flat;
-    for (int d = 0; d < D; ++d) {
-      c[d] = rest % count_[d];
-      rest /= count_[d];
-    }
-    Vec<D> x;
-    for (int d = 0; d < D; ++d) x[d] = origin_[d] + Real(c[d]) * spacing_;
+    const Vec<D> x = nodeAt(flat);
     const Real phi = distance(x);
     if (phi <= -reach || phi >= h_ + reach) continue;
     const double raw = density_ ? integrateDensity([&](const Vec<D>& y) { return distance(Vec<D>(x + y)); })

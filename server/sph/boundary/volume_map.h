@@ -40,7 +40,16 @@ class VolumeMap {
   struct Options {
     Real spacing = 0;        // grid spacing, m (> 0)
     int quadrature = 8;      // quadrature points per support radius along an axis
+#ifdef FLOWCLIP_FUZZ_LIMITS
+    // Fuzz builds: ASan + UBSan at -O1 make a large map minutes long.
+    size_t maxNodes = size_t(1) << 17;
+    double maxEvaluations = 1 << 22;
+#else
     size_t maxNodes = size_t(1) << 25;  // refused beyond (std::invalid_argument)
+    // Integrating the band: nodes × quadrature points, each one Φ; refused
+    // beyond (about 20 s on one core at 10 ns per Φ).
+    double maxEvaluations = 2e9;
+#endif
     bool density = false;    // a density map (B) instead of a volume map (V)
   };
   // `latticeVolume` is the fluid lattice's volume per particle, (2r)^D.
