@@ -461,7 +461,7 @@ void Simulation<D>::computeDensitiesWith() {
       Vec<D> gb = Vec<D>::Zero(), extrapolated = Vec<D>::Zero();
       unsigned count = 0;
       search.forEachStaticNear(xi, h, [&](uint32_t b, const Vec<D>& xb) {
-        if (mapStaticSolids_ && b < staticSamples_) return;  // the virtual sample below stands for them
+        if (mapStaticSolids_ && b < staticSamples_) return;  // the map's terms below stand for them
         kernel.evaluate(xi - xb, w, g);
         const Real vb = boundary.volume[b];
         volume += vb * w;
