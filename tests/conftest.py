@@ -72,10 +72,17 @@ def recipe_dir(tmp_path_factory):
     return out
 
 
+# What a stream waits for a message by default: a loaded machine or the
+# sanitizers make frames slow, never wrong (tests that expect silence pass their own).
+STREAM_TIMEOUT = 120.0
+
+
 @pytest.fixture(scope="module")
 def server(template_dir, scene_dir, recipe_dir, tmp_path_factory):
     with FlowClipServer(template_dir, scene_dir, tmp_path_factory.mktemp("exports"),
                         max_body_mb=MAX_BODY_MB, recipes=recipe_dir) as s:
+        plain = s.stream
+        s.stream = lambda sid, **kw: plain(sid, **{"timeout": STREAM_TIMEOUT, **kw})
         yield s
     assert s.returncode == 0, "flowclip serve did not stop cleanly on SIGINT:\n" + "\n".join(s.output[-30:])
 
