@@ -9,75 +9,36 @@
 // `extrapolate`, the virtual sample (and the bodies' samples) carry the
 // particle's pressure extrapolated into the solid as adami2012's do
 // (Adami, Hu & Adams 2012 [AHA12]): weight 2 and the hydrostatic part.
-#include "sph/boundary/volume_map.h"
+#include "sph/boundary/map_model.h"
 #include "sph/builtin.h"
-#include "sph/simulation.h"
 
 namespace fc {
 
 namespace {
-struct Bender2019Params {
-  double mapSpacing{};
-  int quadrature{};
-  bool extrapolate{};
-};
-
-const ParamTable<Bender2019Params>& bender2019Table() {
-  using P = Bender2019Params;
-  static const ParamTable<P> table = {
-      {.name = "map_spacing", .unit = "r", .min = 0.25, .max = 8, .def = 1,
-       .help = "grid spacing of the volume map, in particle radii (finer: smoother walls, longer set-up, more memory)",
-       .member = &P::mapSpacing},
-      {.name = "quadrature", .min = 2, .max = 32, .def = 8,
-       .help = "quadrature points per support radius along each axis when the map is built",
-       .member = &P::quadrature},
-      {.name = "extrapolate", .min = 0, .max = 1, .def = 1,
-       .help = "the virtual sample carries the particle's pressure extrapolated into the solid (as adami2012); off: "
-               "the particle's own pressure term alone, as the paper and SPlisHSPlasH",
-       .member = &P::extrapolate},
-  };
+const ParamTable<MapModelParams>& bender2019Table() {
+  static const ParamTable<MapModelParams> table = mapModelTable("volume map");
   return table;
 }
 
 template <int D>
-class Bender2019 final : public BoundaryModel<D> {
+class Bender2019 final : public MapBoundaryModel<D> {
  public:
-  explicit Bender2019(const Bender2019Params& p) : params_(p) {}
-  Real pressureWeight() const override { return params_.extrapolate ? Real(2) : Real(1); }
-  bool extrapolatesPressure() const override { return params_.extrapolate; }
-  bool mapsStaticSolids() const override { return true; }
-
-  void setUp(const Simulation<D>& sim, Real latticeVolume) override {
-    typename VolumeMap<D>::Options o;
-    o.spacing = Real(params_.mapSpacing) * sim.particleRadius();
-    o.quadrature = params_.quadrature;
-    map_ = std::make_unique<VolumeMap<D>>(sim.setup().domain, sim.setup().obstacles, sim.kernel,
-                                          sim.particleRadius(), latticeVolume, o);
-    kernel_ = sim.kernel;
-    latticeVolume_ = latticeVolume;
-  }
+  explicit Bender2019(const MapModelParams& p) : MapBoundaryModel<D>(p, false) {}
 
   bool staticTerms(const Vec<D>& x, const Vec<D>& gravity, StaticBoundaryTerms<D>& t) const override {
     Vec<D> xb;
-    const Real v = map_->virtualSample(x, xb);
+    const Real v = this->map_->virtualSample(x, xb);
     if (!(v > 0)) return false;
     Real w;
     Vec<D> g;
-    kernel_.evaluate(x - xb, w, g);
-    const Real k = map_->gradientScale();
+    this->kernel_.evaluate(x - xb, w, g);
+    const Real k = this->map_->gradientScale();
     t.volume = v * w;
     t.grad = (k * v) * g;
     t.extrapolation = (k * v * gravity.dot(xb - x)) * g;
-    t.samples = unsigned(std::lround(v / latticeVolume_));
+    t.samples = unsigned(std::lround(v / this->latticeVolume_));
     return true;
   }
-  size_t memoryBytes() const override { return map_ ? map_->bytes() : 0; }
-
- private:
-  Bender2019Params params_;
-  std::unique_ptr<VolumeMap<D>> map_;
-  CubicSpline<D> kernel_;
-  Real latticeVolume_ = 1;
 };
 }  // namespace
 

@@ -7,61 +7,25 @@
 // samples in every term. With `extrapolate`, the solids carry the
 // particle's pressure extrapolated into them as adami2012's samples do
 // (Adami, Hu & Adams 2012 [AHA12]): weight 2 and the hydrostatic part.
-#include "sph/boundary/volume_map.h"
+#include "sph/boundary/map_model.h"
 #include "sph/builtin.h"
-#include "sph/simulation.h"
 
 namespace fc {
 
 namespace {
-struct Koschier2017Params {
-  double mapSpacing{};
-  int quadrature{};
-  bool extrapolate{};
-};
-
-const ParamTable<Koschier2017Params>& koschier2017Table() {
-  using P = Koschier2017Params;
-  static const ParamTable<P> table = {
-      {.name = "map_spacing", .unit = "r", .min = 0.25, .max = 8, .def = 1,
-       .help = "grid spacing of the density map, in particle radii (finer: smoother walls, longer set-up, more memory)",
-       .member = &P::mapSpacing},
-      {.name = "quadrature", .min = 2, .max = 32, .def = 8,
-       .help = "quadrature points per support radius along each axis when the map is built",
-       .member = &P::quadrature},
-      {.name = "extrapolate", .min = 0, .max = 1, .def = 1,
-       .help = "the solids carry the particle's pressure extrapolated into them (as adami2012); off: the "
-               "particle's own pressure term alone, as the paper",
-       .member = &P::extrapolate},
-  };
+const ParamTable<MapModelParams>& koschier2017Table() {
+  static const ParamTable<MapModelParams> table = mapModelTable("density map");
   return table;
 }
 
 template <int D>
-class Koschier2017 final : public BoundaryModel<D> {
+class Koschier2017 final : public MapBoundaryModel<D> {
  public:
-  explicit Koschier2017(const Koschier2017Params& p) : params_(p) {}
-  Real pressureWeight() const override { return params_.extrapolate ? Real(2) : Real(1); }
-  bool extrapolatesPressure() const override { return params_.extrapolate; }
-  bool mapsStaticSolids() const override { return true; }
-
-  void setUp(const Simulation<D>& sim, Real latticeVolume) override {
-    typename VolumeMap<D>::Options o;
-    o.spacing = Real(params_.mapSpacing) * sim.particleRadius();
-    o.quadrature = params_.quadrature;
-    o.density = true;
-    map_ = std::make_unique<VolumeMap<D>>(sim.setup().domain, sim.setup().obstacles, sim.kernel,
-                                          sim.particleRadius(), latticeVolume, o);
-  }
+  explicit Koschier2017(const MapModelParams& p) : MapBoundaryModel<D>(p, true) {}
 
   bool staticTerms(const Vec<D>& x, const Vec<D>& gravity, StaticBoundaryTerms<D>& t) const override {
-    return map_->densityTerms(x, gravity, t);
+    return this->map_->densityTerms(x, gravity, t);
   }
-  size_t memoryBytes() const override { return map_ ? map_->bytes() : 0; }
-
- private:
-  Koschier2017Params params_;
-  std::unique_ptr<VolumeMap<D>> map_;
 };
 }  // namespace
 
