@@ -91,7 +91,7 @@ def outcome(run: dict) -> str:
 def write_report(out: Path, report: dict) -> None:
     runs = report["runs"]
     parts = [p["part"] for p in runs[0]["parts"]] if runs else []
-    lines = [f"# The test suite's wall time: {len(runs)} runs in a row", "",
+    lines = [f"# The test suite's wall time: {len(runs)} run{'s in a row' if len(runs) != 1 else ''}", "",
              f"- date: {report['date']}", f"- machine: {report['machine']['cpu']}, {report['machine']['cores']} cores",
              f"- command: `{report['command']}`",
              f"- verdict: **{verdict(runs)}**", "",
