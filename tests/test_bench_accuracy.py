@@ -24,14 +24,14 @@ from repo_paths import FLOWCLIP_BIN, ROOT
 KNOBS = ["particle_radius", "density_tolerance_pct", "divergence_tolerance_pct", "stiffness", "cfl_factor",
          "forces_every_substep", "repulsion", "temporary_particles", "falloff_width"]
 CONTROL_KNOBS = ["forces_every_substep", "repulsion", "temporary_particles", "falloff_width"]
-COLUMNS = (["id", "group", "scene", "method", "real"] + KNOBS +
+COLUMNS = (["id", "group", "scene", "method", "boundary", "real"] + KNOBS +
            ["status", "particles", "frames", "simulated_s", "substeps_per_frame", "solver_iterations_per_frame",
             "unconverged_frames", "wall_s_per_sim_s", "ms_per_frame", "us_per_particle_step", "cpu_s_per_sim_s",
             "avg_density_error_pct", "max_density_error_pct", "solver_avg_density_error_pct",
             "solver_max_density_error_pct", "volume_drift_pct", "max_speed", "surge_front_rms", "surge_front_bias",
             "fidelity_iou", "front_avg_density_error", "front_max_density_error", "front_volume_drift",
             "front_surge_front_rms", "front_fidelity", "preset", "load_avg"])
-TEXT = {"id", "group", "scene", "method", "real", "status", "preset"}
+TEXT = {"id", "group", "scene", "method", "boundary", "real", "status", "preset"}
 TOLERANCES = ["density_tolerance_pct", "divergence_tolerance_pct"]
 
 
@@ -106,7 +106,7 @@ def test_tighter_tolerance_never_gives_a_larger_density_error(study):
     rows = study["rows"]
     for a in rows:
         for b in rows:
-            differing = [k for k in KNOBS + ["scene", "method", "real"] if a[k] != b[k]]
+            differing = [k for k in KNOBS + ["scene", "method", "boundary", "real"] if a[k] != b[k]]
             if len(differing) != 1 or differing[0] not in TOLERANCES:
                 continue
             if float(a[differing[0]]) >= float(b[differing[0]]):
@@ -183,3 +183,26 @@ def test_the_measures_behave_physically(study):
     no_temporary = drop[("0", "1", "0", "0.05")]
     assert float(no_temporary["fidelity_iou"]) < float(default["fidelity_iou"]) - 0.05
     assert float(default["fidelity_iou"]) > 0.8
+
+
+def test_every_boundary_model_is_priced_on_the_same_dam_break(study):
+    rows = study["rows"]
+    group = [r for r in rows if r["group"] == "boundary"]
+    models = [r["boundary"] for r in group]
+    assert len(set(models)) == len(models) >= 4, models
+    assert {"akinci2012", "adami2012", "bender2019", "koschier2017"} <= set(models)
+    # The same point but for the model.
+    same = KNOBS + ["scene", "method", "real"]
+    assert all(r[k] == group[0][k] for r in group for k in same), group
+    for r in group:
+        assert r["scene"] == "dambreak2d" and r["unconverged_frames"] == "0", r
+        assert float(r["surge_front_rms"]) < 0.5, r
+        assert abs(float(r["volume_drift_pct"])) < 0.5, r
+        assert float(r["us_per_particle_step"]) > 0, r
+    # The scene's default model is the solver sweep's point at the same
+    # knobs: the same simulation, to the last digit.
+    default = next(r for r in rows if r["group"] == "solver" and all(r[k] == group[0][k] for k in same))
+    twin = next(r for r in group if r["boundary"] == default["boundary"])
+    for col in ("avg_density_error_pct", "max_density_error_pct", "volume_drift_pct", "surge_front_rms",
+                "substeps_per_frame", "solver_iterations_per_frame"):
+        assert twin[col] == default[col], col

@@ -174,9 +174,10 @@ def test_a_runaway_frame_puts_its_session_in_error_and_frees_the_server(template
     assert server.returncode == 0
 
 
-def test_a_long_frame_holds_neither_workers_nor_delete_nor_sigint(template_dir, scene_dir):
+def test_a_long_frame_holds_neither_workers_nor_delete_nor_sigint(template_dir, scene_dir, openapi):
     with FlowClipServer(template_dir, scene_dir) as server:
         api = server.client()
+        api.observers.append(openapi.observe)  # the pending answers too follow proto/openapi.yaml
         sid = api.create_session(endless_scene(), threads=1)["id"]
         api.add_instance(sid, {"name": "drop", "template": "drop2d", "start": 100})
         api.step(sid, 1)
@@ -185,6 +186,13 @@ def test_a_long_frame_holds_neither_workers_nor_delete_nor_sigint(template_dir, 
         patches = [api.request("PATCH", "/api/sessions/{id}/instances/{name}", id=sid, name="drop",
                                json_body={"speed": 1 + k}) for k in range(3)]
         assert [p.status_code for p in patches] == [202] * 3, [p.text for p in patches]
+        # Asked for while they wait, they are pending edits of their kind; an id never handed out is unknown.
+        for p in patches:
+            e = p.json()["edit"]
+            g = api.request("GET", "/api/sessions/{id}/edits/{edit_id}", id=sid, edit_id=e["id"])
+            assert g.status_code == 202 and g.json() == {"id": e["id"], "type": "update_instance", "pending": True}, g.text
+        unknown = api.request("GET", "/api/sessions/{id}/edits/{edit_id}", id=sid, edit_id=e["id"] + 100)
+        assert unknown.status_code == 404, unknown.text
         assert api.health()["status"] == "ok"
         other = api.create_session(small_scene("other"), threads=1)["id"]
         api.step(other, 2)

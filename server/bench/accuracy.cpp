@@ -101,6 +101,11 @@ const ParamSpec* knobSpec(const Knob& k) {
 std::string sceneMethod(const json& scene) {
   return scene.contains("solver") ? scene["solver"].value("method", std::string("dfsph")) : "dfsph";
 }
+// The scene's boundary model (the default where the file names none).
+std::string sceneBoundary(const json& scene) {
+  const json* b = scene.contains("boundary") ? &scene["boundary"] : nullptr;
+  return b && b->contains("method") ? (*b)["method"].get<std::string>() : std::string(kDefaultBoundaryModel);
+}
 bool hasInstances(const json& scene) { return scene.contains("instances") && !scene["instances"].empty(); }
 
 // The knob's value in `scene` (its default where the file leaves it out), or
@@ -174,12 +179,13 @@ const Reference& reference(const std::string& scene) {
 // The sweep.
 
 struct Point {
-  std::string group;   // solver | resolution | precision | control | templates
-  std::string scene;   // a reference scene
-  std::string method;  // pressure solver; empty: the scene's
+  std::string group;    // solver | boundary | resolution | precision | control | templates
+  std::string scene;    // a reference scene
+  std::string method;   // pressure solver; empty: the scene's
   std::string real = "float";
   std::vector<std::pair<std::string, double>> set;  // knob overrides
   double seconds = 0;  // simulated
+  std::string boundary;  // boundary model; empty: the scene's
 };
 
 struct Sweep {
@@ -205,15 +211,15 @@ Sweep sweepFor(bool quick) {
 std::vector<Point> sweepPoints(const Sweep& s, bool quick, bool withDouble) {
   std::vector<Point> pts;
   const auto dfsph = [&](const std::string& group, double dens, double div, double cfl, double radius,
-                         const std::string& real) {
+                         const std::string& real, const std::string& boundary = "") {
     Point p{group, "dambreak2d", "dfsph", real, {{"density_tolerance_pct", dens}, {"divergence_tolerance_pct", div},
-                                                {"cfl_factor", cfl}}, s.damSeconds};
+                                                {"cfl_factor", cfl}}, s.damSeconds, boundary};
     if (radius > 0) p.set.push_back({"particle_radius", radius});
     pts.push_back(p);
   };
   const auto wcsph = [&](const std::string& group, double stiffness, double cfl, double radius,
                          const std::string& real) {
-    Point p{group, "dambreak2d", "wcsph", real, {{"stiffness", stiffness}, {"cfl_factor", cfl}}, s.damSeconds};
+    Point p{group, "dambreak2d", "wcsph", real, {{"stiffness", stiffness}, {"cfl_factor", cfl}}, s.damSeconds, ""};
     if (radius > 0) p.set.push_back({"particle_radius", radius});
     pts.push_back(p);
   };
@@ -234,6 +240,10 @@ std::vector<Point> sweepPoints(const Sweep& s, bool quick, bool withDouble) {
     for (double cfl : s.fullGrid ? s.cflFactors : std::vector<double>{1})
       wcsph("solver", k, cfl, solverRadius, "float");
 
+  // Boundary models: every registered one on the dam break at 0.1/0.1 %, CFL 1.
+  for (const std::string& model : BoundaryModelRegistry<2>::instance().names())
+    dfsph("boundary", 0.1, 0.1, 1, solverRadius, "float", model);
+
   // Resolution and precision: the tolerance diagonal and WCSPH, at CFL 1.
   const std::vector<double> diagonal = quick ? std::vector<double>{0.1} : s.densityTolerances;
   for (double radius : {s.coarseRadius, s.fineRadius}) {
@@ -250,7 +260,7 @@ std::vector<Point> sweepPoints(const Sweep& s, bool quick, bool withDouble) {
   // the scene's solver at the ends of the tolerance range.
   const auto drop = [&](std::vector<std::pair<std::string, double>> set, const std::string& method = "") {
     if (s.controlRadius > 0) set.push_back({"particle_radius", s.controlRadius});
-    pts.push_back({"control", "drop2d", method, "float", set, s.templateSeconds});
+    pts.push_back({"control", "drop2d", method, "float", set, s.templateSeconds, ""});
   };
   drop({});
   drop({{"forces_every_substep", 1}});
@@ -264,7 +274,7 @@ std::vector<Point> sweepPoints(const Sweep& s, bool quick, bool withDouble) {
   if (s.templateScenes) {
     for (const Reference& r : references()) {
       if (!r.fidelity || std::string(r.scene) == "drop2d") continue;
-      pts.push_back({"templates", r.scene, "", "float", {}, s.templateSeconds});
+      pts.push_back({"templates", r.scene, "", "float", {}, s.templateSeconds, ""});
     }
   }
   return pts;
@@ -323,6 +333,7 @@ struct Context {
 json pointScene(const Context& ctx, const Point& p) {
   json scene = loadSceneJson((ctx.source / "scenes" / (p.scene + ".json")).string());
   if (!p.method.empty() && sceneMethod(scene) != p.method) scene["solver"] = {{"method", p.method}};
+  if (!p.boundary.empty()) scene["boundary"] = {{"method", p.boundary}};
   for (const auto& [name, v] : p.set) setKnob(scene, knob(name), v);
   return scene;
 }
@@ -565,7 +576,7 @@ PresetPick choosePresets(std::vector<Result>& results) {
 std::string cell(const Cell& c, const char* f = "%.6g") { return c ? fmt(*c, f) : "n/a"; }
 
 std::vector<std::string> csvHeader() {
-  std::vector<std::string> h = {"id", "group", "scene", "method", "real"};
+  std::vector<std::string> h = {"id", "group", "scene", "method", "boundary", "real"};
   for (const Knob& k : knobs()) h.push_back(k.name);
   for (const char* c : {"status", "particles", "frames", "simulated_s", "substeps_per_frame",
                         "solver_iterations_per_frame", "unconverged_frames", "wall_s_per_sim_s", "ms_per_frame", "us_per_particle_step", "cpu_s_per_sim_s", "avg_density_error_pct",
@@ -579,7 +590,8 @@ std::vector<std::string> csvHeader() {
 }
 
 std::vector<std::string> csvRow(size_t id, const Result& r) {
-  std::vector<std::string> row = {std::to_string(id), r.point.group, r.point.scene, sceneMethod(r.scene), r.point.real};
+  std::vector<std::string> row = {std::to_string(id), r.point.group, r.point.scene, sceneMethod(r.scene),
+                                  sceneBoundary(r.scene), r.point.real};
   for (const Knob& k : knobs()) row.push_back(cell(knobValue(r.scene, k)));
   const auto num = [&](double v) { return r.ok() ? fmt(v) : std::string("n/a"); };
   row.push_back(r.status);
@@ -613,6 +625,7 @@ std::string describe(const Result& r) {
   std::ostringstream o;
   const std::string method = sceneMethod(r.scene);
   o << r.point.scene << " " << method;
+  if (!r.point.boundary.empty()) o << " " << r.point.boundary;
   if (method == "dfsph")
     o << " tol " << fmt(*knobValue(r.scene, knob("density_tolerance_pct"))) << "/"
       << fmt(*knobValue(r.scene, knob("divergence_tolerance_pct"))) << "%";

@@ -140,6 +140,7 @@ class PumpSession final : public Session {
   FramePtr seek(int) override { throw std::out_of_range("the benchmark's pump session keeps no history"); }
   EditTicket submit(Edit) override { throw SessionError("the benchmark's pump session takes no edits"); }
   std::optional<EditResult> editResult(uint64_t) const override { return std::nullopt; }
+  std::optional<EditKind> pendingEdit(uint64_t) const override { return std::nullopt; }
   FramePtr latestFrame() const override {
     std::lock_guard lk(mutex_);
     return latest_;

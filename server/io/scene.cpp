@@ -44,7 +44,6 @@ constexpr double kMaxDuration = 1e6;          // s
 constexpr double kContainTolerance = 1e-6;    // m, fluid block inside domain
 constexpr size_t kMaxPhases = 256;            // phase index is stored as uint8_t
 const char* const kDefaultSolver = "dfsph";
-const char* const kDefaultBoundary = "akinci2012";
 
 // ----------------------------------------------------------- formatting ---
 // The shortest decimal that reads back as the same float, so that messages
@@ -1114,7 +1113,7 @@ SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
   s.bodies = parseBodies<D>(member(root, "bodies"), s.domain);
   s.emitters = parseEmitters<D>(member(root, "emitters"), s.phases);
   s.solver = parseMethod<PressureSolverRegistry<D>>(member(root, "solver"), "solver", kDefaultSolver);
-  s.boundary = parseMethod<BoundaryModelRegistry<D>>(member(root, "boundary"), "boundary", kDefaultBoundary);
+  s.boundary = parseMethod<BoundaryModelRegistry<D>>(member(root, "boundary"), "boundary", kDefaultBoundaryModel);
   s.effects = parseEffects<D>(member(root, "effects"));
 
   checkFluidBlocks(s, overridden);

@@ -215,10 +215,8 @@ HttpResponse ServiceHub::getEdit(const HttpRequest&, const Params& p) {
   }
   const auto r = s->editResult(id);
   if (r) return jsonResponse(r->toJson());
-  // Ids are handed out in order; a known id without a result is still queued.
-  const json state = s->state();
-  if (state.value("pending_edits", 0) > 0)
-    return jsonResponse({{"id", id}, {"pending", true}}, 202);
+  if (const auto kind = s->pendingEdit(id))
+    return jsonResponse({{"id", id}, {"type", editKindName(*kind)}, {"pending", true}}, 202);
   throw ApiError(404, "session " + p[0] + " has no edit " + p[1] + " (results of the last 1024 edits are kept)", "edit");
 }
 

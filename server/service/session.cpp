@@ -235,6 +235,7 @@ class SessionImpl final : public Session {
       if (stop_) {
         op.promise->set_value(closedResult(op));
       } else {
+        pendingKinds_[op.id] = op.edit.kind;
         ops_.push_back(std::move(op));
         ++pendingEdits_;
         ++signal_;
@@ -248,6 +249,13 @@ class SessionImpl final : public Session {
     std::lock_guard lk(mutex_);
     auto it = results_.find(id);
     if (it == results_.end()) return std::nullopt;
+    return it->second;
+  }
+
+  std::optional<EditKind> pendingEdit(uint64_t id) const override {
+    std::lock_guard lk(mutex_);
+    auto it = pendingKinds_.find(id);
+    if (it == pendingKinds_.end()) return std::nullopt;
     return it->second;
   }
 
@@ -932,6 +940,7 @@ class SessionImpl final : public Session {
     {
       std::lock_guard lk(mutex_);
       --pendingEdits_;
+      pendingKinds_.erase(r.id);
       results_[r.id] = r;
       while (results_.size() > kKeptResults) results_.erase(results_.begin());
       if (r.accepted) {
@@ -1230,6 +1239,7 @@ class SessionImpl final : public Session {
   bool notifying_ = false;   // listeners are hearing of the last frame
   std::deque<Op> ops_;
   size_t pendingEdits_ = 0;
+  std::map<uint64_t, EditKind> pendingKinds_;  // submitted, not yet answered
   int layerDemand_[4] = {0, 0, 0, 0};           // streams wanting control, repulsion, boundary, speed
   std::shared_ptr<const LayeredFrame> layered_;  // the newest frame with those layers
   FramePtr layersTried_;  // the frame shown whose layers were last tried (not again)

@@ -158,6 +158,9 @@ class Session {
   virtual EditTicket submit(Edit edit) = 0;
   // The result of an edit, once known (the last 1024 are kept).
   virtual std::optional<EditResult> editResult(uint64_t id) const = 0;
+  // The kind of an edit submitted and not yet answered (queued or being
+  // applied); nothing for an id never handed out or already answered.
+  virtual std::optional<EditKind> pendingEdit(uint64_t id) const = 0;
 
   // The frame to show: the simulation's own frame (during a re-simulation
   // the frame it has reached), or the recorded frame a seek selected while

@@ -124,6 +124,9 @@ struct NamedParams {
   ParamValues values;
 };
 
+// The boundary model of a scene that names none (docs/physics/boundaries.md).
+inline constexpr const char* kDefaultBoundaryModel = "akinci2012";
+
 template <int D>
 struct SimulationSetup {
   std::string name = "scene";
@@ -136,7 +139,7 @@ struct SimulationSetup {
   std::vector<Body<D>> bodies;          // moving solids (none: no stage, no cost)
   std::vector<Emitter<D>> emitters;     // inflows (none: no stage, no cost)
   NamedParams solver;                   // pressure solver name and its parameters
-  NamedParams boundary{"akinci2012", {}};  // boundary model name and its parameters
+  NamedParams boundary{kDefaultBoundaryModel, {}};  // boundary model name and its parameters
   SimulationSettings settings = simulationSettingsTable().defaults();  // the scene's "settings"
   std::vector<NamedParams> effects;     // in the order the scene lists them
   double duration = 2;                  // s, default run length

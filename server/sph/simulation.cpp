@@ -27,28 +27,6 @@ double msSince(Clock::time_point t0) {
 }  // namespace
 
 namespace {
-// The volume a particle of the initial lattice (spacing s) stands for, such
-// that the lattice has exactly the rest density: 1 / Σ_k W(k s). It differs
-// from s^D by the discretisation error of the kernel sum (+0.09 % in 2D with
-// h = 2s, which would start every 2D liquid compressed beyond the default
-// tolerance).
-template <int D>
-Real latticeParticleVolume(const CubicSpline<D>& kernel, Real s) {
-  const int n = int(std::ceil(kernel.radius() / s));
-  double sum = 0;
-  VecI<D> k = VecI<D>::Constant(-n);
-  while (true) {
-    sum += kernel.W(Vec<D>(s * k.template cast<Real>()));
-    int d = 0;
-    while (d < D && ++k[d] > n) k[d++] = -n;
-    if (d == D) break;
-  }
-  return Real(1.0 / sum);
-}
-
-}  // namespace
-
-namespace {
 // A registered part from its name and the scene's values over its defaults.
 template <class Registry>
 auto makeNamed(const Registry& registry, const std::string& name, const ParamValues& values, const char* what) {

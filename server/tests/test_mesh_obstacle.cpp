@@ -438,6 +438,36 @@ TEST(MeshSampling, AxisAlignedBoxMeshIsSampledLikeTheBox) {
   EXPECT_NEAR(boundaryFill(a, probe), boundaryFill(b, probe), 1e-4);
 }
 
+// A plate one radius thick (thinner than the two radii a first layer needs):
+// one lattice on its mid-plane, laid by one of its faces, so that a particle
+// resting on it sees a solid: half a radius nearer than a thick box's first
+// layer, so twice its density there (docs/physics/index.md, Mesh obstacles).
+TEST(MeshSampling, ThinPlateIsSampledOnItsMidPlane) {
+  const double r = 0.02, thickness = r;
+  const Vec3d lo(0.4, 0.4, 0.4), size(0.4, thickness, 0.4);
+  const json plate = {{"type", "mesh"}, {"file", testMeshes() + "/cube_quads.obj"},
+                      {"scale", {size[0], size[1], size[2]}},
+                      {"translation", {lo[0] + size[0] / 2, lo[1] + size[1] / 2, lo[2] + size[2] / 2}}};
+  const json thick = {{"type", "box"}, {"min", {lo[0], lo[1] - 0.2, lo[2]}}, {"max", {lo[0] + size[0], lo[1] + thickness, lo[2] + size[2]}}};
+  json walls = tankWithObstacle(plate);
+  walls.erase("obstacles");
+  const Simulation<3> a(parseScene<3>(tankWithObstacle(plate)));
+  const Simulation<3> b(parseScene<3>(tankWithObstacle(thick)));
+  const size_t wallSamples = Simulation<3>(parseScene<3>(walls)).boundary.size();
+  ASSERT_GT(a.boundary.size(), wallSamples) << "the plate has no boundary samples";
+  const double mid = lo[1] + thickness / 2;
+  for (size_t i = wallSamples; i < a.boundary.size(); ++i)
+    EXPECT_NEAR(double(a.boundary.x[i].y()), mid, 1e-5) << "sample " << i << " is off the plate's mid-plane";
+  // One lattice of spacing 2r over the plate inset by r: 10 x 10 here.
+  EXPECT_EQ(a.boundary.size() - wallSamples, 100u);
+  const Vec3 probe(Real(lo[0] + size[0] / 2), Real(lo[1] + thickness + r), Real(lo[2] + size[2] / 2));
+  const double thin = boundaryFill(a, probe), full = boundaryFill(b, probe);
+  std::printf("thin plate: %zu samples, fill one radius above it %.4f (a thick box: %.4f)\n",
+              a.boundary.size() - wallSamples, thin, full);
+  EXPECT_GT(thin, 0.9 * full) << "a particle resting on the plate must see it as a solid";
+  EXPECT_LT(thin, 2.5 * full);
+}
+
 TEST(MeshSampling, RotatedCubeFillsLikeTheAxisAlignedOne) {
   // A 0.3 m cube turned 30° about z and 20° about x: the samples are
   // projected, not a lattice; a particle resting on a face centre must see

@@ -15,24 +15,10 @@ namespace fc {
 namespace {
 
 template <int D>
-Real latticeVolume(const CubicSpline<D>& kernel, Real s) {
-  const int n = int(std::ceil(kernel.radius() / s));
-  double sum = 0;
-  VecI<D> k = VecI<D>::Constant(-n);
-  while (true) {
-    sum += kernel.W(Vec<D>(s * k.template cast<Real>()));
-    int d = 0;
-    while (d < D && ++k[d] > n) k[d++] = -n;
-    if (d == D) break;
-  }
-  return Real(1.0 / sum);
-}
-
-template <int D>
 struct Fixture {
   Real r = Real(0.01);
   CubicSpline<D> kernel{4 * r};
-  Real vlat = latticeVolume(kernel, 2 * r);
+  Real vlat = latticeParticleVolume(kernel, 2 * r);
   AABB<D> domain{Vec<D>::Zero(), Vec<D>::Constant(Real(0.4))};
   typename VolumeMap<D>::Options options() const {
     typename VolumeMap<D>::Options o;

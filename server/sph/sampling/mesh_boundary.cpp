@@ -29,6 +29,11 @@
 // shrinks their volumes. Points that cannot reach their offset surface (a
 // part thinner than the layers) are dropped.
 //
+// Thin walls: a flat wall thinner than two radii has no point at depth r.
+// Its first layer lies on its mid-surface instead (half its thickness deep,
+// laid by the larger of its two faces), so that the pressure
+// solve sees it; without them only the contact model kept liquid out.
+//
 // Cost: one exact distance query (a BVH descent) per lattice point within
 // two grid cells of a layer, a few per projected point; linear in the
 // surface area over s².
@@ -191,7 +196,23 @@ size_t sampleMeshShell(const MeshSdf& mesh, Real radius, Real spacing, int layer
           ++examined;
           if (std::abs(double(mesh.gridSignedDistance(q.cast<Real>())) + t) > 2 * mesh.spacing()) continue;
           const MeshSdf::Nearest at = mesh.nearestPoint(q);
-          if (std::abs(at.distance + t) <= 1e-6 * s + 1e-9) planar[size_t(ri)].push_back(q);
+          const double tolerance = 1e-6 * s + 1e-9;
+          if (std::abs(at.distance + t) <= tolerance) {
+            planar[size_t(ri)].push_back(q);
+            continue;
+          }
+          // A wall thinner than two radii: its far face (facing the other
+          // way) is nearer than t, T - t away. Layer 0 then lies on the
+          // wall's mid-surface, T/2 deep, where both faces' lattices meet.
+          // The larger of the two faces lays it (one lattice per wall).
+          if (l != 0 || mesh.faceNormal(at.triangle).dot(g.normal) > -0.5) continue;
+          const int far = regionOf[at.triangle];
+          if (far >= 0 && (regions[size_t(far)].area > g.area || (regions[size_t(far)].area == g.area && far < ri)))
+            continue;
+          const double half = 0.5 * (t - at.distance);
+          if (!(half > 0.05 * s && half < t)) continue;
+          const Vec3d mid = q + (t - half) * g.normal;
+          if (std::abs(mesh.nearestPoint(mid).distance + half) <= tolerance) planar[size_t(ri)].push_back(mid);
         }
     }
   }
