@@ -31,8 +31,8 @@
 //
 // Thin walls: a flat wall thinner than two radii has no point at depth r.
 // Its first layer lies on its mid-surface instead (half its thickness deep,
-// laid by the larger of its two faces), so that the pressure
-// solve sees it; without them only the contact model kept liquid out.
+// laid by the larger of its two faces), so that the pressure solve sees it:
+// without it only the contact model would keep the liquid out.
 //
 // Cost: one exact distance query (a BVH descent) per lattice point within
 // two grid cells of a layer, a few per projected point; linear in the
@@ -203,8 +203,8 @@ size_t sampleMeshShell(const MeshSdf& mesh, Real radius, Real spacing, int layer
           }
           // A wall thinner than two radii: its far face (facing the other
           // way) is nearer than t, T - t away. Layer 0 then lies on the
-          // wall's mid-surface, T/2 deep, where both faces' lattices meet.
-          // The larger of the two faces lays it (one lattice per wall).
+          // wall's mid-surface, T/2 deep, laid by the larger of the two
+          // faces (one lattice per wall).
           if (l != 0 || mesh.faceNormal(at.triangle).dot(g.normal) > -0.5) continue;
           const int far = regionOf[at.triangle];
           if (far >= 0 && (regions[size_t(far)].area > g.area || (regions[size_t(far)].area == g.area && far < ri)))
