@@ -224,7 +224,7 @@ class SessionImpl final : public Session {
       std::lock_guard lk(mutex_);
       // A flood of edits would starve the frames (edits go first at each
       // boundary) and grow the queue without bound.
-      if (pendingEdits_ >= kMaxPendingEdits)
+      if (pendingKinds_.size() >= kMaxPendingEdits)
         throw SessionOverloaded("the session already has " + std::to_string(kMaxPendingEdits) +
                                 " edits waiting to be applied; wait for their results");
       Op op;
@@ -237,7 +237,6 @@ class SessionImpl final : public Session {
       } else {
         pendingKinds_[op.id] = op.edit.kind;
         ops_.push_back(std::move(op));
-        ++pendingEdits_;
         ++signal_;
       }
     }
@@ -939,7 +938,6 @@ class SessionImpl final : public Session {
     }
     {
       std::lock_guard lk(mutex_);
-      --pendingEdits_;
       pendingKinds_.erase(r.id);
       results_[r.id] = r;
       while (results_.size() > kKeptResults) results_.erase(results_.begin());
@@ -1143,7 +1141,7 @@ class SessionImpl final : public Session {
               {"stats", frameStatsToJson(live_->stats, hasControl_)},
               {"particles", {{"liquid", liquid_ - temporary_}, {"temporary", temporary_}, {"boundary", boundary_}}},
               {"instances", instances_},
-              {"pending_edits", pendingEdits_},
+              {"pending_edits", pendingKinds_.size()},
               {"steps_left", stepsLeft_},
               {"computing", computing_},
               {"memory",
@@ -1238,7 +1236,6 @@ class SessionImpl final : public Session {
   bool busy_ = false;        // an edit or reset is being applied (and announced)
   bool notifying_ = false;   // listeners are hearing of the last frame
   std::deque<Op> ops_;
-  size_t pendingEdits_ = 0;
   std::map<uint64_t, EditKind> pendingKinds_;  // submitted, not yet answered
   int layerDemand_[4] = {0, 0, 0, 0};           // streams wanting control, repulsion, boundary, speed
   std::shared_ptr<const LayeredFrame> layered_;  // the newest frame with those layers
