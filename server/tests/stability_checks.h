@@ -5,14 +5,36 @@
 #include "tests/physics_checks.h"
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 #include <omp.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <vector>
 
 namespace fc::stability {
+
+// A tank of the given size (2 or 3 numbers, m) from the origin with the
+// scenes' water (1000 kg/m³, ν = 0.001 m²/s, standard viscosity), solver and
+// settings, gravity along -y, and no liquid yet.
+inline nlohmann::json waterTank(double r, const std::vector<double>& size) {
+  nlohmann::json s = nlohmann::json::parse(R"({
+    "phases": [{"name": "water", "rest_density": 1000, "viscosity": 0.001}],
+    "solver": {"method": "dfsph", "density_tolerance_pct": 0.05, "divergence_tolerance_pct": 0.1},
+    "settings": {"frame_rate": 60, "cfl_factor": 1, "dt_max": 0.005},
+    "effects": ["viscosity_standard"]
+  })");
+  std::vector<double> gravity(size.size(), 0.0);
+  gravity[1] = -9.81;
+  s["dimension"] = size.size();
+  s["gravity"] = gravity;
+  s["particle_radius"] = r;
+  s["domain"] = {{"min", std::vector<double>(size.size(), 0.0)}, {"max", size}};
+  s["fluid_blocks"] = nlohmann::json::array();
+  return s;
+}
 
 constexpr double kG = 9.81;
 

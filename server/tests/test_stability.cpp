@@ -34,22 +34,8 @@ namespace {
 using nlohmann::json;
 using namespace stability;
 
-// A 2D tank with water (the scenes' water: 1000 kg/m³, ν = 0.001 m²/s,
-// standard viscosity) and the scenes' solver settings.
-json tank2D(double r, double width, double height) {
-  json s = json::parse(R"({
-    "dimension": 2,
-    "gravity": [0, -9.81],
-    "phases": [{"name": "water", "rest_density": 1000, "viscosity": 0.001}],
-    "solver": {"method": "dfsph", "density_tolerance_pct": 0.05, "divergence_tolerance_pct": 0.1},
-    "settings": {"frame_rate": 60, "cfl_factor": 1, "dt_max": 0.005},
-    "effects": ["viscosity_standard"]
-  })");
-  s["particle_radius"] = r;
-  s["domain"] = {{"min", {0, 0}}, {"max", {width, height}}};
-  s["fluid_blocks"] = json::array();
-  return s;
-}
+// A 2D tank with the scenes' water and solver settings.
+json tank2D(double r, double width, double height) { return waterTank(r, {width, height}); }
 
 json block(double x0, double y0, double x1, double y1, const char* phase = "water", double vx = 0, double vy = 0) {
   return {{"min", {x0, y0}}, {"max", {x1, y1}}, {"phase", phase}, {"velocity", {vx, vy}}};

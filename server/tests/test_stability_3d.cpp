@@ -32,21 +32,8 @@ namespace {
 using nlohmann::json;
 using namespace stability;
 
-// A 3D tank with the scenes' water, solver and settings.
-json tank3D(double r, double x, double y, double z) {
-  json s = json::parse(R"({
-    "dimension": 3,
-    "gravity": [0, -9.81, 0],
-    "phases": [{"name": "water", "rest_density": 1000, "viscosity": 0.001}],
-    "solver": {"method": "dfsph", "density_tolerance_pct": 0.05, "divergence_tolerance_pct": 0.1},
-    "settings": {"frame_rate": 60, "cfl_factor": 1, "dt_max": 0.005},
-    "effects": ["viscosity_standard"]
-  })");
-  s["particle_radius"] = r;
-  s["domain"] = {{"min", {0, 0, 0}}, {"max", {x, y, z}}};
-  s["fluid_blocks"] = json::array();
-  return s;
-}
+// A 3D tank with the scenes' water and solver settings.
+json tank3D(double r, double x, double y, double z) { return waterTank(r, {x, y, z}); }
 
 json block3D(std::vector<double> lo, std::vector<double> hi, const char* phase = "water") {
   return {{"min", lo}, {"max", hi}, {"phase", phase}};
