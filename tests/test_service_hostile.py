@@ -207,6 +207,27 @@ def test_a_long_frame_holds_neither_workers_nor_delete_nor_sigint(template_dir, 
     assert server.returncode == 0, server.output[-20:]
 
 
+def test_edits_answered_pending_come_back_whole(template_dir, scene_dir, openapi):
+    """`--edit-wait 0`: an edit's answer does not wait for its frame boundary, so it is 202 (pending)
+    and the client polls it; what the client returns is what the direct answer holds, the added or
+    updated instance's object (a slow machine takes this path at the default wait)."""
+    with FlowClipServer(template_dir, scene_dir, extra_args=["--edit-wait", "0"]) as server:
+        api = server.client()
+        api.observers.append(openapi.observe)
+        answers = []
+        api.observers.append(lambda method, template, r: answers.append((method, template, r.status_code)))
+        sid = api.create_session(small_scene("pending"), threads=1)["id"]
+        for k in range(3):
+            added = api.add_instance(sid, {"name": f"drop{k}", "template": "drop2d", "start": 100})
+            assert added["edit"]["accepted"] and added["edit"]["type"] == "add_instance", added
+            assert added["instance"]["name"] == f"drop{k}" and added["instance"]["template"] == "drop2d", added
+            updated = api.update_instance(sid, f"drop{k}", {"speed": 2 + k})
+            assert updated["edit"]["accepted"] and updated["instance"]["speed"] == 2 + k, updated
+        pending = [a for a in answers if a[2] == 202 and a[0] in ("POST", "PATCH")]
+        assert pending, f"no edit was answered pending with --edit-wait 0: {answers}"
+        assert [i["name"] for i in api.instances(sid)] == ["drop0", "drop1", "drop2"]
+
+
 def test_edit_queue_overflow_is_an_overload_not_an_invalid_edit(server, client):
     sid = client.create_session(endless_scene("queue"), threads=1)["id"]
     client.add_instance(sid, {"name": "drop", "template": "drop2d", "start": 100})

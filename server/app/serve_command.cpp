@@ -38,6 +38,7 @@ struct ServeOptions {
   int recordThreads = 0;
   double frameTimeout = 120;
   double streamStall = 20, streamIdle = 60;
+  double editWait = 3;
   int ioThreads = 2;
 };
 
@@ -71,6 +72,7 @@ int serve(const ServeOptions& o, bool presetsGiven) {
   so.frameTimeout = std::chrono::milliseconds(int64_t(o.frameTimeout * 1000));
   so.streamWriteStall = std::chrono::milliseconds(int64_t(o.streamStall * 1000));
   so.streamIdleTimeout = std::chrono::milliseconds(int64_t(o.streamIdle * 1000));
+  so.editWait = std::chrono::milliseconds(int64_t(o.editWait * 1000));
   service::ServerOptions net;
   net.host = o.host;
   net.port = uint16_t(o.port);
@@ -141,6 +143,10 @@ void addServeCommand(CLI::App& app) {
   cmd->add_option("--stream-idle", o->streamIdle,
                   "a WebSocket client that answers no keep-alive ping for this many seconds is dropped (default 60)")
       ->check(CLI::Range(1.0, 86400.0));
+  cmd->add_option("--edit-wait", o->editWait,
+                  "how long an edit's REST answer waits for the frame boundary where it applies, seconds; longer "
+                  "answers 202 (pending) with the edit's id to poll (default 3)")
+      ->check(CLI::Range(0.0, 600.0));
   cmd->add_option("--io-threads", o->ioThreads, "network threads (default 2)")->check(CLI::Range(1, 64));
   cmd->callback([o, presetsOption] { throw ExitCode(serve(*o, presetsOption->count() > 0)); });
 }

@@ -11,7 +11,7 @@
 
 namespace fc {
 
-SurgeCurve readSurgeCurve(const std::string& path) {
+SurgeCurve readSurgeCurve(const std::string& path, const std::string& columns) {
   std::ifstream in(path);
   if (!in) throw std::runtime_error("surge curve '" + path + "': cannot be read");
   SurgeCurve c;
@@ -21,7 +21,7 @@ SurgeCurve readSurgeCurve(const std::string& path) {
     const auto where = [&] { return "surge curve '" + path + "' line " + std::to_string(n) + ": "; };
     if (line.empty() || line[0] == '#') continue;
     if (!header) {
-      if (line.rfind("T,Z", 0) != 0) throw std::runtime_error(where() + "expected the header 'T,Z'");
+      if (line.rfind(columns, 0) != 0) throw std::runtime_error(where() + "expected the header '" + columns + "'");
       header = true;
       continue;
     }
@@ -29,8 +29,8 @@ SurgeCurve readSurgeCurve(const std::string& path) {
     double T = 0, Z = 0;
     char comma = 0;
     if (!(s >> T >> comma >> Z) || comma != ',' || !std::isfinite(T) || !std::isfinite(Z))
-      throw std::runtime_error(where() + "expected two numbers 'T,Z', got '" + line + "'");
-    if (!c.T.empty() && !(T > c.T.back())) throw std::runtime_error(where() + "T must increase");
+      throw std::runtime_error(where() + "expected two numbers '" + columns + "', got '" + line + "'");
+    if (!c.T.empty() && !(T > c.T.back())) throw std::runtime_error(where() + columns.substr(0, columns.find(',')) + " must increase");
     c.T.push_back(T);
     c.Z.push_back(Z);
   }

@@ -16,8 +16,10 @@ struct SurgeCurve {
 
 // A "T,Z" CSV (bench/data/martin_moyce_1952.csv): '#' comment lines, a
 // header line, then one point per line in increasing T. Throws
-// std::runtime_error naming the file and line of what is wrong.
-SurgeCurve readSurgeCurve(const std::string& path);
+// std::runtime_error naming the file and line of what is wrong. `columns`:
+// the header, for another curve in the same form (the residual column
+// height, "tau,H").
+SurgeCurve readSurgeCurve(const std::string& path, const std::string& columns = "T,Z");
 
 struct LiquidFrame {
   double time = 0;

@@ -39,6 +39,26 @@ TEST(MartinMoyceData, IsTheTabulatedHalfInchSeries) {
   }
 }
 
+// The residual column height at the wall (their Table 6), read as a curve
+// of its own: 17 points falling from 0.94 to 0.06 of the initial height at
+// quarter-inch marks on a 4.5 in column.
+TEST(MartinMoyceData, IsTheTabulatedResidualHeightSeries) {
+  const SurgeCurve h = readSurgeCurve(std::string(FLOWCLIP_SOURCE_DIR) + "/bench/data/martin_moyce_1952_height.csv", "tau,H");
+  ASSERT_EQ(h.T.size(), 17u);
+  EXPECT_DOUBLE_EQ(h.T.front(), 0.56);
+  EXPECT_DOUBLE_EQ(h.Z.front(), 0.94);
+  EXPECT_DOUBLE_EQ(h.T.back(), 7.4);
+  EXPECT_DOUBLE_EQ(h.Z.back(), 0.06);
+  for (size_t i = 0; i < h.Z.size(); ++i) {
+    const double inches = h.Z[i] * 4.5;
+    EXPECT_NEAR(inches, std::round(inches * 4) / 4, 0.025) << "point " << i;
+    if (i > 0) EXPECT_LT(h.Z[i], h.Z[i - 1]) << "the column only falls";
+  }
+  // The surge curve's reader refuses it under the surge's header.
+  EXPECT_THROW(readSurgeCurve(std::string(FLOWCLIP_SOURCE_DIR) + "/bench/data/martin_moyce_1952_height.csv"),
+               std::runtime_error);
+}
+
 TEST(MartinMoyceData, BadFilesNameTheLine) {
   TempDir dir;
   const auto write = [&](const std::string& text) {

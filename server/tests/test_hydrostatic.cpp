@@ -1,7 +1,7 @@
-// Hydrostatic column (DFSPH): water at rest in a closed tank must stay in
-// the tank, settle (kinetic energy decays), keep its average density error
-// within the solver tolerance, and carry the hydrostatic pressure ρ0·g·depth
-// down to the floor.
+// Hydrostatic column (DFSPH, the shipped scenes with their adami2012
+// boundary): water at rest in a closed tank must stay in the tank, settle
+// (kinetic energy decays), keep its average density error within the solver
+// tolerance, and carry the hydrostatic pressure ρ0·g·depth down to the floor.
 //
 // FLOWCLIP_TEST_VERBOSE=1 prints one line per frame and the settled pressure
 // profile by row.
@@ -43,6 +43,7 @@ struct HydroRun {
   double wallSeconds = 0;
   size_t particles = 0;
   double radius = 0;
+  double mass = 0;  // kg (kg/m in 2D)
 };
 
 template <int D>
@@ -55,6 +56,7 @@ HydroRun runHydrostatic(const std::string& sceneFile, double radiusOverride, dou
   run.tolerancePct = setup.solver.values.get("density_tolerance_pct");
   run.particles = sim.fluid.size();
   run.radius = sim.particleRadius();
+  for (size_t i = 0; i < sim.fluid.size(); ++i) run.mass += sim.fluid.mass[i];
   const double r = sim.particleRadius();
   const double rho0 = setup.phases.at(0).restDensity;
   const double g = setup.gravity.norm();
@@ -69,13 +71,19 @@ HydroRun runHydrostatic(const std::string& sceneFile, double radiusOverride, dou
     h.avgErrPct = fs.avgDensityErrorPct;
     h.converged = fs.converged;
     h.ke = fs.kineticEnergy;
-    double top = -1e30, gap = 1e30;
+    double gap = 1e30;
     for (size_t i = 0; i < f.size(); ++i) {
-      top = std::max(top, double(f.x[i][1]));
       for (int d = 0; d < D; ++d)
         gap = std::min({gap, double(f.x[i][d] - setup.domain.min[d]), double(setup.domain.max[d] - f.x[i][d])});
     }
-    const double H = top + r;  // free surface
+    // The surface an incompressible liquid of this mass has: its volume over
+    // the floor's area (the top row's centres ride up and down by a fraction of r).
+    double volume = 0;
+    for (size_t i = 0; i < f.size(); ++i) volume += f.mass[i] / rho0;
+    double floorArea = 1;
+    for (int d = 0; d < D; ++d)
+      if (d != 1) floorArea *= double(setup.domain.size()[d]);
+    const double H = floorY + volume / floorArea;
     h.minWallGap = gap / r;
     // Bottom layer, wall row, and a least-squares fit p = a + b y over the
     // interior (away from the floor and the surface by three diameters).
@@ -84,7 +92,8 @@ HydroRun runHydrostatic(const std::string& sceneFile, double radiusOverride, dou
     double sy = 0, sp = 0, syy = 0, syp = 0;
     size_t nI = 0;
     for (size_t i = 0; i < f.size(); ++i) {
-      const double y = f.x[i][1], p = f.pressure[i];
+      // The pressure a user reads (exports' /particles/pressure), not the last substep's solve.
+      const double y = f.x[i][1], p = f.meanPressure[i];
       if (y < floorY + 3 * r) pB += p, yB += y, ++nB;
       if (y < floorY + 2 * r) pW += p, yW += y, ++nW;
       if (y > floorY + 6 * r && y < H - 6 * r) sy += y, sp += p, syy += y * y, syp += y * p, ++nI;
@@ -96,9 +105,6 @@ HydroRun runHydrostatic(const std::string& sceneFile, double radiusOverride, dou
     const double load = fs.boundaryImpulse[1] / sim.frameDuration();
     double mass = 0;
     for (size_t i = 0; i < f.size(); ++i) mass += f.mass[i];
-    double floorArea = 1;
-    for (int d = 0; d < D; ++d)
-      if (d != 1) floorArea *= double(setup.domain.size()[d]);
     // Plus what the contact model carried at the floor over the frame.
     const double contactForce = fs.contactImpulse[2] / sim.frameDuration();
     h.floorPressure = (load + contactForce) / floorArea;
@@ -131,7 +137,7 @@ HydroRun runHydrostatic(const std::string& sceneFile, double radiusOverride, dou
     std::vector<int> ns(rows, 0);
     for (size_t i = 0; i < f.size(); ++i) {
       const int k = std::clamp(int((f.x[i][1] - floorY) / (2 * r)), 0, rows - 1);
-      ps[k] += f.pressure[i], ys[k] += f.x[i][1], ns[k]++;
+      ps[k] += f.meanPressure[i], ys[k] += f.x[i][1], ns[k]++;
     }
     for (int k = 0; k < rows; ++k)
       if (ns[k])
@@ -201,44 +207,51 @@ void hydrostaticTest(const std::string& sceneFile, double radiusOverride, double
   EXPECT_GE(convergedFraction, 0.9) << "fraction of settled frames in which every solve reached its tolerance";
 
   // Hydrostatic pressure on the floor, time-averaged, within 5 %: the load
-  // the floor carries per unit area against ρ0 g H̄ (measured 0.9999 in 2D,
-  // 1.0002 in 3D). (The pressure of the row
-  // of particles touching the floor is higher, about 1.7 ρ0 g depth: the wall
-  // term of Akinci et al. mirrors only p_i/ρ_i², half of what a liquid
-  // neighbour contributes, so that row needs more pressure for the same
-  // force. It is printed above, not asserted.)
+  // the floor carries per unit area against ρ0 g H̄ (measured 1.0000 in 2D,
+  // 1.0002 in 3D). (The row of particles touching the floor reads 1.02 ρ0 g
+  // depth in 2D and 1.00 in 3D with the scenes' adami2012 boundary; with
+  // akinci2012's term alone about 1.7: test_readable_pressure.cpp.)
   EXPECT_NEAR(floorRatio, 1.0, 0.05) << "floor load / rho0 g H, time-averaged over the last " << window << " s";
-  // Inside the column the pressure grows as ρ0 g per metre of depth. The
-  // per-particle DFSPH pressures are the last solve's stiffness values and
-  // carry the column's residual sloshing: two builds that differ only in
-  // float rounding (one function inlined or not) measured 0.970 and 1.102 in
-  // 3D, so the bound is ±15 %. The floor load above is the tight check.
-  EXPECT_NEAR(slope / double(nLate), 1.0, 0.15) << "interior -dp/dy / (rho0 g)";
+  // Inside the column the pressure a user reads grows as ρ0 g per metre of
+  // depth: measured 1.021 (2D) and 1.034 (3D), within 8 %. (The last
+  // substep's solver pressures carry the column's residual sloshing and
+  // measured 0.97-1.28 in 3D between builds; test_readable_pressure.cpp
+  // holds every depth band to 3 %.)
+  EXPECT_NEAR(slope / double(nLate), 1.0, 0.08) << "interior -dp/dy / (rho0 g)";
   // No particle centre crossed a wall surface, and the contact model rarely
-  // had to act (measured: 0.038 % of particle-steps in 2D; in 3D the surface
-  // particles along the side walls touch, 0.94 %).
+  // had to act (measured: 0.002 % of particle-steps in 2D, 0.007 % in 3D,
+  // the surface particles along the side walls).
   EXPECT_EQ(checks.crossed, 0u) << "particle centres that crossed a wall surface within a substep";
   EXPECT_LT(contactFraction, maxContactFraction) << "contact corrections per particle-step";
 
-  // The column settles: kinetic energy decays.
+  // The column settles: kinetic energy decays, and the liquid's RMS speed
+  // over the last 0.5 s, sqrt(2 KE / M), is below 1 cm/s (measured 3.6 mm/s
+  // in 2D, 4.3 mm/s in 3D).
   EXPECT_GT(keEarlyMax, 0.0);
   EXPECT_LT(keRatio, maxKeRatio) << "mean KE over the last " << window << " s / max KE over the first " << window << " s";
+  const double rmsSpeed = std::sqrt(2 * keLate / run.mass);
+  std::printf("[ measured ] %s: settled RMS speed %.2f mm/s\n", sceneFile.c_str(), 1000 * rmsSpeed);
+  EXPECT_LT(rmsSpeed, 0.01) << "RMS speed of the settled column, m/s";
 }
 
 // 2D: 1 m of water in a 1 m wide tank at the scene's resolution (r = 0.01 m,
 // 2 500 particles, 50 layers), 3 s: the pressure gradient needs a deep column
 // and the kinetic-energy bound needs the column to settle.
-// KE ratio measured (settled mean / start max): 2.7e-3, 4.2e-3, 4.6e-3 in
-// three runs (start max about 3.3 J/m, settled mean 0.01-0.015 J/m). The
-// bound 0.02 keeps a factor 4 of margin and is 5x tighter than the plan's 0.1.
+// KE ratio measured (settled mean / start max): 7.3e-3 (start max 0.90
+// J/m, settled mean 6.5e-3 J/m). The bound 0.02 keeps a factor 2.7 of
+// margin and is 5x tighter than the plan's 0.1.
 TEST(Hydrostatic, Dfsph2D) { hydrostaticTest<2>("hydrostatic2d.json", 0, 3.0, 0.02, 1e-3); }
 
 // 3D: 0.3 m of water in a 0.3 x 0.45 x 0.3 m tank at the scene's resolution
 // (r = 0.01 m, 3 375 particles, 15 layers), 3 s: 15 layers is the fewest
 // that still has an interior between the wall rows.
-// KE ratio measured: 1.25e-2 and 8.8e-3 (start max 0.063 J, settled mean
-// 5.5e-4 to 7.8e-4 J); the bound 0.05 keeps a factor 4 of margin.
-TEST(Hydrostatic, Dfsph3D) { hydrostaticTest<3>("hydrostatic3d.json", 0, 3.0, 0.05, 0.02); }
+// KE ratio measured: 3.8e-2 (start max 6.6e-3 J, settled mean 2.5e-4 J).
+// With the scene's adami2012 boundary the rows do not sink at the start, so
+// the start is ten times calmer than with akinci2012 (0.063 J) and the
+// ratio larger although the settled energy is half (5.5e-4 to 7.8e-4 J
+// with akinci2012): the bound is the plan's 0.1, and the RMS speed check
+// is the absolute one.
+TEST(Hydrostatic, Dfsph3D) { hydrostaticTest<3>("hydrostatic3d.json", 0, 3.0, 0.1, 0.02); }
 
 }  // namespace
 }  // namespace fc

@@ -182,16 +182,24 @@ class Client:
 
     # edits
     def _edit(self, operation_id, body=None, **path):
-        """An edit operation; a pending answer (202) is polled (getEdit) until the edit is applied."""
+        """An edit operation; a pending answer (202) is polled (getEdit) until the edit is applied, and
+        then completed as the direct answer is: an added or updated instance comes with its object."""
         result = self.op(operation_id, body, **path)
         deadline = time.monotonic() + 60
-        while result["edit"].get("pending"):  # 202: not applied within 3 s
+        polled = False
+        while result["edit"].get("pending"):  # 202: not applied within the server's --edit-wait
             if time.monotonic() > deadline:
                 raise TimeoutError(f"edit {result['edit']['id']} still pending")
             time.sleep(0.1)
+            polled = True
             r = self.request(*self.route("getEdit"), id=path["id"], edit_id=result["edit"]["id"])
             if r.status_code == 200:
                 result = {**result, "edit": r.json()}
+        edit = result["edit"]
+        if polled and edit.get("accepted") and edit.get("type") in ("add_instance", "update_instance"):
+            r = self.request(*self.route("getInstance"), id=path["id"], name=edit["instance"])
+            if r.status_code == 200:  # not if a later edit already renamed or removed it
+                result["instance"] = r.json()
         return result
 
     def instances(self, sid):

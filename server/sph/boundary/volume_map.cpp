@@ -3,11 +3,22 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <stdexcept>
 #include <string>
 
 namespace fc {
+namespace {
+
+// 4224046848 -> "4.22e+09": counts in messages, readable.
+std::string readable(double count) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%.3g", count);
+  return text;
+}
+
+}  // namespace
 
 template <int D>
 VolumeMap<D>::VolumeMap(const AABB<D>& domain, const std::vector<Obstacle<D>>& obstacles, const CubicSpline<D>& kernel,
@@ -127,34 +138,110 @@ VolumeMap<D>::VolumeMap(const AABB<D>& domain, const std::vector<Obstacle<D>>& o
   // Only nodes a particle's interpolation can reach need the integral: those
   // within a cell's diagonal of the band 0 < Φ < h.
   const Real reach = spacing_ * std::sqrt(Real(D)) * Real(1.01);
-  const auto nodeAt = [&](long flat) {
-    Vec<D> x;
+  const auto coordsAt = [&](long flat) {
+    std::array<long, D> c{};
     for (int d = 0; d < D; ++d) {
-      x[d] = origin_[d] + Real(flat % count_[d]) * spacing_;
+      c[d] = flat % count_[d];
       flat /= count_[d];
     }
+    return c;
+  };
+  const auto positionOf = [&](const std::array<long, D>& c) {
+    Vec<D> x;
+    for (int d = 0; d < D; ++d) x[d] = origin_[d] + Real(c[d]) * spacing_;
     return x;
   };
-  size_t band = 0;
-#pragma omp parallel for schedule(static) reduction(+ : band)
-  for (long flat = 0; flat < long(total); ++flat) {
-    const Real phi = distance(nodeAt(flat));
-    band += phi > -reach && phi < h_ + reach ? 1 : 0;
+  const auto obstacleDistance = [&](const Vec<D>& x) {
+    Real phi = std::numeric_limits<Real>::max();
+    for (const auto& o : obstacles_) phi = std::min(phi, o.signedDistance(x));
+    return phi;
+  };
+
+  // A node whose support no obstacle reaches sees the domain's walls alone,
+  // and its integral depends only on its distances to them, which its grid
+  // coordinates fix; a wall 2h away cannot reach the support. So such nodes
+  // are integrated once per class: along each axis, every coordinate near a
+  // wall is a class of its own and all the others are one.
+  const Real far = 2 * h_ + spacing_;
+  std::array<std::vector<size_t>, D> classOf;  // per axis: the class of each coordinate (0: far from both walls)
+  std::array<std::vector<long>, D> member;     // per axis: one coordinate of each class
+  std::array<size_t, D> stride{};
+  size_t classes = 1;
+  for (int d = 0; d < D; ++d) {
+    classOf[d].resize(size_t(count_[d]));
+    member[d].assign(1, -1);
+    for (long k = 0; k < count_[d]; ++k) {
+      const Real x = origin_[d] + Real(k) * spacing_;
+      if (x - domain_.min[d] >= far && domain_.max[d] - x >= far) {
+        classOf[d][size_t(k)] = 0;
+        if (member[d][0] < 0) member[d][0] = k;
+      } else {
+        classOf[d][size_t(k)] = member[d].size();
+        member[d].push_back(k);
+      }
+    }
+    stride[d] = classes;
+    classes *= member[d].size();
   }
-  const double evaluations = double(band) * double(offsets_.size());
+  const auto classKey = [&](const std::array<long, D>& c) {
+    size_t key = 0;
+    for (int d = 0; d < D; ++d) key += classOf[d][size_t(c[d])] * stride[d];
+    return key;
+  };
+  // -1: outside the band; -2: an obstacle is near; otherwise the node's class.
+  const auto kindOf = [&](long flat) -> long {
+    const auto c = coordsAt(flat);
+    const Vec<D> x = positionOf(c);
+    const Real obstacle = obstacleDistance(x);
+    const Real phi = std::min(wallDistance(x), obstacle);
+    if (!(phi > -reach && phi < h_ + reach)) return -1;
+    return obstacle >= far ? long(classKey(c)) : -2;
+  };
+
+  std::vector<unsigned char> used(classes, 0);
+  size_t general = 0;
+#pragma omp parallel for schedule(static) reduction(+ : general)
+  for (long flat = 0; flat < long(total); ++flat) {
+    const long kind = kindOf(flat);
+    if (kind == -2) ++general;
+    if (kind >= 0) {
+#pragma omp atomic write
+      used[size_t(kind)] = 1;
+    }
+  }
+  std::vector<long> keys;
+  for (size_t key = 0; key < classes; ++key)
+    if (used[key]) keys.push_back(long(key));
+  const double evaluations = double(general + keys.size()) * double(offsets_.size());
   if (evaluations > options.maxEvaluations)
-    throw std::invalid_argument("volume map: integrating it would take " + std::to_string(evaluations) +
-                                " distance evaluations, more than " + std::to_string(options.maxEvaluations) +
+    throw std::invalid_argument("volume map: integrating it would take " + readable(evaluations) +
+                                " distance evaluations, more than " + readable(options.maxEvaluations) +
                                 " (lower quadrature or raise map_spacing)");
+
+  const auto integrateAt = [&](const Vec<D>& x, bool wallsOnly) {
+    const auto phi = [&](const Vec<D>& y) {
+      const Vec<D> p = x + y;
+      return wallsOnly ? wallDistance(p) : distance(p);
+    };
+    return double(scale_) * (density_ ? integrateDensity(phi) : integrate(phi));
+  };
+  std::vector<float> classValue(classes, 0.0f);
+#pragma omp parallel for schedule(dynamic, 16)
+  for (long i = 0; i < long(keys.size()); ++i) {
+    size_t key = size_t(keys[size_t(i)]);
+    std::array<long, D> c{};
+    for (int d = D - 1; d >= 0; --d) {
+      c[size_t(d)] = member[d][key / stride[d]];
+      key %= stride[d];
+    }
+    classValue[size_t(keys[size_t(i)])] = float(integrateAt(positionOf(c), true));
+  }
   size_t integrated = 0;
 #pragma omp parallel for schedule(dynamic, 64) reduction(+ : integrated)
   for (long flat = 0; flat < long(total); ++flat) {
-    const Vec<D> x = nodeAt(flat);
-    const Real phi = distance(x);
-    if (phi <= -reach || phi >= h_ + reach) continue;
-    const double raw = density_ ? integrateDensity([&](const Vec<D>& y) { return distance(Vec<D>(x + y)); })
-                                : integral(x);
-    values_[size_t(flat)] = float(double(scale_) * raw);
+    const long kind = kindOf(flat);
+    if (kind == -1) continue;
+    values_[size_t(flat)] = kind >= 0 ? classValue[size_t(kind)] : float(integrateAt(positionOf(coordsAt(flat)), false));
     ++integrated;
   }
   integrated_ = integrated;
@@ -184,13 +271,20 @@ double VolumeMap<D>::integrateDensity(const Phi& phi) const {
 
 template <int D>
 double VolumeMap<D>::integral(const Vec<D>& x) const {
-  return integrate([&](const Vec<D>& y) { return distance(Vec<D>(x + y)); });
+  const auto phi = [&](const Vec<D>& y) { return distance(Vec<D>(x + y)); };
+  return density_ ? integrateDensity(phi) : integrate(phi);
+}
+
+template <int D>
+Real VolumeMap<D>::wallDistance(const Vec<D>& x) const {
+  Real phi = std::numeric_limits<Real>::max();
+  for (int d = 0; d < D; ++d) phi = std::min({phi, x[d] - domain_.min[d], domain_.max[d] - x[d]});
+  return phi;
 }
 
 template <int D>
 Real VolumeMap<D>::distance(const Vec<D>& x) const {
-  Real phi = std::numeric_limits<Real>::max();
-  for (int d = 0; d < D; ++d) phi = std::min({phi, x[d] - domain_.min[d], domain_.max[d] - x[d]});
+  Real phi = wallDistance(x);
   for (const auto& o : obstacles_) phi = std::min(phi, o.signedDistance(x));
   return phi;
 }

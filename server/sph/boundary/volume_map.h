@@ -46,8 +46,9 @@ class VolumeMap {
     double maxEvaluations = 1 << 22;
 #else
     size_t maxNodes = size_t(1) << 25;  // refused beyond (std::invalid_argument)
-    // Integrating the band: nodes × quadrature points, each one Φ; refused
-    // beyond (about 20 s on one core at 10 ns per Φ).
+    // Integrating the band: its nodes near an obstacle and its distinct
+    // wall-only nodes, × quadrature points, each one Φ; refused beyond
+    // (about 20 s on one core at 10 ns per Φ).
     double maxEvaluations = 2e9;
 #endif
     bool density = false;    // a density map (B) instead of a volume map (V)
@@ -58,6 +59,8 @@ class VolumeMap {
 
   // Φ(x): distance to the nearest static solid, positive in the liquid.
   Real distance(const Vec<D>& x) const;
+  // The same for the domain's walls alone.
+  Real wallDistance(const Vec<D>& x) const;
   // The volume map at x (interpolated), 0 beyond the support of every solid.
   Real volume(const Vec<D>& x) const;
   // Particle at x: its virtual sample's volume (0: none) and position (volume map).
@@ -73,7 +76,8 @@ class VolumeMap {
   size_t integratedNodes() const { return integrated_; }
   size_t bytes() const { return values_.size() * sizeof(float); }
 
-  // The unscaled integral ∫ γ(Φ(x + y)) dy at x (exact Φ, quadrature).
+  // The unscaled integral at x (exact Φ, quadrature): ∫ γ(Φ(x + y)) dy, or
+  // the density map's ∫_{Φ(x+y)<=0} W(y) dy.
   double integral(const Vec<D>& x) const;
 
  private:
