@@ -9,7 +9,7 @@ PORT ?= 8080
 ABS_BUILD_DIR = $(abspath $(BUILD_DIR))
 
 .PHONY: all setup build web templates run run-headless docs test test-parts test-ctest test-pytest test-web test-web-only bench bench-accuracy bench-web clean \
-  fuzz fuzz-build fuzz-regress test-fuzz asan-build test-asan bench-soak bench-cache bench-suite
+  fuzz fuzz-build fuzz-regress test-fuzz asan-build test-asan bench-soak bench-cache bench-suite bench-spheric2
 
 # 2D templates are recorded when missing (seconds); larger ones on demand:
 # build/flowclip record templates/recipes/letters3d.json
@@ -152,6 +152,12 @@ bench-suite: build templates web
 
 bench-cache: build templates
 	$(BUILD_DIR)/venv/bin/python tools/bench_cache.py --out bench/cache $(BENCH_CACHE_ARGS)
+
+# SPHERIC Test 2 (docs/benchmarks/accuracy.md): the 3D dam break against a
+# box at the scene's resolution, the water height at the experiment's four
+# gauges against the measured; report in bench/spheric2/ (minutes on 2 cores).
+bench-spheric2: build
+	$(BUILD_DIR)/venv/bin/python tools/spheric2.py --out bench/spheric2 $(BENCH_SPHERIC2_ARGS)
 
 # The documentation site (docs/, mkdocs.yml) into site/, failing on a page
 # missing from the navigation, a broken relative link or anchor. A few
