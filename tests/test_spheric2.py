@@ -1,4 +1,4 @@
-"""tools/spheric2.py, SPHERIC Test 2: the experiment's gauge data as committed (four gauges, the
+"""tools/spheric2.py, SPHERIC Test 2 [KFV*05]: the experiment's gauge data as committed (four gauges, the
 reservoir's full at the start, the others dry until the front comes), and a coarse, short run of
 the scene through the script: a complete report, the reservoir's height at the start, and the
 front reaching the gauge nearest the reservoir when the experiment's did."""
@@ -31,6 +31,18 @@ def test_the_gauge_data_is_the_experiments():
     assert 0.1 < arrivals[0] < 0.3
     for name in ("x0.496", "x0.992", "x1.488"):
         assert exp[name][0] < 0.005, name
+
+
+def test_a_gauge_reads_the_water_standing_on_the_floor_not_the_spray():
+    r = 0.01
+    column = np.array([0.05, 0.01, 0.03])  # three rows from the floor up, in any order
+    assert spheric2.column_top(column, r) == pytest.approx(0.06)
+    # A droplet more than two diameters above the column is spray; one within two is still water.
+    assert spheric2.column_top(np.append(column, 0.2), r) == pytest.approx(0.06)
+    assert spheric2.column_top(np.append(column, 0.085), r) == pytest.approx(0.095)
+    # Nothing on the floor (a jet passing over the gauge) and nothing at all read dry.
+    assert spheric2.column_top(np.array([0.2, 0.22]), r) == 0.0
+    assert spheric2.column_top(np.array([]), r) == 0.0
 
 
 def test_a_coarse_run_reaches_the_first_gauge_with_the_experiment(tmp_path):
