@@ -61,7 +61,9 @@ def quantum(frame_json):
     return extent / 65535.0
 
 
-def wait_until(predicate, timeout=10.0, interval=0.02, what="condition"):
+def wait_until(predicate, timeout=120.0, interval=0.02, what="condition"):
+    """Polls until predicate() holds; the timeout only catches a hang (a sanitized build on a busy
+    machine is many times slower than a release build on a quiet one)."""
     deadline = time.monotonic() + timeout
     while True:
         value = predicate()

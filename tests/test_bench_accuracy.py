@@ -153,7 +153,7 @@ def test_presets_follow_the_schema_and_run(study, tmp_path):
         path = tmp_path / f"{p['name']}.json"
         path.write_text(json.dumps(s))
         proc = subprocess.run([str(FLOWCLIP_BIN), "run", str(path), "--frames", "2", "--quiet"],
-                              capture_output=True, text=True, timeout=120)
+                              capture_output=True, text=True, timeout=900)
         assert proc.returncode == 0, proc.stderr
     # Along the front: cost rises as the error falls.
     d, v, f = presets["presets"]

@@ -16,7 +16,7 @@ def test_a_runaway_frame_puts_only_its_session_in_the_error_state(server, client
     with server.stream(bad) as stream:
         assert stream.wait("frame")["frame"] == 0
         client.play(bad)
-        st = wait_until(lambda: (s := client.session(bad))["status"] == "error" and s, timeout=20,
+        st = wait_until(lambda: (s := client.session(bad))["status"] == "error" and s, timeout=300,
                         what="the error state")
         error_frame = st["error"]["frame"]
         assert error_frame >= 1 and "more than 20 substeps" in st["error"]["message"]
@@ -44,7 +44,7 @@ def test_a_runaway_frame_puts_only_its_session_in_the_error_state(server, client
     assert health["status"] == "ok" and health["sessions"] == 2
     g = client.session(good)
     assert g["status"] == "playing" and "error" not in g
-    wait_until(lambda: client.session(good)["frame"] >= g["frame"] + 5, timeout=10, what="the good session advancing")
+    wait_until(lambda: client.session(good)["frame"] >= g["frame"] + 5, timeout=300, what="the good session advancing")
     other = client.create_session(small_scene("other"), threads=1)["id"]
     client.step(other, 2)
     assert client.wait_paused(other)["frame"] == 2

@@ -164,7 +164,7 @@ class Client:
     def session_scene(self, sid):
         return self.op("sessionScene", id=sid)
 
-    def wait_paused(self, sid, timeout=30.0, settle=0.15):
+    def wait_paused(self, sid, timeout=120.0, settle=0.15):
         """Polls the state until the session is paused (or in error) with nothing pending and its
         frame unchanged for `settle` seconds (a pause lets the frame in progress finish)."""
         deadline, last, since = time.monotonic() + timeout, None, 0.0
