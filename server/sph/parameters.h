@@ -136,6 +136,11 @@ class ParamTable {
     if (std::holds_alternative<bool T::*>(m)) return ParamType::Boolean;
     return ParamType::Number;
   }
+  // GCC 12 warns (-Warray-bounds) for the alternatives a small T cannot hold, which are never the active one.
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Warray-bounds"
+#endif
   void store(T& t, size_t i, double v) const {
     std::visit(
         [&](auto member) {
@@ -146,6 +151,9 @@ class ParamTable {
         },
         members_[i]);
   }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC diagnostic pop
+#endif
   double load(const T& t, size_t i) const {
     return std::visit([&](auto member) { return double(t.*member); }, members_[i]);
   }
