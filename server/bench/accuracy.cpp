@@ -473,10 +473,7 @@ void runPoint(const Context& ctx, Result& r) {
   if (ref.surge) {
     try {
       r.surgeRms = surgeRms(r.surge, ctx.martinMoyce);
-      const std::vector<double> z = interpolateAt(r.surge.T, r.surge.Z, ctx.martinMoyce.T);
-      double bias = 0;
-      for (size_t i = 0; i < z.size(); ++i) bias += (z[i] - ctx.martinMoyce.Z[i]) / double(z.size());
-      r.surgeBias = bias;
+      r.surgeBias = surgeBias(r.surge, ctx.martinMoyce);
     } catch (const std::invalid_argument& ex) {
       r.error = std::string("surge front not comparable with Martin & Moyce: ") + ex.what();
       return;

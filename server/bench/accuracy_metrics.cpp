@@ -92,6 +92,13 @@ double surgeRms(const SurgeCurve& simulated, const SurgeCurve& reference) {
   return std::sqrt(sum / double(z.size()));
 }
 
+double surgeBias(const SurgeCurve& simulated, const SurgeCurve& reference) {
+  const std::vector<double> z = interpolateAt(simulated.T, simulated.Z, reference.T);
+  double sum = 0;
+  for (size_t i = 0; i < z.size(); ++i) sum += z[i] - reference.Z[i];
+  return sum / double(z.size());
+}
+
 std::vector<bool> paretoFront(const std::vector<double>& cost, const std::vector<double>& error,
                               const std::vector<bool>& eligible) {
   const size_t n = cost.size();

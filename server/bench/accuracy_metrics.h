@@ -52,6 +52,8 @@ std::vector<double> interpolateAt(const std::vector<double>& x, const std::vecto
 
 // sqrt(mean((simulated(T_i) - Z_i)^2)) over the reference points.
 double surgeRms(const SurgeCurve& simulated, const SurgeCurve& reference);
+// mean(simulated(T_i) - Z_i) over the reference points: how far ahead (+) the simulated curve runs.
+double surgeBias(const SurgeCurve& simulated, const SurgeCurve& reference);
 
 // on[i]: no other point is at most as costly and at most as wrong, and
 // strictly better in one (both minimised). Only points with eligible[i]

@@ -12,6 +12,20 @@ inline bool verbose() {
   return v && *v && std::string(v) != "0";
 }
 
+// The height (y) of the surface a liquid of the simulation's mass has when it
+// fills the tank's floor at rest density: Σ m/ρ0 over the floor's area, above
+// the floor. A resting column's depth counts from it (the top row's centres
+// ride up and down by a fraction of r).
+template <int D>
+double volumeSurface(const Simulation<D>& sim) {
+  const AABB<D>& dom = sim.setup().domain;
+  double floorArea = 1, volume = 0;
+  for (int d = 0; d < D; ++d)
+    if (d != 1) floorArea *= double(dom.size()[d]);
+  for (size_t i = 0; i < sim.fluid.size(); ++i) volume += double(sim.fluid.mass[i]) / sim.restDensity(i);
+  return double(dom.min[1]) + volume / floorArea;
+}
+
 // The checks every frame must pass: finite state and every particle
 // strictly inside the tank. (Particle centres are kept a contact distance
 // off the walls by the solver's contact model; how often that has to act is

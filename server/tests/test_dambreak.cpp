@@ -254,9 +254,7 @@ void damBreakTest(const std::string& sceneFile, double radiusOverride, const std
   ASSERT_GE(mmSurge.T.size(), 10u) << "the run must cover Martin & Moyce's surge up to T = 3";
   ASSERT_GE(mmHeight.T.size(), 8u) << "the run must cover most of their column heights";
   const double surgeError = surgeRms(surge, mmSurge), heightError = surgeRms(height, mmHeight);
-  double surgeLead = 0;
-  const std::vector<double> at = interpolateAt(surge.T, surge.Z, mmSurge.T);
-  for (size_t i = 0; i < at.size(); ++i) surgeLead += (at[i] - mmSurge.Z[i]) / double(at.size());
+  const double surgeLead = surgeBias(surge, mmSurge);
   std::printf("[ measured ] %s %s against Martin & Moyce: surge front RMS %.3f in Z over %zu points (T <= 3; mean lead "
               "%+.3f), residual column height RMS %.3f over %zu points (tau <= %.2f)\n",
               sceneFile.c_str(), solver.c_str(), surgeError, mmSurge.T.size(), surgeLead, heightError,

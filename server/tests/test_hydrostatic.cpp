@@ -62,6 +62,10 @@ HydroRun runHydrostatic(const std::string& sceneFile, double radiusOverride, dou
   const double g = setup.gravity.norm();
   const double floorY = setup.domain.min[1];
   const auto& f = sim.fluid;
+  const double surface = volumeSurface(sim);
+  double floorArea = 1;
+  for (int d = 0; d < D; ++d)
+    if (d != 1) floorArea *= double(setup.domain.size()[d]);
   const auto t0 = std::chrono::steady_clock::now();
   while (sim.time() < seconds - 1e-9) {
     const FrameStats fs = sim.advanceFrame();
@@ -76,14 +80,7 @@ HydroRun runHydrostatic(const std::string& sceneFile, double radiusOverride, dou
       for (int d = 0; d < D; ++d)
         gap = std::min({gap, double(f.x[i][d] - setup.domain.min[d]), double(setup.domain.max[d] - f.x[i][d])});
     }
-    // The surface an incompressible liquid of this mass has: its volume over
-    // the floor's area (the top row's centres ride up and down by a fraction of r).
-    double volume = 0;
-    for (size_t i = 0; i < f.size(); ++i) volume += f.mass[i] / rho0;
-    double floorArea = 1;
-    for (int d = 0; d < D; ++d)
-      if (d != 1) floorArea *= double(setup.domain.size()[d]);
-    const double H = floorY + volume / floorArea;
+    const double H = surface;
     h.minWallGap = gap / r;
     // Bottom layer, wall row, and a least-squares fit p = a + b y over the
     // interior (away from the floor and the surface by three diameters).

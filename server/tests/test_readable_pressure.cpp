@@ -58,12 +58,7 @@ Series restingColumn(const std::string& sceneFile, const std::string& boundary, 
   const double r = sim.particleRadius(), rho0 = setup.phases.at(0).restDensity, g = setup.gravity.norm();
   const auto& dom = setup.domain;
   const auto& f = sim.fluid;
-  double floorArea = 1;
-  for (int d = 0; d < D; ++d)
-    if (d != 1) floorArea *= double(dom.size()[d]);
-  double volume = 0;
-  for (size_t i = 0; i < f.size(); ++i) volume += double(f.mass[i]) / rho0;
-  const double H = double(dom.min[1]) + volume / floorArea;
+  const double H = volumeSurface(sim);
   // Interior: three diameters from the side walls and four below the
   // surface: the support (two diameters) misses neighbours, and the band
   // below it still feels the surface (3D: 2.9 % low at three to four diameters).
