@@ -8,15 +8,19 @@ cd "$(dirname "$0")/.."
 APT_PACKAGES=(build-essential cmake ninja-build pkg-config libeigen3-dev libhdf5-dev
   libflatbuffers-dev flatbuffers-compiler libboost-dev nlohmann-json3-dev
   libgtest-dev libcli11-dev chromium python3-venv
-  clang libclang-rt-14-dev libomp-14-dev)
+  clang libclang-rt-14-dev libomp-14-dev
+  libopenvdb-dev libboost-iostreams-dev libopenvdb-tools blender)
 # clang, libclang-rt-14-dev (libFuzzer, ASan and UBSan runtimes) and
 # libomp-14-dev (clang's OpenMP) build the fuzz targets (docs/fuzzing.md).
+# libopenvdb-dev (with libboost-iostreams-dev, which its CMake module asks
+# for) builds the surfaces; vdb_print (libopenvdb-tools) and Blender read
+# them back in the tests and render the gallery (docs/surfaces.md).
 # FLOWCLIP_HEADLESS=1 (docker/Dockerfile's server image): only what building
 # the server needs, no browser, Python venv or npm packages.
 if [ -n "${FLOWCLIP_HEADLESS:-}" ]; then
   APT_PACKAGES=(build-essential cmake ninja-build pkg-config libeigen3-dev libhdf5-dev
     libflatbuffers-dev flatbuffers-compiler libboost-dev nlohmann-json3-dev
-    libgtest-dev libcli11-dev)
+    libgtest-dev libcli11-dev libopenvdb-dev libboost-iostreams-dev)
 fi
 
 missing=()

@@ -1,0 +1,70 @@
+#pragma once
+// The liquid's surface from its particles, frame by frame: a level set on
+// an OpenVDB grid (Zhu & Bridson's distance to the neighbourhood's mean
+// position, evaluated only in the blocks the surface crosses), a box filter,
+// and a triangle mesh (OpenVDB's volume-to-mesh). docs/surfaces.md says how the parameters trade
+// thin sheets and droplets against smoothness.
+//
+// Only surface.cpp and the exporters that write grids include OpenVDB
+// (surface/volumes.h): everything else sees the mesh and an opaque handle.
+#include "sph/parameters.h"
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace fc {
+
+// Parameters in multiples of the particle radius r, so that one set suits
+// every resolution.
+struct SurfaceSettings {
+  double voxelSize = 0.5;      // × r: the level set's voxel
+  double kernelRadius = 4.0;   // × r: the neighbourhood averaged
+  double surfaceRadius = 1.15; // × r: the surface's distance from the neighbourhood's mean
+  int smoothing = 1;           // box-filter passes
+  double adaptivity = 0.0;     // volume-to-mesh adaptivity, 0 = uniform
+};
+const ParamTable<SurfaceSettings>& surfaceSettingsTable();
+const ParamSpecs& surfaceSettingsSpecs();
+
+// One frame of particles, positions and velocities in 3D (a 2D scene's at
+// z = 0), the columns of a frames file (docs/export-format.md).
+struct ParticleFrame {
+  int index = 0;                  // frame number
+  double time = 0;                // s
+  std::vector<float> position;    // count × 3, m
+  std::vector<float> velocity;    // count × 3, m/s
+  std::vector<uint32_t> id;       // empty when the source has none
+  std::vector<uint8_t> phase;
+  std::vector<uint8_t> kind;      // 0 liquid, 1 temporary, 2 boundary
+  std::vector<float> density;     // empty when the source has none
+  size_t count() const { return kind.size(); }
+};
+
+// Whether a particle of this kind belongs to the liquid's surface (liquid
+// and temporary particles do; boundary samples do not).
+inline bool formsSurface(uint8_t kind) { return kind == 0 || kind == 1; }
+
+struct SurfaceMesh {
+  std::vector<std::array<float, 3>> points;      // m
+  std::vector<std::array<float, 3>> velocities;  // m/s, one per point
+  std::vector<std::array<uint32_t, 3>> triangles;
+};
+
+struct SurfaceVolumes;  // the level set and velocity grids (surface/volumes.h)
+
+struct Surface {
+  std::shared_ptr<SurfaceVolumes> volumes;  // null when the frame has no liquid
+  SurfaceMesh mesh;
+  size_t particles = 0;  // how many particles formed it
+  double ms = 0;         // wall time of the reconstruction
+};
+
+// The surface of the frame's liquid and temporary particles of radius
+// `particleRadius` (m). `withMesh` false: only the grids. Throws
+// std::invalid_argument for a radius that is not positive.
+Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, const SurfaceSettings& settings,
+                           bool withMesh = true);
+
+}  // namespace fc
