@@ -12,5 +12,6 @@ void addRunCommand(CLI::App& app);        // run (run_command.cpp)
 void addTemplatesCommands(CLI::App& app); // record, templates list|inspect|remove (templates_command.cpp)
 void addServeCommand(CLI::App& app);      // serve (serve_command.cpp)
 void addParamsCommand(CLI::App& app);     // params (params_command.cpp)
+void addExportCommand(CLI::App& app);     // export (export_command.cpp)
 
 }  // namespace fc::app

@@ -11,6 +11,7 @@ int main(int argc, char** argv) {
   fc::app::addTemplatesCommands(app);
   fc::app::addServeCommand(app);
   fc::app::addParamsCommand(app);
+  fc::app::addExportCommand(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

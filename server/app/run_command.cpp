@@ -1,6 +1,9 @@
 // `flowclip run SCENE.json`: simulate a scene headless, with a progress line,
 // optional HDF5 export of every frame and a JSON stats file.
 #include "app/commands.h"
+#include "app/surface_options.h"
+#include "export/from_simulation.h"
+#include "cli/param_override.h"
 #include "io/frame_export.h"
 #include "io/instance_binding.h"
 #include "io/scene.h"
@@ -30,6 +33,8 @@ struct RunOptions {
   std::optional<int> frames;
   std::optional<double> seconds;
   std::string exportPath;
+  std::string surfacePath;  // --export-surface DIR
+  SurfaceOptions surface;
   std::string statsPath;
   int threads = 0;
   double particleRadius = 0;
@@ -47,35 +52,8 @@ struct RunOptions {
 // forces_every_substep.
 void overrideControlSettings(const std::vector<std::string>& overrides, ControlSettings& settings) {
   for (const auto& kv : overrides) {
-    const size_t eq = kv.find('=');
-    const std::string key = kv.substr(0, eq);
-    const ParamSpec* spec = findSpec(controlSettingsSpecs(), key);
-    if (eq == std::string::npos || !spec)
-      throw SceneError("control", "--control-setting '" + kv + "': expected KEY=VALUE with KEY a control setting");
-    const std::string text = kv.substr(eq + 1);
-    const auto bad = [&](const std::string& why) {
-      return SceneError("control." + key, "'" + text + "' given by --control-setting: " + why);
-    };
-    double value = 0;
-    if (spec->type == ParamType::Boolean && (text == "true" || text == "false")) {
-      value = text == "true" ? 1 : 0;
-    } else {
-      size_t used = 0;
-      try {
-        value = std::stod(text, &used);
-      } catch (const std::exception&) {
-        used = 0;
-      }
-      if (used == 0 || used != text.size()) throw bad("not a number");
-    }
-    if (spec->type == ParamType::Boolean && value != 0 && value != 1) throw bad("must be 0, 1, true or false");
-    if (spec->type == ParamType::Integer && value != std::floor(value)) throw bad("must be an integer");
-    if (!(value >= spec->min && value <= spec->max)) {
-      char range[64];
-      std::snprintf(range, sizeof(range), "must be in [%g, %g]", spec->min, spec->max);
-      throw bad(range);
-    }
-    controlSettingsTable().assign(settings, key, value);
+    const ParamOverride o = parseParamOverride(controlSettingsSpecs(), kv, "--control-setting", "control");
+    controlSettingsTable().assign(settings, o.spec->name, o.value);
   }
 }
 
@@ -131,6 +109,19 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
     h.createdBy = std::string("flowclip ") + FLOWCLIP_VERSION;
     exporter = std::make_unique<FrameExporter<D>>(opt.exportPath, h);
     exporter->writeFrame(0, 0.0, sim.fluid);
+  }
+  std::unique_ptr<SurfaceExport> surfaces;
+  if (!opt.surfacePath.empty()) {
+    ExportInfo info;
+    info.name = std::filesystem::path(opt.scene).stem().string();
+    info.directory = opt.surfacePath;
+    info.dimension = D;
+    info.particleRadius = setup.particleRadius;
+    info.frameRate = 1.0 / frameDt;
+    info.phases = setup.phases;
+    info.createdBy = std::string("flowclip ") + FLOWCLIP_VERSION;
+    surfaces = makeSurfaceExport(opt.surface, info);
+    surfaces->writeFrame(particleFrame(sim.fluid, 0, 0.0));
   }
 
   // The solver's parameters as the run uses them (declared defaults, then
@@ -192,6 +183,7 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
     }
     framesJson.push_back(frameStatsToJson(s, instances > 0));
     if (exporter) exporter->writeFrame(s.frame, s.time, sim.fluid);
+    if (surfaces) surfaces->writeFrame(particleFrame(sim.fluid, s.frame, s.time));
     if (!opt.quiet && (tty || f + 1 == frames || (f + 1) % std::max(1, frames / 20) == 0)) {
       const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
       const double eta = wall / (f + 1) * (frames - f - 1);
@@ -199,10 +191,13 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
           instances ? "  control " + std::to_string(int(std::lround(s.controlMs))) + " ms, " +
                           std::to_string(s.temporaryParticles) + " temporary"
                     : std::string();
+      const std::string surface =
+          surfaces ? "  surface " + std::to_string(int(std::lround(surfaces->surfaceMs() / surfaces->frames()))) + " ms"
+                   : std::string();
       std::fprintf(stderr,
-                   "%sframe %d/%d  t=%.3f s  %d substeps  iter %d/%d  err %.3f%%  %.1f ms/frame%s  ETA %.0f s%s",
+                   "%sframe %d/%d  t=%.3f s  %d substeps  iter %d/%d  err %.3f%%  %.1f ms/frame%s%s  ETA %.0f s%s",
                    tty ? "\r" : "", f + 1, frames, s.time, s.substeps, s.divergenceIterations, s.densityIterations,
-                   s.avgDensityErrorPct, s.wallMs, ctrl.c_str(), eta, tty ? "   " : "\n");
+                   s.avgDensityErrorPct, s.wallMs, ctrl.c_str(), surface.c_str(), eta, tty ? "   " : "\n");
       std::fflush(stderr);
     }
   }
@@ -214,6 +209,8 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
     status = Interrupted;
   }
   if (exporter) exporter->close();
+  // A surface export is complete (has its manifest) only when every frame asked for was simulated.
+  if (surfaces && status == Ok) surfaces->close();
 
   const double wallS = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   const double simS = double(framesJson.size()) * frameDt;
@@ -251,6 +248,10 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
     summary["control_overhead_pct"] = wallS * 1000 > controlMs ? 100.0 * controlMs / (wallS * 1000 - controlMs) : 0.0;
     summary["template_bind_s"] = bindS;
   }
+  if (surfaces) {
+    summary["surface_ms_per_frame"] = surfaces->frames() ? surfaces->surfaceMs() / surfaces->frames() : 0.0;
+    summary["surface_export_bytes"] = surfaces->bytesWritten();
+  }
   if (!failure.empty()) summary["error"] = failure;
   if (!opt.statsPath.empty()) writeJsonAtomically(opt.statsPath, {{"frames", framesJson}, {"summary", summary}});
   if (!opt.quiet) {
@@ -277,6 +278,9 @@ void addRunCommand(CLI::App& app) {
       ->check(CLI::NonNegativeNumber)
       ->excludes(fr);
   run->add_option("--export", opt->exportPath, "write every frame's particles to this HDF5 file");
+  run->add_option("--export-surface", opt->surfacePath,
+                  "write every frame's surface, meshes or point caches into this directory (--formats; "
+                  "docs/surfaces.md)");
   run->add_option("--stats", opt->statsPath, "write per-frame statistics and a summary to this JSON file");
   run->add_option("--threads", opt->threads, "OpenMP threads (default: all cores)")->check(CLI::PositiveNumber);
   run->add_option("--particle-radius", opt->particleRadius, "override the scene's particle radius (resolution), m")
@@ -291,6 +295,7 @@ void addRunCommand(CLI::App& app) {
   run->add_option("--control-setting", opt->controlSettings,
                   "override a control setting of the scene, KEY=VALUE (e.g. forces_every_substep=1); repeatable");
   run->add_flag("--quiet", opt->quiet, "no progress line or summary");
+  addSurfaceOptions(run, opt->surface);
   run->callback([opt] {
     if (opt->threads > 0) omp_set_num_threads(opt->threads);
     int code = Ok;

@@ -1,5 +1,6 @@
 #pragma once
-// Reading back a frames file written by FrameExporter (docs/export-format.md):
+// Reading back a frames file written by FrameExporter (docs/export-format.md,
+// through io/frames_file.h):
 // the columns an analysis of the liquid needs, for every frame at once.
 // `flowclip bench accuracy` measures the surge front, the compression and the
 // volume of each run from its export.

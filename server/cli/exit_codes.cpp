@@ -1,4 +1,6 @@
 #include "cli/exit_codes.h"
+#include "export/surface_export.h"
+#include "io/frames_file.h"
 #include "io/recipe.h"
 #include "io/scene.h"
 #include "io/template_database.h"
@@ -20,6 +22,12 @@ int reportError(const std::string& origin, ExitCode otherwise) {
     std::fprintf(stderr, "error: %s\n", e.what());
     return BadInput;
   } catch (const TemplateError& e) {
+    std::fprintf(stderr, "error: %s\n", e.what());
+    return BadInput;
+  } catch (const ExportSetupError& e) {
+    std::fprintf(stderr, "error: %s\n", e.what());
+    return BadInput;
+  } catch (const FramesFileError& e) {
     std::fprintf(stderr, "error: %s\n", e.what());
     return BadInput;
   } catch (const RecordAborted& e) {
