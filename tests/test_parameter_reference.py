@@ -35,16 +35,17 @@ def test_every_declared_parameter_has_its_row():
     ref = _params()
     hook = _hook()
     page = hook.render(ref)
-    sections = [ref["2"]["settings"], ref["2"]["control"], ref["2"]["instance"]]
+    sections = [ref["2"]["settings"], ref["2"]["control"], ref["2"]["instance"], ref["2"]["surface"]]
     sections += [e["params"] for e in ref["2"]["solvers"].values()] + [e["params"] for e in ref["2"]["effects"].values()] + [
-        e["params"] for e in ref["2"]["boundaries"].values()]
+        e["params"] for e in ref["2"]["boundaries"].values()] + [e["params"] for e in ref["2"]["exporters"].values()]
     assert sum(len(s) for s in sections) > 30
     for specs in sections:
         for spec in specs:
             assert any(line.startswith(f"| `{spec['name']}` | {spec['type']} |") for line in page.splitlines()), spec["name"]
             if spec["type"] != "boolean":
                 assert f"[{hook._num(spec['min'])}, {hook._num(spec['max'])}]" in page, spec["name"]
-    for name in list(ref["2"]["solvers"]) + list(ref["2"]["effects"]) + list(ref["2"]["boundaries"]):
+    for name in (list(ref["2"]["solvers"]) + list(ref["2"]["effects"]) + list(ref["2"]["boundaries"]) +
+                 list(ref["2"]["exporters"])):
         assert f"### `{name}`" in page
     for lim in ref["2"]["limits"]:
         assert f"| `{lim['name']}` |" in page

@@ -1,6 +1,7 @@
 #include "io/parameter_reference.h"
 
 #include "control/instance.h"
+#include "export/exporter.h"
 #include "sph/limits.h"
 #include "sph/pipeline.h"
 #include "sph/settings.h"
@@ -45,6 +46,7 @@ json limitsJson() {
 template <int D>
 json parameterReference() {
   registerBuiltinSolversAndEffects();
+  registerBuiltinExporters();
   return {{"dimension", D},
           {"instance", specsJson(instanceParamSpecs(D))},
           {"control", specsJson(controlSettingsSpecs())},
@@ -52,6 +54,8 @@ json parameterReference() {
           {"solvers", registryJson(PressureSolverRegistry<D>::instance())},
           {"effects", registryJson(EffectRegistry<D>::instance())},
           {"boundaries", registryJson(BoundaryModelRegistry<D>::instance())},
+          {"surface", specsJson(surfaceSettingsSpecs())},
+          {"exporters", registryJson(ExporterRegistry::instance())},
           {"limits", limitsJson()}};
 }
 
