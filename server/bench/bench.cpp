@@ -29,6 +29,7 @@ void addBenchCommand(CLI::App& app) {
   addBenchServiceCommand(*bench);
   addBenchScenesCommand(*bench);
   addBenchAccuracyCommand(*bench);
+  addBenchSurfaceCommand(*bench);
 }
 
 }  // namespace fc::bench

@@ -19,6 +19,7 @@ void addBenchControlCommand(CLI::App& bench);    // bench control (control.cpp)
 void addBenchServiceCommand(CLI::App& bench);    // bench service (service.cpp)
 void addBenchScenesCommand(CLI::App& bench);     // bench scenes (scenes.cpp)
 void addBenchAccuracyCommand(CLI::App& bench);   // bench accuracy (accuracy.cpp)
+void addBenchSurfaceCommand(CLI::App& bench);    // bench surface (surface.cpp)
 
 // The scene files (*.json, sorted) of `folder` under the working directory,
 // else under the source tree: the benchmarks' default scenes (bench.cpp).

@@ -119,7 +119,7 @@ void SurfaceExport::writeFrame(const ParticleFrame& frame) {
   if (closed_) throw std::runtime_error("export of '" + info_.name + "': already closed");
   Surface surface;
   if (grids_ || mesh_) {
-    surface = reconstructSurface(frame, info_.particleRadius, surface_, mesh_);
+    surface = reconstructSurface(frame, info_.particleRadius, surface_, mesh_, info_.dimension);
     surfaceMs_ += surface.ms;
   }
   FrameFiles files(info_.directory);

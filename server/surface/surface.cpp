@@ -44,7 +44,7 @@ const ParamTable<SurfaceSettings>& surfaceSettingsTable() {
        .help = "box-filter passes over the field before meshing: each flattens the ripple between particles "
                "and shrinks a lone droplet a little",
        .member = &SurfaceSettings::smoothing},
-      {.name = "adaptivity", .unit = "", .min = 0, .max = 1, .def = 0,
+      {.name = "adaptivity", .unit = "", .min = 0, .max = 1, .def = 0.1,
        .help = "volume-to-mesh adaptivity: 0 meshes every voxel, higher merges flat regions into larger polygons",
        .member = &SurfaceSettings::adaptivity},
   };
@@ -182,7 +182,10 @@ struct Gathered {
 }  // namespace
 
 Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, const SurfaceSettings& s,
-                           bool withMesh) {
+                           bool withMesh, int dimension) {
+  // A 2D scene's particles lie in the plane z = 0: the field is evaluated
+  // there once per column and extruded into a slab.
+  const bool planar = dimension == 2;
   initialiseOpenVdb();
   const auto t0 = std::chrono::steady_clock::now();
   if (!(particleRadius > 0)) throw std::invalid_argument("surface: the particle radius must be positive");
@@ -327,6 +330,12 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
             const int k0 = std::max(0, int(std::ceil(u[2] - rz))), k1 = std::min(kBlock - 1, int(std::floor(u[2] + rz)));
             const double dxy2 = dx * dx + dy * dy;
             double* a = &acc[7 * size_t((i << 6) | (j << 3))];
+            if (planar) {  // the plane z = 0 only, in the column's first slot
+              const double t = 1 - dxy2 * invR2, w = t * t * t;
+              a[0] += w, a[1] += w * p[0], a[2] += w * p[1];
+              a[4] += w * g.v[3 * n], a[5] += w * g.v[3 * n + 1];
+              continue;
+            }
             for (int k = k0; k <= k1; ++k) {
               const double dz = (lo[2] + k * voxel) - p[2];
               const double t = 1 - (dxy2 + dz * dz) * invR2;
@@ -342,12 +351,13 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
       LeafT& leaf = *leaves[c];
       auto& vleaf = *velocityLeaves[c];
       for (openvdb::Index n = 0; n < LeafT::SIZE; ++n) {
-        const double* a = &acc[7 * n];
+        const double* a = &acc[7 * (planar ? n & ~openvdb::Index(kBlock - 1) : n)];
         const Coord ijk = leaf.offsetToGlobalCoord(n);
         double phi = band;
         if (a[0] > 0) {
+          // A 2D liquid's slab: its plane's field, rounded off in z.
           const double mx = a[1] / a[0] - ijk.x() * voxel, my = a[2] / a[0] - ijk.y() * voxel,
-                       mz = a[3] / a[0] - ijk.z() * voxel;
+                       mz = planar ? -ijk.z() * voxel : a[3] / a[0] - ijk.z() * voxel;
           phi = std::sqrt(mx * mx + my * my + mz * mz) - field.surfaceRadius();
         }
         if (std::abs(phi) < band) {

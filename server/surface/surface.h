@@ -24,7 +24,7 @@ struct SurfaceSettings {
   double kernelRadius = 4.0;   // × r: the neighbourhood averaged
   double surfaceRadius = 1.15; // × r: the surface's distance from the neighbourhood's mean
   int smoothing = 1;           // box-filter passes
-  double adaptivity = 0.0;     // volume-to-mesh adaptivity, 0 = uniform
+  double adaptivity = 0.1;     // volume-to-mesh adaptivity, 0 = uniform
 };
 const ParamTable<SurfaceSettings>& surfaceSettingsTable();
 const ParamSpecs& surfaceSettingsSpecs();
@@ -45,9 +45,11 @@ struct Surface {
 };
 
 // The surface of the frame's liquid and temporary particles of radius
-// `particleRadius` (m). `withMesh` false: only the grids. Throws
+// `particleRadius` (m). `withMesh` false: only the grids. `dimension` 2: the
+// particles lie at z = 0 and the surface is a slab 2 × surface_radius thick
+// (rounded at its edges), for DCCs that have no 2D liquids. Throws
 // std::invalid_argument for a radius that is not positive.
 Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, const SurfaceSettings& settings,
-                           bool withMesh = true);
+                           bool withMesh = true, int dimension = 3);
 
 }  // namespace fc
