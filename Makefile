@@ -8,7 +8,7 @@ CMAKE_FLAGS ?=
 PORT ?= 8080
 ABS_BUILD_DIR = $(abspath $(BUILD_DIR))
 
-.PHONY: all setup build web templates run run-headless docs test test-parts test-ctest test-pytest test-web test-web-only bench bench-accuracy bench-web clean \
+.PHONY: all setup build web templates run run-headless docs gallery test test-parts test-ctest test-pytest test-web test-web-only bench bench-accuracy bench-web clean \
   fuzz fuzz-build fuzz-regress test-fuzz asan-build test-asan bench-soak bench-cache bench-suite bench-spheric2
 
 # 2D templates are recorded when missing (seconds); larger ones on demand:
@@ -158,6 +158,14 @@ bench-cache: build templates
 # gauges against the measured; report in bench/spheric2/ (minutes on 2 cores).
 bench-spheric2: build
 	$(BUILD_DIR)/venv/bin/python tools/spheric2.py --out bench/spheric2 $(BENCH_SPHERIC2_ARGS)
+
+# Pictures of every shipped scene's surface (docs/images/gallery/, shown by
+# the README and docs/surfaces.md): each scene run, meshed and rendered by
+# Blender (Cycles on the CPU) from the camera stored in the scene; records the
+# 3D templates first when missing. Not part of `make test` (an hour or more on
+# 2 cores); tests/test_surface_export.py imports a small scene into Blender.
+gallery: build templates
+	$(BUILD_DIR)/venv/bin/python tools/gallery.py $(GALLERY_ARGS)
 
 # The documentation site (docs/, mkdocs.yml) into site/, failing on a page
 # missing from the navigation, a broken relative link or anchor. A few

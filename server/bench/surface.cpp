@@ -65,7 +65,8 @@ ParticleFrame makeLiquid(size_t count, int dim, bool splash) {
 
 struct Options {
   std::string out = "bench/surface";
-  std::vector<size_t> sizes = {100000, 1000000};
+  std::vector<size_t> sizes = {100000, 1000000};  // 3D
+  std::vector<size_t> sizes2d = {100000};          // a 2D liquid's slab has two faces as large as its area
   int threads = 2;
   int repeats = 3;
 };
@@ -80,7 +81,7 @@ int benchSurface(const Options& opt) {
               "triangles", "vdb MB", "ply MB", "points MB");
   for (int dim : {2, 3})
     for (bool splash : {false, true})
-      for (size_t n : opt.sizes) {
+      for (size_t n : dim == 2 ? opt.sizes2d : opt.sizes) {
         const ParticleFrame frame = makeLiquid(n, dim, splash);
         // The reconstruction alone, best of the repeats.
         double best = 1e30;
@@ -138,7 +139,8 @@ void addBenchSurfaceCommand(CLI::App& bench) {
   auto opt = std::make_shared<Options>();
   CLI::App* cmd = bench.add_subcommand("surface", "surface reconstruction: us per particle and MB per frame by format");
   cmd->add_option("--out", opt->out, "report directory (default bench/surface)");
-  cmd->add_option("--sizes", opt->sizes, "particle counts (default 100000 1000000)")->delimiter(',');
+  cmd->add_option("--sizes", opt->sizes, "3D particle counts (default 100000,1000000)")->delimiter(',');
+  cmd->add_option("--sizes-2d", opt->sizes2d, "2D particle counts (default 100000)")->delimiter(',');
   cmd->add_option("--threads", opt->threads, "threads (default 2)")->check(CLI::PositiveNumber);
   cmd->add_option("--repeats", opt->repeats, "runs per case, the best is kept (default 3)")->check(CLI::PositiveNumber);
   cmd->callback([opt] {

@@ -1049,6 +1049,33 @@ int sceneDimension(const json& scene) {
   return int(d);
 }
 
+// "camera": {"position": [x, y, z], "target": [x, y, z], "lens_mm": 40}, 3D in every scene.
+static SceneCamera parseCamera(const json& j) {
+  expectObject(j, "camera");
+  checkKeys(j, "camera", {"position", "target", "lens_mm"});
+  SceneCamera c;
+  c.set = true;
+  const auto point = [&](const char* key, const char* what) {
+    const std::string path = std::string("camera.") + key;
+    const json& v = required(j, "camera", key, what);
+    expectType(v.is_array(), v, path, "an array of 3 numbers");
+    if (v.size() != 3)
+      fail(path, "expected 3 components (a camera is placed in 3D, also in a 2D scene), got " + std::to_string(v.size()));
+    std::array<double, 3> p{};
+    for (size_t d = 0; d < 3; ++d) p[d] = getNumber(v[d], indexPath(path, d));
+    return p;
+  };
+  c.position = point("position", "where the camera is, m");
+  c.target = point("target", "what it looks at, m");
+  const double gap = std::hypot(c.position[0] - c.target[0], c.position[1] - c.target[1], c.position[2] - c.target[2]);
+  if (gap < 1e-6) fail("camera.target", "must differ from camera.position");
+  if (const json* m = member(j, "lens_mm")) {
+    c.lensMm = getNumber(*m, "camera.lens_mm");
+    if (!(c.lensMm >= 5 && c.lensMm <= 500)) fail("camera.lens_mm", fmt(c.lensMm) + " mm is outside [5, 500]");
+  }
+  return c;
+}
+
 template <int D>
 SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
   registerBuiltinSolversAndEffects();
@@ -1057,7 +1084,7 @@ SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
                           std::to_string(D) + "D");
   checkKeys(root, "", {"name", "dimension", "particle_radius", "domain", "gravity", "duration", "max_particles",
                        "phases", "fluid_blocks", "obstacles", "bodies", "emitters", "solver", "boundary", "settings",
-                       "effects",
+                       "effects", "camera",
                        "control", "instances"});
   // "control" and "instances" are read by parseSceneControl.
 
@@ -1116,6 +1143,8 @@ SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
   s.boundary = parseMethod<BoundaryModelRegistry<D>>(member(root, "boundary"), "boundary", kDefaultBoundaryModel);
   s.effects = parseEffects<D>(member(root, "effects"));
 
+  if (const json* m = member(root, "camera")) s.camera = parseCamera(*m);
+
   checkFluidBlocks(s, overridden);
   checkBodies(s);
   checkEmitters(s);
@@ -1133,6 +1162,8 @@ json sceneToJson(const SimulationSetup<D>& s) {
   j["gravity"] = vecToJson<D>(s.gravity);
   j["duration"] = s.duration;
   j["max_particles"] = s.maxParticles;
+  if (s.camera.set)
+    j["camera"] = {{"position", s.camera.position}, {"target", s.camera.target}, {"lens_mm", s.camera.lensMm}};
 
   json phases = json::array();
   for (const Phase& ph : s.phases) {

@@ -10,6 +10,7 @@
 #include "io/scene.h"
 #include "io/template_file.h"
 #include "service/recipe_jobs.h"
+#include "service/surface_jobs.h"
 #include "service/rest_support.h"
 
 #include <algorithm>
@@ -82,6 +83,7 @@ ServiceHub::ServiceHub(ServiceOptions options)
     : options_(std::move(options)), database_(options_.templatesDir), started_(std::chrono::steady_clock::now()) {
   if (options_.maxThreads <= 0) options_.maxThreads = std::max(1, int(std::thread::hardware_concurrency()));
   if (options_.recordThreads <= 0) options_.recordThreads = std::max(1, int(std::thread::hardware_concurrency()) / 2);
+  surfaceJobs_ = std::make_unique<SurfaceJobs>(options_.recordThreads);
   recipeJobs_ = std::make_unique<RecipeJobs>(
       RecipeJobsOptions{options_.recipesDir, options_.templatesDir, options_.recordThreads});
 }
@@ -125,6 +127,9 @@ const std::vector<ServiceHub::Route>& ServiceHub::routes() {
       {"GET", "/api/sessions/{id}/frames/{frame}", &ServiceHub::getFrame},
       {"POST", "/api/sessions/{id}/export", &ServiceHub::exportFrames},
       {"GET", "/api/exports/{file}", &ServiceHub::getExport},
+      {"GET", "/api/exports/jobs/{id}", &ServiceHub::getSurfaceJob},
+      {"DELETE", "/api/exports/jobs/{id}", &ServiceHub::cancelSurfaceJob},
+      {"GET", "/api/exports/{name}/{file}", &ServiceHub::getSurfaceFile},
       {"GET", "/api/recipes", &ServiceHub::listRecipes},
       {"POST", "/api/recipes/{name}/record", &ServiceHub::startRecipeJob},
       {"GET", "/api/recipes/jobs/{id}", &ServiceHub::getRecipeJob},

@@ -28,6 +28,7 @@
 namespace fc::service {
 
 class RecipeJobs;
+class SurfaceJobs;
 
 struct HttpRequest {
   std::string method;                          // "GET", "POST", ...
@@ -155,6 +156,9 @@ class ServiceHub {
   // rest_exports.cpp
   HttpResponse exportFrames(const HttpRequest&, const Params&);
   HttpResponse getExport(const HttpRequest&, const Params&);
+  HttpResponse getSurfaceFile(const HttpRequest&, const Params&);
+  HttpResponse getSurfaceJob(const HttpRequest&, const Params&);
+  HttpResponse cancelSurfaceJob(const HttpRequest&, const Params&);
   // rest_recipes.cpp
   HttpResponse listRecipes(const HttpRequest&, const Params&);
   HttpResponse startRecipeJob(const HttpRequest&, const Params&);
@@ -190,6 +194,7 @@ class ServiceHub {
   static constexpr size_t kPreviewCacheSize = 4;
   std::mutex previewMutex_;
   std::map<std::string, PreviewSource> previews_;
+  std::unique_ptr<SurfaceJobs> surfaceJobs_;  // meshes exports into exportsDir
   std::unique_ptr<RecipeJobs> recipeJobs_;  // its worker records into database_'s directory
 };
 

@@ -342,6 +342,14 @@ class SessionImpl final : public Session {
     return stateLocked();
   }
 
+  void setExportState(json job) override {
+    {
+      std::lock_guard lk(mutex_);
+      exportState_ = std::move(job);
+    }
+    notifyState();
+  }
+
   // ---- listeners ----
 
   uint64_t subscribe(SessionListener listener) override { return listeners_.subscribe(std::move(listener)); }
@@ -1153,6 +1161,7 @@ class SessionImpl final : public Session {
     if (status_ == SessionStatus::Error) j["error"] = {{"message", errorMessage_}, {"frame", errorFrame_}};
     j["end_frame"] = endFrame_;
     j["play_until"] = playUntil_;
+    if (!exportState_.is_null()) j["export"] = exportState_;
     j["replaying"] = replayPlaying_;
     j["memory"]["checkpoint_bytes"] = checkpointFigures_.bytes;
     j["memory"]["total_bytes"] = historyBytes + simBytes_ + checkpointFigures_.bytes;
@@ -1258,6 +1267,7 @@ class SessionImpl final : public Session {
   json sceneShared_;
   RecordedScene info_;
   std::string errorMessage_;
+  json exportState_;  // the newest surface export job (setExportState), null before one
   int errorFrame_ = -1;
   size_t liquid_ = 0, temporary_ = 0, boundary_ = 0, instances_ = 0, simBytes_ = 0;
   bool hasControl_ = false;

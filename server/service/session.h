@@ -238,6 +238,10 @@ class Session {
   //  checkpoint_bytes, checkpoint_raw_bytes, checkpoint_cap,
   //  checkpoint_save_ms, checkpoint_restore_ms}}
   virtual nlohmann::json state() const = 0;
+  // The newest surface export job of this session's history
+  // (service/surface_jobs.h), shown as state "export" and sent to the
+  // stream's clients with every change.
+  virtual void setExportState(nlohmann::json job) = 0;
   virtual SessionStatus status() const = 0;
   // The simulation's frame number (not the shown one; during a
   // re-simulation the frame it has reached, state "cache.reached" the newest).

@@ -127,6 +127,16 @@ struct NamedParams {
 // The boundary model of a scene that names none (docs/physics/boundaries.md).
 inline constexpr const char* kDefaultBoundaryModel = "akinci2012";
 
+// Where a renderer looks at the scene from (the gallery, docs/surfaces.md):
+// in 3D also for 2D scenes, whose liquid lies in the plane z = 0. Not used
+// by the simulation.
+struct SceneCamera {
+  bool set = false;
+  std::array<double, 3> position{};  // m
+  std::array<double, 3> target{};    // m, what the camera looks at
+  double lensMm = 40;                // focal length of a 36 mm wide sensor
+};
+
 template <int D>
 struct SimulationSetup {
   std::string name = "scene";
@@ -144,6 +154,7 @@ struct SimulationSetup {
   std::vector<NamedParams> effects;     // in the order the scene lists them
   double duration = 2;                  // s, default run length
   size_t maxParticles = 2000000;
+  SceneCamera camera;
 };
 
 }  // namespace fc

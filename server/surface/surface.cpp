@@ -1,11 +1,15 @@
-// Surface reconstruction on an OpenVDB grid (Museth, "VDB: High-resolution
-// sparse volumes with dynamic topology", ACM TOG 32(3), 2013,
-// DOI 10.1145/2487228.2487235), only where the surface is: the liquid's
-// 8³-voxel blocks are classified from samples at their corners and centre,
+// Surface reconstruction on an OpenVDB grid [Mus13], only where the surface
+// is: the liquid's 8³-voxel blocks are classified from samples at their corners and centre,
 // and only the blocks the surface crosses are evaluated voxel by voxel.
 // The field is Zhu & Bridson's, the distance to the kernel-weighted mean of
 // the neighbouring particles minus a radius; then a box filter, then
 // volume-to-mesh. Parameters and the trade-offs: docs/surfaces.md.
+//
+// References (docs/references.md):
+//   [Mus13] K. Museth. VDB: High-resolution sparse volumes with dynamic
+//           topology. ACM TOG 32(3), 2013. DOI 10.1145/2487228.2487235
+//   [ZB05]  Y. Zhu, R. Bridson. Animating sand as a fluid. ACM TOG
+//           (SIGGRAPH) 24(3), 2005. DOI 10.1145/1073204.1073298
 #include "surface/surface.h"
 
 #include "surface/volumes.h"
@@ -121,12 +125,10 @@ class Buckets {
   std::unordered_map<uint64_t, std::pair<uint32_t, uint32_t>> cells_;
 };
 
-// Zhu & Bridson, "Animating sand as a fluid", SIGGRAPH 2005, DOI
-// 10.1145/1073204.1073298, Sec. 6: phi(x) = |x - x̄| - r̄ with x̄ the mean of
+// [ZB05] Sec. 6: phi(x) = |x - x̄| - r̄ with x̄ the mean of
 // the neighbours within R weighted by k(s) = max(0, 1 - s²)³, s = |x - x_i| / R.
 struct FieldSample {
   double phi = 0;
-  double velocity[3] = {0, 0, 0};
   bool reached = false;  // some particle within R
 };
 
@@ -134,10 +136,10 @@ class Field {
  public:
   Field(double radius, double surfaceRadius) : R_(radius), invR2_(1.0 / (radius * radius)), rs_(surfaceRadius) {}
 
-  // From a list of candidate particles (positions and velocities, SoA).
+  // From a list of candidate particles (positions, SoA).
   FieldSample at(const double x[3], const std::vector<float>& px, const std::vector<float>& py,
-                 const std::vector<float>& pz, const std::vector<float>* vel) const {
-    double w = 0, sx = 0, sy = 0, sz = 0, v0 = 0, v1 = 0, v2 = 0;
+                 const std::vector<float>& pz) const {
+    double w = 0, sx = 0, sy = 0, sz = 0;
     const size_t n = px.size();
     for (size_t i = 0; i < n; ++i) {
       const double dx = px[i] - x[0], dy = py[i] - x[1], dz = pz[i] - x[2];
@@ -146,14 +148,12 @@ class Field {
       const double t = 1 - s2, k = t * t * t;
       w += k;
       sx += k * px[i], sy += k * py[i], sz += k * pz[i];
-      if (vel) v0 += k * (*vel)[3 * i], v1 += k * (*vel)[3 * i + 1], v2 += k * (*vel)[3 * i + 2];
     }
     FieldSample s;
     if (w <= 0) return s;
     s.reached = true;
     const double mx = sx / w - x[0], my = sy / w - x[1], mz = sz / w - x[2];
     s.phi = std::sqrt(mx * mx + my * my + mz * mz) - rs_;
-    s.velocity[0] = v0 / w, s.velocity[1] = v1 / w, s.velocity[2] = v2 / w;
     return s;
   }
   double radius() const { return R_; }
@@ -268,7 +268,7 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
       const double hi[3] = {lo[0] + blockSize, lo[1] + blockSize, lo[2] + blockSize};
       g.from(buckets, lo, hi, R);
       const double centre[3] = {0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])};
-      const FieldSample mid = field.at(centre, g.x, g.y, g.z, nullptr);
+      const FieldSample mid = field.at(centre, g.x, g.y, g.z);
       if (!mid.reached && g.x.empty()) {
         kinds[c] = Outside;
         continue;
@@ -280,7 +280,7 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
       bool inside = mid.reached && mid.phi < deep;
       for (int corner = 0; corner < 8 && inside; ++corner) {
         const double x[3] = {corner & 1 ? hi[0] : lo[0], corner & 2 ? hi[1] : lo[1], corner & 4 ? hi[2] : lo[2]};
-        const FieldSample cs = field.at(x, g.x, g.y, g.z, nullptr);
+        const FieldSample cs = field.at(x, g.x, g.y, g.z);
         inside = cs.reached && cs.phi < deep;
       }
       kinds[c] = inside ? Inside : Crossed;
@@ -296,9 +296,9 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
     leaves[c] = sdf->tree().touchLeaf(candidates[c]);
     velocityLeaves[c] = velocity->tree().touchLeaf(candidates[c]);
   }
-  // Each crossed block: every nearby particle adds its weight to the voxels
-  // of its kernel ball, row by row (z is the leaf's fastest index), then
-  // phi and the mean velocity per voxel.
+  // Each crossed block: every nearby particle adds its weight k(s) to the
+  // voxels of its kernel ball, row by row (z is the leaf's fastest index),
+  // then [ZB05] Sec. 6 per voxel: phi = |x - x̄| - r̄, and the mean velocity.
 #pragma omp parallel
   {
     Gathered g;

@@ -755,3 +755,52 @@ TEST(SceneDocs, ExampleParses) {
 
 }  // namespace
 }  // namespace fc
+
+namespace fc {
+namespace {
+
+TEST(SceneCamera, IsReadCheckedAndSavedBack) {
+  json s = baseScene2D();
+  s["camera"] = {{"position", {1, 0.8, 2.5}}, {"target", {1, 0.5, 0}}, {"lens_mm", 35}};
+  const SimulationSetup<2> setup = parseScene<2>(s);
+  ASSERT_TRUE(setup.camera.set);
+  EXPECT_EQ(setup.camera.position, (std::array<double, 3>{1, 0.8, 2.5}));
+  EXPECT_EQ(setup.camera.target, (std::array<double, 3>{1, 0.5, 0}));
+  EXPECT_EQ(setup.camera.lensMm, 35);
+  EXPECT_EQ(sceneToJson(setup)["camera"], s["camera"]);
+  EXPECT_FALSE(sceneToJson(parseScene<2>(baseScene2D())).contains("camera"));
+
+  json bad = s;
+  bad["camera"]["position"] = {1, 0.8};  // 3D in every scene
+  expectError(bad, "camera.position", {"3 components"});
+  bad = s;
+  bad["camera"]["target"] = bad["camera"]["position"];
+  expectError(bad, "camera.target", {"must differ"});
+  bad = s;
+  bad["camera"]["lens_mm"] = 1;
+  expectError(bad, "camera.lens_mm", {"[5, 500]"});
+  bad = s;
+  bad["camera"]["fov"] = 40;
+  expectError(bad, "camera.fov");
+  bad = s;
+  bad["camera"].erase("target");
+  expectError(bad, "camera.target");
+}
+
+TEST(SceneCamera, EveryGalleryScenesCameraLooksAtItsLiquid) {
+  // The camera's target lies inside the domain and the camera outside the liquid's blocks.
+  for (const auto& path : sceneFiles()) {
+    const json j = loadSceneJson(path.string());
+    if (!j.contains("camera")) continue;
+    const auto& c = j["camera"];
+    const int dim = j["dimension"];
+    for (int d = 0; d < dim; ++d) {
+      EXPECT_GE(double(c["target"][d]), double(j["domain"]["min"][d])) << path;
+      EXPECT_LE(double(c["target"][d]), double(j["domain"]["max"][d])) << path;
+    }
+    if (dim == 2) EXPECT_GT(double(c["position"][2]), 0.0) << path << ": a 2D scene is seen from +z";
+  }
+}
+
+}  // namespace
+}  // namespace fc

@@ -20,6 +20,7 @@ import { SetInstanceTransformCommand } from './commands/SetInstanceTransformComm
 import { SetInstanceValuesCommand } from './commands/SetInstanceValuesCommand';
 import { AddInstanceCommand } from './commands/AddInstanceCommand';
 import * as track from './core/TransformTrack';
+import { ExportDialog } from './ui/ExportDialog';
 
 const DEFAULT_SCENE = 'drop2d';
 
@@ -39,6 +40,7 @@ toolbar.dom.classList.add('area-toolbar');
 statusBar.dom.classList.add('area-status');
 app.append(toolbar.dom, leftPanel, viewportDom, rightPanel, timelineDom, statusBar.dom);
 viewportDom.append(messages.dom);
+app.append(new ExportDialog(editor).dom);
 leftPanel.append(new TemplateLibrary(editor).dom, new LayerPanel(editor).dom, new StatsOverlay(editor).dom);
 rightPanel.append(new Outliner(editor).dom, new Inspector(editor).dom);
 timelineDom.append(new Timeline(editor).dom);

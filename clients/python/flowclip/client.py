@@ -253,11 +253,36 @@ class Client:
             return decode(self.op("getFrame", id=sid, frame=n, params={"format": "binary"}))
         return self.op("getFrame", id=sid, frame=n)
 
-    def export(self, sid, name, first_frame=None, last_frame=None, force=False):
+    def export(self, sid, name, first_frame=None, last_frame=None, force=False, formats=None, surface=None,
+               format_settings=None):
+        """Exports the session's history as NAME.h5 + NAME.xdmf; with `formats` (e.g. ["vdb", "ply"]) also
+        starts a job meshing it into NAME/ (the answer's `surface_job`; wait_export_job follows it)."""
         body = {"name": name, "force": force}
-        body.update({k: v for k, v in (("first_frame", first_frame), ("last_frame", last_frame)) if v is not None})
+        body.update({k: v for k, v in (("first_frame", first_frame), ("last_frame", last_frame), ("formats", formats),
+                                       ("surface", surface), ("format_settings", format_settings)) if v is not None})
         return self.op("exportFrames", body, id=sid)
 
-    def download(self, file):
-        """An exported file's bytes (NAME.h5 or NAME.xdmf)."""
+    def download(self, file, export=None):
+        """An exported file's bytes: NAME.h5 or NAME.xdmf, or with `export` a file of that surface export."""
+        if export is not None:
+            return self.op("getSurfaceFile", name=export, file=file)
         return self.op("getExport", file=file)
+
+    def export_job(self, job_id):
+        return self.op("getSurfaceJob", id=job_id)
+
+    def cancel_export_job(self, job_id):
+        return self.op("cancelSurfaceJob", id=job_id)
+
+    def wait_export_job(self, job_id, until=lambda job: job["state"] in ("done", "failed", "cancelled"),
+                        timeout=600.0, poll=0.05):
+        """Polls the surface export job until `until(job)` holds (default: it finished); returns the job."""
+        deadline = time.monotonic() + timeout
+        while True:
+            job = self.export_job(job_id)
+            if until(job):
+                return job
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"export job {job_id} still {job['state']} "
+                                   f"({job['frames_done']}/{job['frames']} frames)")
+            time.sleep(poll)

@@ -9,7 +9,7 @@ import { FrameDecoder, type FrameInfo } from '../net/FrameDecoder';
 import { Stream, type ConnectionStatus, type StreamState } from '../net/Stream';
 import { Layer } from '@wire';
 import type {
-  EditJson, EditPendingJson, InstanceEditResponse, InstanceJson, ParametersJson, PresetsJson, RecipeInfo, RecipeJob, SceneJson, SceneSummary, SessionState,
+  EditJson, EditPendingJson, InstanceEditResponse, InstanceJson, ParametersJson, PresetsJson, RecipeInfo, RecipeJob, SceneJson, SceneSummary, SessionState, SurfaceJob,
   SessionStatusName, SettingsPatch, TemplateInfo, TransportArgs, TransportName,
 } from '../net/types';
 import { AddInstanceCommand } from '../commands/AddInstanceCommand';
@@ -93,6 +93,8 @@ export class Editor {
     recipesChanged: new Signal<RecipeInfo[]>(),
     /** A recording job this editor follows changed (state, progress). */
     recipeJobChanged: new Signal<RecipeJob>(),
+    /** The session's newest surface export job changed (state "export", on the stream). */
+    exportJobChanged: new Signal<SurfaceJob | null>(),
     /** The parameter declarations for the session's dimension arrived (GET /api/parameters). */
     parametersChanged: new Signal<ParametersJson | null>(),
     /** The accuracy presets arrived (GET /api/presets). */
@@ -129,6 +131,8 @@ export class Editor {
     playbackChanged: new Signal<void>(),
     /** Ctrl+S: the toolbar saves under its name field. */
     saveRequested: new Signal<void>(),
+    /** The Export dialog was asked for (toolbar). */
+    exportRequested: new Signal<void>(),
     /** F: the viewport frames the selection. */
     frameSelectionRequested: new Signal<void>(),
   };
@@ -1002,7 +1006,46 @@ export class Editor {
         : derivedCache(historyFirst, historyLast, s.history.last !== null),
       endFrame: typeof s.end_frame === 'number' ? s.end_frame : this.sceneEndFrame(),
     };
+    const job = s.export ?? null, key = job ? JSON.stringify(job) : '';
+    if (key !== this.exportJobKey) {
+      this.exportJobKey = key;
+      this.exportJob = job;
+      this.signals.exportJobChanged.dispatch(job);
+    }
     this.afterState(before);
+  }
+
+  /** The session's newest surface export job, as its state says (null: none). */
+  exportJob: SurfaceJob | null = null;
+  private exportJobKey = '';
+
+  /** Exports the history as NAME.h5 and meshes it into `formats`; progress arrives as exportJobChanged. */
+  async exportSurfaces(name: string, formats: string[], surface: Record<string, number> = {}, force = false): Promise<SurfaceJob | null> {
+    const s = this.session;
+    if (!s) return null;
+    try {
+      const answer = await this.api.exportHistory(s.id, { name, formats, surface, force });
+      const job = answer.surface_job ?? null;
+      if (job) {
+        this.exportJob = job;
+        this.exportJobKey = JSON.stringify(job);
+        this.signals.exportJobChanged.dispatch(job);
+      }
+      return job;
+    } catch (e) {
+      this.reportError(e, `export ${name}`);
+      return null;
+    }
+  }
+
+  async cancelExport(): Promise<void> {
+    const job = this.exportJob;
+    if (!job) return;
+    try {
+      await this.api.cancelExportJob(job.id);
+    } catch (e) {
+      this.reportError(e, `cancel export ${job.name}`);
+    }
   }
 
   private afterState(before: SessionStatusName) {

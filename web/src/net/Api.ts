@@ -5,7 +5,7 @@
 // server's Error object (status, code, message, path), or status 0 when the
 // server could not be reached.
 import type { paths } from '@openapi';
-import type { InstanceInputJson, InstanceJson, SceneJson, SettingsPatch, TransportArgs, TransportName } from './types';
+import type { ExportRequest, InstanceInputJson, InstanceJson, SceneJson, SettingsPatch, TransportArgs, TransportName } from './types';
 
 export class ApiError extends Error {
   constructor(
@@ -72,7 +72,9 @@ export class Api {
   call<M extends Method, P extends RouteWith<M>>(
     method: M, route: P, ...[args]: ArgList<Operation<P, M>>
   ): Promise<Answer<Operation<P, M>>> {
-    const a = (args ?? {}) as { path?: Record<string, unknown>; query?: Record<string, unknown>; body?: unknown };
+    // Read as plain records: the union of every route's arguments is too large for the checker to narrow here.
+    const given: unknown = args;
+    const a = (given ?? {}) as { path?: Record<string, unknown>; query?: Record<string, unknown>; body?: unknown };
     return this.request(method.toUpperCase(), url(route, a.path, a.query), a.body);
   }
 
@@ -134,6 +136,24 @@ export class Api {
   }
   cancelRecipeJob(id: string) {
     return this.call('delete', '/api/recipes/jobs/{id}', { path: { id } });
+  }
+  /** Exports the session's history as NAME.h5; with `formats`, starts meshing it into NAME/ (answer 202, `surface_job`). */
+  exportHistory(id: string, body: ExportRequest) {
+    return this.call('post', '/api/sessions/{id}/export', { path: { id }, body });
+  }
+  exportJob(id: string) {
+    return this.call('get', '/api/exports/jobs/{id}', { path: { id } });
+  }
+  cancelExportJob(id: string) {
+    return this.call('delete', '/api/exports/jobs/{id}', { path: { id } });
+  }
+  /** A file of a finished surface export, as a Blob (with the token, which a plain link would not send). */
+  async exportFile(name: string, file: string): Promise<Blob> {
+    const path = url('/api/exports/{name}/{file}', { name, file });
+    const headers: Record<string, string> = this.token ? { Authorization: `Bearer ${this.token}` } : {};
+    const res = await fetch(this.base + path, { headers });
+    if (!res.ok) throw new ApiError(res.status, 'http_error', `GET ${path}: HTTP ${res.status}`);
+    return res.blob();
   }
   /** Every parameter's declaration for scenes of that dimension (the inspector's fields). */
   parameters(dimension: 2 | 3) {

@@ -15,6 +15,9 @@ export type RecipeInfo = Schemas['Recipe'];
 /** A recording job (POST /api/recipes/{name}/record, GET/DELETE /api/recipes/jobs/{id}). */
 export type RecipeJob = Schemas['RecipeJob'];
 export type RecipeJobState = RecipeJob['state'];
+/** A surface export job (POST /api/sessions/{id}/export with formats, GET/DELETE /api/exports/jobs/{id}). */
+export type SurfaceJob = Schemas['SurfaceJob'];
+export type ExportRequest = Schemas['ExportRequest'];
 
 export type SessionState = Schemas['State'];
 export type SessionStatusName = SessionState['status'];

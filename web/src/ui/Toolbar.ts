@@ -1,5 +1,5 @@
 // Top bar: scene picker, save (on the server) and download of the current
-// scene, transport (play, pause, step, reset, back to live), undo/redo.
+// scene, the Export dialog, transport (play, pause, step, reset, back to live), undo/redo.
 // Listens to the editor's signals; acts only through the editor.
 import type { Editor } from '../core/Editor';
 import { el } from './dom';
@@ -7,7 +7,7 @@ import { el } from './dom';
 export class Toolbar {
   readonly dom: HTMLElement;
   private readonly picker: HTMLSelectElement;
-  private readonly buttons: Record<'play' | 'pause' | 'step' | 'reset' | 'live' | 'undo' | 'redo' | 'save' | 'download', HTMLButtonElement>;
+  private readonly buttons: Record<'play' | 'pause' | 'step' | 'reset' | 'live' | 'undo' | 'redo' | 'save' | 'download' | 'export', HTMLButtonElement>;
   private readonly saveName: HTMLInputElement;
 
   constructor(private readonly editor: Editor) {
@@ -32,6 +32,8 @@ export class Toolbar {
         void editor.transport('seek', { frame: editor.view.frame })),
       save: button('save-scene', 'Save', 'Save the current scene (every accepted edit) on the server as NAME.json (Ctrl+S)', () => void this.save()),
       download: button('download-scene', 'Download', 'Download the current scene as JSON', () => void this.download()),
+      export: button('export-open', 'Export…', 'Mesh the recorded frames into OpenVDB, PLY, OBJ or USD files for Houdini and Blender', () =>
+        editor.signals.exportRequested.dispatch()),
       undo: button('undo', '↶', 'Undo (Ctrl+Z)', () => void editor.undo()),
       redo: button('redo', '↷', 'Redo (Ctrl+Shift+Z)', () => void editor.redo()),
     };
@@ -43,7 +45,7 @@ export class Toolbar {
     this.dom = el('header', { className: 'toolbar', testid: 'toolbar' }, [
       el('span', { className: 'brand', text: 'FlowClip' }),
       this.picker,
-      el('span', { className: 'group' }, [this.saveName, b.save, b.download]),
+      el('span', { className: 'group' }, [this.saveName, b.save, b.download, b.export]),
       el('span', { className: 'group' }, [b.play, b.pause, b.step, b.reset, b.live]),
       el('span', { className: 'group' }, [b.undo, b.redo]),
     ]);
@@ -93,6 +95,7 @@ export class Toolbar {
     this.buttons.live.disabled = !open || (v.live && !e.offRecord) || v.status === 'error';
     this.buttons.save.disabled = !open;
     this.buttons.download.disabled = !open;
+    this.buttons.export.disabled = !open;
     this.buttons.undo.disabled = !e.history.canUndo;
     this.buttons.redo.disabled = !e.history.canRedo;
     // The buttons name what they undo and redo.
