@@ -130,12 +130,17 @@ def main() -> None:
             images.append(png)
             labels.append(f"t = {f / rate:.2f} s")
         contact_sheet(images, labels, name, out / f"{name}.png", columns=len(images))
-        firsts.append(images[len(images) // 2])
-        first_labels.append(name)
+        (work / f"{name}.shown").write_text(images[len(images) // 2].name)
         log(f"  {len(images)} frames in {time.monotonic() - t0:.0f} s -> {out / (name + '.png')}")
-    if len(names) > 1:
+    # gallery.png: the middle frame of every scene rendered so far (this run or an earlier one).
+    for name in SCENES:
+        shown = work / f"{name}.shown"
+        if shown.exists() and (work / shown.read_text().strip()).exists():
+            firsts.append(work / shown.read_text().strip())
+            first_labels.append(name)
+    if firsts:
         contact_sheet(firsts, first_labels, "", out / "gallery.png", columns=4)
-        log(f"gallery: {out / 'gallery.png'}")
+        log(f"gallery: {out / 'gallery.png'} ({len(firsts)} scenes)")
 
 
 if __name__ == "__main__":
