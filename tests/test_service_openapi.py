@@ -220,6 +220,12 @@ def test_tour_of_every_endpoint(server, client, openapi):
     assert exported["frames"] == 3
     assert client.download(exported["h5"])[:8] == b"\x89HDF\r\n\x1a\n"
     assert b"tour.h5" in client.download(exported["xdmf"])
+    # With formats: a surface job, its files, and no cancelling a finished one.
+    job = client.export(sid, "tour_mesh", first_frame=1, last_frame=2, formats=["ply"])["surface_job"]
+    job = client.wait_export_job(job["id"])
+    assert job["state"] == "done" and job["files"][0] == "tour_mesh.export.json"
+    assert client.download("tour_mesh.0001.ply", export="tour_mesh")[:3] == b"ply"
+    assert refused(409, lambda: client.cancel_export_job(job["id"])).code == "conflict"
 
     # The stream (not a REST response: noted by hand).
     with server.stream(sid) as stream:

@@ -1,5 +1,6 @@
-// Starts `flowclip serve --port 0` on copies of templates/ and scenes/ (the
-// tests must not touch the repository's), with web/dist as the editor, and
+// Starts `flowclip serve --port 0` on copies of scenes/ and of the templates
+// `make templates` records (the tests must not touch the repository's, and
+// expect exactly those: not the 3D ones `make gallery` adds), with web/dist as the editor, and
 // hands its URL to the tests in FLOWCLIP_URL. Returns the teardown.
 //   FLOWCLIP_BIN        the executable (default $FLOWCLIP_BUILD_DIR/flowclip, ../build/flowclip)
 //   FLOWCLIP_URL        a server already running: used as is, nothing started
@@ -21,7 +22,11 @@ export default async function globalSetup(): Promise<(() => Promise<void>) | voi
   if (!existsSync(join(dist, 'index.html'))) throw new Error(`${dist} is missing: make web (npm run build)`);
 
   const tmp = mkdtempSync(join(tmpdir(), 'flowclip-e2e-'));
-  cpSync(join(repoDir, 'templates'), join(tmp, 'templates'), { recursive: true });
+  for (const name of ['drop2d', 'column2d', 'jet2d']) {
+    const file = join(repoDir, 'templates', `${name}.h5`);
+    if (!existsSync(file)) throw new Error(`${file} is missing: make templates`);
+    cpSync(file, join(tmp, 'templates', `${name}.h5`));
+  }
   cpSync(join(repoDir, 'scenes'), join(tmp, 'scenes'), { recursive: true });
   const logPath = join(tmp, 'server.log');
   const log = createWriteStream(logPath);
