@@ -86,10 +86,11 @@ int benchSurface(const Options& opt) {
         // The reconstruction alone, best of the repeats.
         double best = 1e30;
         size_t triangles = 0;
+        Surface stages;  // the best run's stage times
         for (int r = 0; r < opt.repeats; ++r) {
-          const Surface s = reconstructSurface(frame, kRadius, surfaceSettingsTable().defaults(), true, dim);
-          best = std::min(best, s.ms);
+          Surface s = reconstructSurface(frame, kRadius, surfaceSettingsTable().defaults(), true, dim);
           triangles = s.mesh.triangles.size();
+          if (s.ms < best) best = s.ms, stages = std::move(s);
         }
         // The files of one frame.
         fs::remove_all(scratch);
@@ -106,13 +107,18 @@ int benchSurface(const Options& opt) {
         const double vdb = mb("bench.0000.vdb"), ply = mb("bench.0000.ply"), points = mb("bench_points.0000.ply");
         const double us = best * 1e3 / double(frame.count());
         const std::string kind = splash ? "splash" : "block";
-        std::printf("%-4d %-8s %9zu %10.1f %10.3f %10zu %10.2f %10.2f %10.2f\n", dim, kind.c_str(), frame.count(), best,
-                    us, triangles, vdb, ply, points);
+        std::printf("%-4d %-8s %9zu %10.1f %10.3f %10zu %10.2f %10.2f %10.2f  (classify %.0f, fill %.0f, smooth %.0f, mesh %.0f ms)\n",
+                    dim, kind.c_str(), frame.count(), best, us, triangles, vdb, ply, points, stages.classifyMs,
+                    stages.fillMs, stages.smoothMs, stages.meshMs);
         std::fflush(stdout);
         cases.push_back({{"dimension", dim}, {"liquid", kind}, {"particles", frame.count()}, {"ms_per_frame", best},
                          {"us_per_particle", us}, {"triangles", triangles}, {"vdb_mb", vdb}, {"ply_mb", ply},
-                         {"points_mb", points}});
+                         {"points_mb", points},
+                         {"stages_ms", {{"classify", stages.classifyMs}, {"fill", stages.fillMs},
+                                        {"smooth", stages.smoothMs}, {"mesh", stages.meshMs}}}});
         rows.push_back({std::to_string(dim) + "D", kind, std::to_string(frame.count()), fmt(best, "%.1f"), fmt(us, "%.3f"),
+                        fmt(stages.classifyMs, "%.0f") + " / " + fmt(stages.fillMs, "%.0f") + " / " +
+                            fmt(stages.smoothMs, "%.0f") + " / " + fmt(stages.meshMs, "%.0f"),
                         std::to_string(triangles), fmt(vdb, "%.2f"), fmt(ply, "%.2f"), fmt(points, "%.2f")});
       }
   fs::remove_all(scratch);
@@ -122,8 +128,8 @@ int benchSurface(const Options& opt) {
       "(`vdb`, `ply` mesh, `points` cache). *block*: a resting block on the simulation's lattice; *splash*: half " +
       "the particles in a block, a quarter in a sheet one particle thick, a quarter in droplets of 1-30 particles. " +
       "2D liquids are meshed as a slab at z = 0.\n\n" +
-      markdownTable({"dim", "liquid", "particles", "ms / frame", "µs / particle", "triangles", "vdb MB", "ply MB",
-                     "points MB"},
+      markdownTable({"dim", "liquid", "particles", "ms / frame", "µs / particle",
+                     "classify / fill / smooth / mesh ms", "triangles", "vdb MB", "ply MB", "points MB"},
                     rows) +
       "\nAnchor: splashsurf reports about 0.2 µs per particle on 16 cores; the target here is at most 1 µs per " +
       "particle on 2 cores.\n";

@@ -287,6 +287,11 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
     }
   }
 
+  const auto since = [](std::chrono::steady_clock::time_point t) {
+    return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
+  };
+  out.classifyMs = since(t0);
+  const auto tFill = std::chrono::steady_clock::now();
   // The crossed blocks' leaves, created serially, filled in parallel.
   std::vector<LeafT*> leaves(candidates.size(), nullptr);
   std::vector<openvdb::Vec3STree::LeafNodeType*> velocityLeaves(candidates.size(), nullptr);
@@ -370,6 +375,8 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
       }
     }
   }
+  out.fillMs = since(tFill);
+  const auto tSmooth = std::chrono::steady_clock::now();
   if (s.smoothing > 0) {
     openvdb::tools::Filter<openvdb::FloatGrid> smooth(*sdf);
     smooth.mean(1, s.smoothing);
@@ -377,7 +384,9 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   sdf->pruneGrid();
   velocity->pruneGrid();
   out.volumes = std::make_shared<SurfaceVolumes>(SurfaceVolumes{sdf, velocity});
+  out.smoothMs = since(tSmooth);
 
+  const auto tMesh = std::chrono::steady_clock::now();
   if (withMesh) {
     std::vector<openvdb::Vec3s> points;
     std::vector<openvdb::Vec3I> triangles;
@@ -402,7 +411,8 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
       m.triangles.push_back({q[0], q[3], q[2]});
     }
   }
-  out.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  out.meshMs = since(tMesh);
+  out.ms = since(t0);
   return out;
 }
 

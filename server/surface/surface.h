@@ -41,7 +41,8 @@ struct Surface {
   std::shared_ptr<SurfaceVolumes> volumes;  // null when the frame has no liquid
   SurfaceMesh mesh;
   size_t particles = 0;  // how many particles formed it
-  double ms = 0;         // wall time of the reconstruction
+  double ms = 0;         // wall time of the reconstruction, and of its stages:
+  double classifyMs = 0, fillMs = 0, smoothMs = 0, meshMs = 0;
 };
 
 // The surface of the frame's liquid and temporary particles of radius
