@@ -100,3 +100,19 @@ def test_job_ids_are_checked(client):
         with pytest.raises(ApiError) as e:
             client.export_job(bad)
         assert e.value.status == status
+
+
+def test_a_history_without_ids_makes_a_usd_stage_without_ids(server, client, tmp_path):
+    """A session's history carries no particle ids: the stage says nothing rather than rows for ids."""
+    from pxr import Usd, UsdGeom
+
+    sid = _played(client, 3, "usd")
+    job = client.wait_export_job(client.export(sid, "staged", formats=["usd"])["surface_job"]["id"])
+    assert job["state"] == "done" and job["files"] == ["staged.export.json", "staged.usda"]
+    path = tmp_path / "staged.usda"
+    path.write_bytes(client.download("staged.usda", export="staged"))
+    stage = Usd.Stage.Open(str(path))
+    points = UsdGeom.Points(stage.GetPrimAtPath("/flowclip/particles"))
+    assert points.GetPointsAttr().GetTimeSamples() == [0, 1, 2, 3]
+    assert len(points.GetPointsAttr().Get(3)) == 100
+    assert not points.GetIdsAttr().HasAuthoredValue()

@@ -47,6 +47,7 @@ class Samples {
   void beginSample(int frame) {
     buf_ += "            " + std::to_string(frame) + ": [";
     first_ = true;
+    sampled_ = true;
   }
   void endSample() {
     buf_ += "],\n";
@@ -66,10 +67,12 @@ class Samples {
     buf_ += ')';
     if (buf_.size() > (1 << 20)) flush();
   }
-  // The attribute's text into `out`: declaration, metadata, samples.
+  // The attribute's text into `out`: declaration, metadata, samples; nothing
+  // for an attribute never sampled.
   void writeTo(std::ostream& out) {
     flush();
     out_.close();
+    if (!sampled_) return;
     if (!metadata_.empty()) out << "        " << declaration_ << " (\n            " << metadata_ << "\n        )\n";
     out << "        " << declaration_ << ".timeSamples = {\n";
     std::ifstream in(path_, std::ios::binary);
@@ -102,6 +105,7 @@ class Samples {
   std::string declaration_, metadata_, path_, buf_;
   std::ofstream out_;
   bool first_ = true;
+  bool sampled_ = false;
 };
 
 class UsdExporter : public Exporter {
@@ -120,7 +124,9 @@ class UsdExporter : public Exporter {
     first_ = std::min(first_, frame.index);
     last_ = std::max(last_, frame.index);
     const int f = frame.index;
-    for (Samples* s : points()) s->beginSample(f);
+    // Ids only from a source that has them (a session's history has none).
+    for (Samples* s : points())
+      if (s != &ids_ || !frame.id.empty()) s->beginSample(f);
     float lo[3] = {std::numeric_limits<float>::max(), std::numeric_limits<float>::max(),
                    std::numeric_limits<float>::max()};
     float hi[3] = {-lo[0], -lo[1], -lo[2]};
@@ -131,14 +137,15 @@ class UsdExporter : public Exporter {
       const float* v = &frame.velocity[3 * i];
       positions_.tuple(x[0], x[1], x[2]);
       velocities_.tuple(v[0], v[1], v[2]);
-      ids_.value(int64_t(frame.id.empty() ? i : frame.id[i]));
+      if (!frame.id.empty()) ids_.value(int64_t(frame.id[i]));
       phase_.value(int(frame.phase[i]));
       for (int d = 0; d < 3; ++d) lo[d] = std::min(lo[d], x[d]), hi[d] = std::max(hi[d], x[d]);
       ++count;
     }
     const float r = float(info_.particleRadius);
     if (count) extent_.tuple(lo[0] - r, lo[1] - r, lo[2] - r), extent_.tuple(hi[0] + r, hi[1] + r, hi[2] + r);
-    for (Samples* s : points()) s->endSample();
+    for (Samples* s : points())
+      if (s != &ids_ || !frame.id.empty()) s->endSample();
     if (!p_.meshes) return;
     const SurfaceMesh& m = surface->mesh;
     for (Samples* s : meshes()) s->beginSample(f);
