@@ -82,6 +82,7 @@ def test_a_cancelled_job_leaves_no_directory(server, client):
     ({"formats": "ply"}, 422, "formats"),
     ({"formats": ["ply"], "surface": {"voxel_size": 0}}, 422, "surface.voxel_size"),
     ({"formats": ["ply"], "surface": {"blur": 1}}, 422, "surface.blur"),
+    ({"formats": ["ply"], "surface": {"surface_radius": 3, "kernel_radius": 2}}, 422, "surface.surface_radius"),
     ({"formats": ["ply"], "format_settings": {"usd": {"meshes": True}}}, 422, "format_settings.usd"),
     ({"formats": ["usd"], "format_settings": {"usd": {"meshes": 2}}}, 422, "format_settings.usd.meshes"),
     ({"surface": {"smoothing": 1}}, 422, "surface"),

@@ -239,6 +239,9 @@ def test_bad_surface_and_format_settings_name_their_key(tmp_path):
                "--surface", "voxel_size=0", check=False)
     assert proc.returncode == 2 and "surface.voxel_size: '0' given by --surface: must be in [0.1, 2]" in proc.stderr
     proc = run("run", SCENE, "--frames", 1, "--export-surface", tmp_path, "--formats", "ply",
+               "--surface", "surface_radius=3", "--surface", "kernel_radius=2", check=False)
+    assert proc.returncode == 2 and "surface_radius must be less than surface.kernel_radius" in proc.stderr
+    proc = run("run", SCENE, "--frames", 1, "--export-surface", tmp_path, "--formats", "ply",
                "--format-setting", "usd.meshes=1", check=False)
     assert proc.returncode == 2 and "format 'usd' is not exported" in proc.stderr
     assert not list(tmp_path.iterdir())

@@ -83,6 +83,7 @@ SurfaceExport::SurfaceExport(const ExportInfo& info, const std::vector<std::stri
   if (formats_.empty()) throw ExportSetupError("no export format given (e.g. vdb,ply,usd)");
   if (info_.name.empty() || info_.name.find('/') != std::string::npos || info_.name.front() == '.')
     throw ExportSetupError("export name '" + info_.name + "' must be a plain file name");
+  if (const std::string problem = surfaceSettingsProblem(surface_); !problem.empty()) throw ExportSetupError(problem);
   if (!(info_.particleRadius > 0) || !(info_.frameRate > 0))
     throw ExportSetupError("export of '" + info_.name + "': the particle radius and frame rate must be positive");
   std::error_code ec;

@@ -5,7 +5,9 @@
 
 #include "surface/volumes.h"
 
-#include <openvdb/io/File.h>
+#include <openvdb/io/Stream.h>
+
+#include <fstream>
 
 namespace fc {
 
@@ -52,16 +54,18 @@ class VdbExporter : public Exporter {
       g->insertMeta("time", openvdb::DoubleMetadata(frame.time));
     }
     const std::string path = files.add(frameFileName(info_.name, frame.index, "vdb"));
-    openvdb::io::File file(path);
     openvdb::MetaMap meta;
     meta.insertMeta("creator", openvdb::StringMetadata(info_.createdBy));
     meta.insertMeta("particle_radius", openvdb::DoubleMetadata(info_.particleRadius));
+    // Our own stream, checked after the write (io::File does not check its own).
+    std::ofstream out(path, std::ios::binary);
     try {
-      file.write(grids, meta);
-      file.close();
+      openvdb::io::Stream(out).write(grids, meta);
     } catch (const openvdb::Exception& e) {
       throw std::runtime_error("vdb export: cannot write '" + path + "': " + e.what());
     }
+    out.flush();
+    if (!out) throw std::runtime_error("vdb export: cannot write '" + path + "' (disk full?)");
   }
 
  private:

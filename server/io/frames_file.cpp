@@ -2,6 +2,7 @@
 
 #include "io/hdf5_util.h"
 
+#include <cmath>
 #include <filesystem>
 
 namespace fc {
@@ -77,10 +78,12 @@ FramesFile::FramesFile(const std::string& path) : path_(path) {
     if (dim.size() != 1 || (dim[0] != 2 && dim[0] != 3)) fail("'dimension' must be 2 or 3");
     dimension_ = int(dim[0]);
     const auto radius = numbers(*this, file_, "particle_radius");
-    if (radius.size() != 1 || !(radius[0] > 0)) fail("'particle_radius' must be one positive number");
+    if (radius.size() != 1 || !(radius[0] > 0) || !std::isfinite(radius[0]))
+      fail("'particle_radius' must be one positive finite number");
     particleRadius_ = radius[0];
     const auto rate = numbers(*this, file_, "frame_rate");
-    if (rate.size() != 1 || !(rate[0] > 0)) fail("'frame_rate' must be one positive number");
+    if (rate.size() != 1 || !(rate[0] > 0) || !std::isfinite(rate[0]))
+      fail("'frame_rate' must be one positive finite number");
     frameRate_ = rate[0];
     scene_ = strings(*this, file_, "scene").at(0);
     phaseRestDensity_ = numbers(*this, file_, "phase_rest_density");

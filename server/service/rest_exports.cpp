@@ -69,6 +69,8 @@ SurfaceRequest surfaceRequest(const json& body) {
       surfaceSettingsTable().assign(r.surface, key, declaredValue(value, *spec, "surface." + key));
     }
   }
+  if (const std::string problem = surfaceSettingsProblem(r.surface); !problem.empty())
+    throw ApiError(422, problem, "surface.surface_radius");
   if (const auto it = body.find("format_settings"); it != body.end()) {
     if (!it->is_object()) throw ApiError(422, "format_settings: expected {FORMAT: {KEY: value}}", "format_settings");
     for (const auto& [format, settings] : it->items()) {
@@ -146,7 +148,6 @@ HttpResponse ServiceHub::exportFrames(const HttpRequest& req, const Params& p) {
                               if (auto live = session.lock()) live->setExportState(surfaceJobJson(job));
                             }};
   const SurfaceJobInfo job = surfaceJobs_->start(std::move(request));
-  s->setExportState(surfaceJobJson(job));
   out["surface_job"] = surfaceJobJson(job);
   HttpResponse r = jsonResponse(out, 202);
   r.headers.emplace_back("Location", "/api/exports/jobs/" + job.id);

@@ -23,6 +23,7 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <cstdlib>
 #include <atomic>
 #include <climits>
 #include <cmath>
@@ -345,6 +346,12 @@ class SessionImpl final : public Session {
   void setExportState(json job) override {
     {
       std::lock_guard lk(mutex_);
+      // The newest job wins: an older job's late report does not replace it.
+      const auto number = [](const json& j) -> long long {
+        const std::string id = j.is_object() && j.contains("id") && j["id"].is_string() ? j["id"].get<std::string>() : "";
+        return id.size() > 1 ? std::atoll(id.c_str() + 1) : 0;
+      };
+      if (!exportState_.is_null() && number(job) < number(exportState_)) return;
       exportState_ = std::move(job);
     }
     notifyState();

@@ -3,7 +3,12 @@
 #include "io/frames_file.h"
 #include "io/staged_files.h"
 
+#include <fcntl.h>
 #include <omp.h>
+#include <stdio.h>
+
+#include <cerrno>
+#include <system_error>
 
 #include <algorithm>
 #include <chrono>
@@ -61,7 +66,6 @@ SurfaceJobInfo SurfaceJobs::start(SurfaceJobRequest request) {
   job->info.formats = request.formats;
   job->request = std::move(request);
   jobs_[next_++] = job;
-  queue_.push_back(job);
   // Keep the newest finished jobs only.
   size_t finished = 0;
   for (auto it = jobs_.rbegin(); it != jobs_.rend(); ++it) finished += it->second->info.finished();
@@ -73,6 +77,9 @@ SurfaceJobInfo SurfaceJobs::start(SurfaceJobRequest request) {
       ++it;
     }
   }
+  // Reported as queued before the worker can take it, so that no later state is overwritten.
+  changed(*job, lk);
+  queue_.push_back(job);
   const SurfaceJobInfo info = job->info;
   wake_.notify_all();
   return info;
@@ -179,11 +186,14 @@ void SurfaceJobs::exportJob(Job& job) {
     }
     if (end == JobState::Done) {
       e.close();
-      // The directory appears whole: an older one is moved aside first.
-      const fs::path old = stagingPath(out.string());
-      if (fs::exists(out)) fs::rename(out, old);
-      fs::rename(staging, out);
-      fs::remove_all(old, ec);
+      // The directory appears whole: an older one is exchanged with it in
+      // one step (renameat2), then removed; never a moment without either.
+      if (fs::exists(out)) {
+        if (::renameat2(AT_FDCWD, staging.c_str(), AT_FDCWD, out.c_str(), RENAME_EXCHANGE) != 0)
+          throw std::system_error(errno, std::generic_category(), "cannot replace '" + out.string() + "'");
+      } else {
+        fs::rename(staging, out);
+      }
       files.push_back(fs::path(e.manifestPath()).filename().string());
       for (const auto& entry : fs::directory_iterator(out))
         if (entry.path().filename() != files.front()) files.push_back(entry.path().filename().string());
@@ -193,7 +203,7 @@ void SurfaceJobs::exportJob(Job& job) {
     end = JobState::Failed;
     error = ex.what();
   }
-  if (end != JobState::Done) fs::remove_all(staging, ec);
+  fs::remove_all(staging, ec);  // a failed job's files, or the export it replaced
   std::unique_lock lk(mutex_);
   job.info.state = end;
   job.info.error = error;

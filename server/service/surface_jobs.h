@@ -53,7 +53,9 @@ struct SurfaceJobRequest {
   std::vector<std::string> formats;
   SurfaceSettings surface;
   std::map<std::string, ParamValues> formatParams;
-  std::function<void(const SurfaceJobInfo&)> progress;  // on the worker thread, after every change
+  // After every change, in order: on the caller's thread for queued and a
+  // queued job's cancel, then on the worker thread.
+  std::function<void(const SurfaceJobInfo&)> progress;
 };
 
 class SurfaceJobs {

@@ -23,6 +23,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <exception>
 #include <mutex>
 #include <stdexcept>
 #include <unordered_map>
@@ -57,6 +58,12 @@ const ParamTable<SurfaceSettings>& surfaceSettingsTable() {
 
 const ParamSpecs& surfaceSettingsSpecs() { return surfaceSettingsTable().specs(); }
 
+std::string surfaceSettingsProblem(const SurfaceSettings& s) {
+  if (!(s.surfaceRadius < s.kernelRadius))
+    return "surface.surface_radius must be less than surface.kernel_radius: beyond the kernel no particle is seen";
+  return {};
+}
+
 namespace {
 
 using openvdb::Coord;
@@ -77,8 +84,12 @@ uint64_t key(int64_t i, int64_t j, int64_t k) {
 class Buckets {
  public:
   Buckets(const ParticleFrame& f, double cell) : inv_(1.0 / cell) {
-    for (size_t i = 0; i < f.count(); ++i)
-      if (formsSurface(f.kind[i])) rows_.push_back(uint32_t(i));
+    for (size_t i = 0; i < f.count(); ++i) {
+      const float* x = &f.position[3 * i];
+      // A non-finite position has no place on the grid.
+      if (formsSurface(f.kind[i]) && std::isfinite(x[0]) && std::isfinite(x[1]) && std::isfinite(x[2]))
+        rows_.push_back(uint32_t(i));
+    }
     std::vector<uint64_t> keys(rows_.size());
     for (size_t n = 0; n < rows_.size(); ++n) {
       const float* x = &f.position[size_t(rows_[n]) * 3];
@@ -188,7 +199,9 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   const bool planar = dimension == 2;
   initialiseOpenVdb();
   const auto t0 = std::chrono::steady_clock::now();
-  if (!(particleRadius > 0)) throw std::invalid_argument("surface: the particle radius must be positive");
+  if (!(particleRadius > 0) || !std::isfinite(particleRadius))
+    throw std::invalid_argument("surface: the particle radius must be positive and finite");
+  if (const std::string problem = surfaceSettingsProblem(s); !problem.empty()) throw std::invalid_argument(problem);
   const double voxel = s.voxelSize * particleRadius;
   const double R = s.kernelRadius * particleRadius;
   const Field field(R, s.surfaceRadius * particleRadius);
@@ -198,8 +211,9 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   out.particles = buckets.size();
   if (buckets.size() == 0) return out;
 
-  // Narrow band: 3 voxels each side, and at least the inside's depth.
-  const float band = float(std::min(3.0 * voxel, field.surfaceRadius()));
+  // Narrow band: 3 voxels each side, no deeper than the inside's depth (the
+  // field's floor), and never under 1.5 voxels (meshing needs neighbours).
+  const float band = float(std::max(std::min(3.0 * voxel, field.surfaceRadius()), 1.5 * voxel));
   auto sdf = openvdb::FloatGrid::create(band);
   sdf->setTransform(openvdb::math::Transform::createLinearTransform(voxel));
   sdf->setGridClass(openvdb::GRID_LEVEL_SET);
@@ -254,11 +268,17 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   };
   const double halfDiagonal = 0.5 * std::sqrt(3.0) * blockSize;
   const double deep = -0.5 * field.surfaceRadius();
+  // An exception may not leave an OpenMP region: kept, rethrown after it.
+  std::exception_ptr failure;
+  const auto keep = [&failure] {
+#pragma omp critical(surface_failure)
+    if (!failure) failure = std::current_exception();
+  };
 #pragma omp parallel
   {
     Gathered g;
 #pragma omp for schedule(dynamic, 16)
-    for (size_t c = 0; c < candidates.size(); ++c) {
+    for (size_t c = 0; c < candidates.size(); ++c) try {
       const Coord& o = candidates[c];
       if (filled(o)) {
         kinds[c] = Inside;
@@ -284,8 +304,11 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
         inside = cs.reached && cs.phi < deep;
       }
       kinds[c] = inside ? Inside : Crossed;
+    } catch (...) {
+      keep();
     }
   }
+  if (failure) std::rethrow_exception(failure);
 
   const auto since = [](std::chrono::steady_clock::time_point t) {
     return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
@@ -307,10 +330,15 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
 #pragma omp parallel
   {
     Gathered g;
-    std::vector<double> acc(7 * LeafT::SIZE);  // w, w x, w y, w z, w v
+    std::vector<double> acc;  // w, w x, w y, w z, w v per voxel
+    try {
+      acc.resize(7 * LeafT::SIZE);
+    } catch (...) {
+      keep();
+    }
 #pragma omp for schedule(dynamic, 4)
-    for (size_t c = 0; c < candidates.size(); ++c) {
-      if (!leaves[c]) continue;
+    for (size_t c = 0; c < candidates.size(); ++c) try {
+      if (!leaves[c] || acc.empty()) continue;
       const Coord& o = candidates[c];
       const double lo[3] = {o.x() * voxel, o.y() * voxel, o.z() * voxel};
       const double hi[3] = {lo[0] + (kBlock - 1) * voxel, lo[1] + (kBlock - 1) * voxel, lo[2] + (kBlock - 1) * voxel};
@@ -373,8 +401,11 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
           vleaf.setValueOff(n, openvdb::Vec3s(0.0f));
         }
       }
+    } catch (...) {
+      keep();
     }
   }
+  if (failure) std::rethrow_exception(failure);
   out.fillMs = since(tFill);
   const auto tSmooth = std::chrono::steady_clock::now();
   if (s.smoothing > 0) {

@@ -28,6 +28,9 @@ struct SurfaceSettings {
 };
 const ParamTable<SurfaceSettings>& surfaceSettingsTable();
 const ParamSpecs& surfaceSettingsSpecs();
+// What is wrong with settings whose values are each in range but not
+// together ("" when nothing): surface_radius must stay under kernel_radius.
+std::string surfaceSettingsProblem(const SurfaceSettings& settings);
 
 struct SurfaceMesh {
   std::vector<std::array<float, 3>> points;      // m
