@@ -15,7 +15,6 @@ import re
 import shutil
 import signal
 import subprocess
-import time
 from pathlib import Path
 
 import h5py
@@ -25,6 +24,7 @@ from plyfile import PlyData
 from pxr import Usd, UsdGeom
 
 from repo_paths import FLOWCLIP_BIN, ROOT
+from service_helpers import wait_until
 
 SCENE = ROOT / "scenes" / "hydrostatic3d.json"
 FRAMES = 30  # half a second: the column has settled into a resting pool
@@ -265,9 +265,7 @@ def test_a_killed_export_leaves_complete_frames_and_no_manifest(exported, tmp_pa
     out = tmp_path / "out"
     proc = subprocess.Popen([str(FLOWCLIP_BIN), "export", str(exported / "pool.h5"), "--out", str(out), "--formats",
                              "vdb,ply,usd", "--threads", "1", "--quiet"])
-    deadline = time.monotonic() + 300
-    while time.monotonic() < deadline and not (out / "pool.0002.ply").exists():
-        time.sleep(0.05)
+    wait_until(lambda: (out / "pool.0002.ply").exists(), timeout=300, what="frame 2 published")
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=60)
     assert (out / "pool.0002.ply").exists()

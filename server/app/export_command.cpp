@@ -30,19 +30,9 @@ struct ExportOptions {
 
 int runExport(const ExportOptions& opt) {
   const FramesFile in(opt.input);
-  ExportInfo info;
-  info.name = opt.name.empty() ? std::filesystem::path(opt.input).stem().string() : opt.name;
-  info.directory = opt.out;
-  info.dimension = in.dimension();
-  info.particleRadius = in.particleRadius();
-  info.frameRate = in.frameRate();
-  for (size_t p = 0; p < in.phaseNames().size(); ++p) {
-    Phase phase;
-    phase.name = in.phaseNames()[p];
-    if (p < in.phaseRestDensity().size()) phase.restDensity = Real(in.phaseRestDensity()[p]);
-    info.phases.push_back(phase);
-  }
-  info.createdBy = std::string("flowclip ") + FLOWCLIP_VERSION;
+  const ExportInfo info =
+      exportInfoOf(in, opt.name.empty() ? std::filesystem::path(opt.input).stem().string() : opt.name, opt.out,
+                   std::string("flowclip ") + FLOWCLIP_VERSION);
   auto exporter = makeSurfaceExport(opt.surface, info);
 
   // Frames by their number (as in the file's /frames/index), first..last.

@@ -48,6 +48,24 @@ std::vector<std::string> parseFormats(const std::string& list) {
   return out;
 }
 
+ExportInfo exportInfoOf(const FramesFile& in, const std::string& name, const std::string& directory,
+                        const std::string& createdBy) {
+  ExportInfo info;
+  info.name = name;
+  info.directory = directory;
+  info.dimension = in.dimension();
+  info.particleRadius = in.particleRadius();
+  info.frameRate = in.frameRate();
+  for (size_t p = 0; p < in.phaseNames().size(); ++p) {
+    Phase phase;
+    phase.name = in.phaseNames()[p];
+    if (p < in.phaseRestDensity().size()) phase.restDensity = Real(in.phaseRestDensity()[p]);
+    info.phases.push_back(phase);
+  }
+  info.createdBy = createdBy;
+  return info;
+}
+
 namespace {
 
 // Publishes a frame's files together; they are removed if that fails.

@@ -11,6 +11,7 @@
 // NAME.export.json are published together; a failed or abandoned export has
 // no manifest, so an export is complete exactly when its manifest exists.
 #include "export/exporter.h"
+#include "io/frames_file.h"
 #include "surface/surface.h"
 #include <nlohmann/json.hpp>
 #include <memory>
@@ -29,6 +30,11 @@ struct ExportSetupError : std::runtime_error {
 // "vdb,ply" -> {"vdb", "ply"}: every name known, none repeated, at least one.
 // Throws ExportSetupError.
 std::vector<std::string> parseFormats(const std::string& list);
+
+// What an export of the frames file `in` knows: its dimension, particle
+// radius, frame rate and phases, with the given stem, directory and author.
+ExportInfo exportInfoOf(const FramesFile& in, const std::string& name, const std::string& directory,
+                        const std::string& createdBy);
 
 class SurfaceExport {
  public:

@@ -24,13 +24,8 @@ const char* jobStateName(JobState s) {
   return "failed";
 }
 
-json jobJson(const JobInfo& j) {
-  json out = {{"id", j.id},
-              {"recipe", j.recipe},
-              {"templates", j.templates},
-              {"dimension", j.dimension},
-              {"force", j.force},
-              {"state", jobStateName(j.state)},
+json jobProgressJson(const JobProgress& j) {
+  json out = {{"state", jobStateName(j.state)},
               {"progress", j.progress()},
               {"frames_done", j.framesDone},
               {"frames", j.frames},
@@ -40,10 +35,18 @@ json jobJson(const JobInfo& j) {
   return out;
 }
 
-bool RecipeJobs::isJobId(const std::string& id) {
-  if (id.size() < 2 || id.size() > 20 || id[0] != 'r' || id[1] == '0') return false;
+bool isNumberedJobId(const std::string& id, char prefix) {
+  if (id.size() < 2 || id.size() > 20 || id[0] != prefix || id[1] == '0') return false;
   return std::all_of(id.begin() + 1, id.end(), [](char c) { return c >= '0' && c <= '9'; });
 }
+
+json jobJson(const JobInfo& j) {
+  json out = jobProgressJson(j);
+  out.update({{"id", j.id}, {"recipe", j.recipe}, {"templates", j.templates}, {"dimension", j.dimension}, {"force", j.force}});
+  return out;
+}
+
+bool RecipeJobs::isJobId(const std::string& id) { return isNumberedJobId(id, 'r'); }
 
 RecipeJobs::RecipeJobs(RecipeJobsOptions options) : options_(std::move(options)) {
   worker_ = std::thread([this] { run(); });

@@ -44,21 +44,30 @@ struct RecipeJobError : std::runtime_error {
 enum class JobState { Queued, Running, Done, Failed, Cancelled };
 const char* jobStateName(JobState s);
 
-// What a client sees of a job (a copy, taken under the lock).
-struct JobInfo {
+// A background job's state and progress, as every kind of job reports it
+// (recordings here, surface exports in service/surface_jobs.h).
+struct JobProgress {
+  JobState state = JobState::Queued;
+  bool cancelRequested = false;
+  int framesDone = 0;  // frames done (simulated or exported)
+  int frames = 0;      // frames in all
+  std::string error;   // failed: why
+  double elapsedSeconds = 0;  // running: so far; finished: the job's wall time (0 if it never ran)
+  double progress() const { return state == JobState::Done ? 1.0 : frames > 0 ? double(framesDone) / frames : 0.0; }
+  bool finished() const { return state == JobState::Done || state == JobState::Failed || state == JobState::Cancelled; }
+};
+// Its JSON fields: state, progress, frames_done, frames, cancel_requested, elapsed_s, error (when failed).
+nlohmann::json jobProgressJson(const JobProgress& job);
+// Whether `id` is a job id of this kind: `prefix` then a number from 1 ("r1", "x12").
+bool isNumberedJobId(const std::string& id, char prefix);
+
+// What a client sees of a recording job (a copy, taken under the lock).
+struct JobInfo : JobProgress {
   std::string id;
   std::string recipe;
   std::vector<std::string> templates;  // what it records, in recipe order
   int dimension = 0;
   bool force = false;
-  JobState state = JobState::Queued;
-  bool cancelRequested = false;
-  int framesDone = 0;  // simulation frames advanced
-  int frames = 0;      // simulation frames in all
-  std::string error;   // failed: why
-  double elapsedSeconds = 0;  // running: so far; finished: the recording's wall time (0 if it never ran)
-  double progress() const { return state == JobState::Done ? 1.0 : frames > 0 ? double(framesDone) / frames : 0.0; }
-  bool finished() const { return state == JobState::Done || state == JobState::Failed || state == JobState::Cancelled; }
 };
 nlohmann::json jobJson(const JobInfo& job);
 

@@ -21,29 +21,16 @@ namespace fs = std::filesystem;
 using json = nlohmann::json;
 
 json surfaceJobJson(const SurfaceJobInfo& j) {
-  json out = {{"id", j.id},
-              {"session", j.session},
-              {"name", j.name},
-              {"formats", j.formats},
-              {"state", jobStateName(j.state)},
-              {"progress", j.progress()},
-              {"frames_done", j.framesDone},
-              {"frames", j.frames},
-              {"bytes", j.bytes},
-              {"cancel_requested", j.cancelRequested},
-              {"elapsed_s", j.elapsedSeconds}};
+  json out = jobProgressJson(j);
+  out.update({{"id", j.id}, {"session", j.session}, {"name", j.name}, {"formats", j.formats}, {"bytes", j.bytes}});
   if (j.state == JobState::Done) {
     out["directory"] = j.name + "/";
     out["files"] = j.files;
   }
-  if (!j.error.empty()) out["error"] = j.error;
   return out;
 }
 
-bool SurfaceJobs::isJobId(const std::string& id) {
-  if (id.size() < 2 || id.size() > 20 || id[0] != 'x' || id[1] == '0') return false;
-  return std::all_of(id.begin() + 1, id.end(), [](char c) { return c >= '0' && c <= '9'; });
-}
+bool SurfaceJobs::isJobId(const std::string& id) { return isNumberedJobId(id, 'x'); }
 
 SurfaceJobs::SurfaceJobs(int threads) : threads_(std::max(1, threads)), worker_([this] { run(); }) {}
 
@@ -156,14 +143,8 @@ void SurfaceJobs::exportJob(Job& job) {
   try {
     omp_set_num_threads(threads_);
     const FramesFile in(r.h5Path);
-    ExportInfo info;
-    info.name = r.name;
-    info.directory = staging.string();
-    info.dimension = in.dimension();
-    info.particleRadius = in.particleRadius();
-    info.frameRate = in.frameRate();
-    info.createdBy = std::string("flowclip ") + FLOWCLIP_VERSION + " session " + r.session;
-    SurfaceExport e(info, r.formats, r.surface, r.formatParams);
+    const std::string createdBy = std::string("flowclip ") + FLOWCLIP_VERSION + " session " + r.session;
+    SurfaceExport e(exportInfoOf(in, r.name, staging.string(), createdBy), r.formats, r.surface, r.formatParams);
     {
       std::unique_lock lk(mutex_);
       job.info.frames = int(in.frames());

@@ -27,21 +27,13 @@
 
 namespace fc::service {
 
-struct SurfaceJobInfo {
+struct SurfaceJobInfo : JobProgress {  // frames: those of NAME.h5, framesDone: meshed and written
   std::string id;
   std::string session;  // whose history
   std::string name;     // EXPORTS/NAME.h5 in, EXPORTS/NAME/ out
   std::vector<std::string> formats;
-  JobState state = JobState::Queued;
-  bool cancelRequested = false;
-  int framesDone = 0;
-  int frames = 0;
   size_t bytes = 0;                // written so far
   std::vector<std::string> files;  // done: every file of EXPORTS/NAME/, manifest first
-  std::string error;               // failed: why
-  double elapsedSeconds = 0;
-  double progress() const { return state == JobState::Done ? 1.0 : frames > 0 ? double(framesDone) / frames : 0.0; }
-  bool finished() const { return state == JobState::Done || state == JobState::Failed || state == JobState::Cancelled; }
 };
 nlohmann::json surfaceJobJson(const SurfaceJobInfo& job);
 

@@ -18,6 +18,18 @@ from .codec import decode
 from .operations import route
 
 
+def _wait_job(fetch, what, job_id, until, timeout, poll):
+    """Polls fetch(job_id) until `until(job)` holds; the timeout only catches a hang."""
+    deadline = time.monotonic() + timeout
+    while True:
+        job = fetch(job_id)
+        if until(job):
+            return job
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{what} {job_id} still {job['state']} ({job['frames_done']}/{job['frames']} frames)")
+        time.sleep(poll)
+
+
 class ApiError(Exception):
     """An error answer: {"error": {"status", "code", "message", "path"}}."""
 
@@ -124,15 +136,7 @@ class Client:
     def wait_recipe_job(self, job_id, until=lambda job: job["state"] in ("done", "failed", "cancelled"),
                         timeout=600.0, poll=0.05):
         """Polls the job until `until(job)` holds (default: it finished); returns the job."""
-        deadline = time.monotonic() + timeout
-        while True:
-            job = self.recipe_job(job_id)
-            if until(job):
-                return job
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"recording job {job_id} still {job['state']} "
-                                   f"({job['frames_done']}/{job['frames']} frames)")
-            time.sleep(poll)
+        return _wait_job(self.recipe_job, "recording job", job_id, until, timeout, poll)
 
     def scenes(self):
         return self.op("listScenes")["scenes"]
@@ -277,12 +281,4 @@ class Client:
     def wait_export_job(self, job_id, until=lambda job: job["state"] in ("done", "failed", "cancelled"),
                         timeout=600.0, poll=0.05):
         """Polls the surface export job until `until(job)` holds (default: it finished); returns the job."""
-        deadline = time.monotonic() + timeout
-        while True:
-            job = self.export_job(job_id)
-            if until(job):
-                return job
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"export job {job_id} still {job['state']} "
-                                   f"({job['frames_done']}/{job['frames']} frames)")
-            time.sleep(poll)
+        return _wait_job(self.export_job, "export job", job_id, until, timeout, poll)
