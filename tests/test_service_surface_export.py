@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from flowclip import ApiError
+from flowclip import ApiError, FlowClipServer
 from plyfile import PlyData
 
 from service_helpers import small_scene, wait_until
@@ -117,3 +117,30 @@ def test_a_history_without_ids_makes_a_usd_stage_without_ids(server, client, tmp
     assert points.GetPointsAttr().GetTimeSamples() == [0, 1, 2, 3]
     assert len(points.GetPointsAttr().Get(3)) == 100
     assert not points.GetIdsAttr().HasAuthoredValue()
+
+
+def test_a_server_killed_during_an_export_job_leaves_nothing_behind(template_dir, scene_dir, tmp_path):
+    """The job writes into a hidden folder that only becomes EXPORTS/NAME/ whole: after a SIGKILL the
+    next server removes that folder, and no half export appears under the final name."""
+    exports = tmp_path / "exports"
+    exports.mkdir()
+
+    def staged():
+        return [p for p in exports.iterdir() if p.is_dir() and p.name.startswith(".shot.stage-")]
+
+    with FlowClipServer(template_dir, scene_dir, exports) as s:
+        c = s.client()
+        sid = c.create_session(scene=small_scene("killed", particles_per_side=20))["id"]
+        c.step(sid, 30)
+        c.wait_paused(sid, timeout=600)
+        # A fine voxel makes every frame's slab slow to mesh: the job is caught with frames written.
+        job = c.export(sid, "shot", formats=["vdb", "ply"], surface={"voxel_size": 0.1})["surface_job"]
+        wait_until(lambda: staged() and any(staged()[0].iterdir()), timeout=600, what="a frame in the staging folder")
+        state = c.export_job(job["id"])
+        assert state["state"] == "running" and state["frames_done"] < state["frames"], state
+        s.proc.kill()
+        s.proc.wait()
+    assert len(staged()) == 1 and not (exports / "shot").exists()
+    with FlowClipServer(template_dir, scene_dir, exports) as s:
+        assert staged() == [] and not (exports / "shot").exists()
+        assert (exports / "shot.h5").exists()  # the particle history was complete before the job began

@@ -1,16 +1,21 @@
 // `flowclip bench surface`: the surface reconstruction's price: wall µs per
 // particle (reconstruction and mesh) and MB per frame of each format, for
 // 2D and 3D liquids of 100k and 1M particles: a resting block and a splash
-// (a sheet one particle thick and droplets beside a smaller block).
+// (a sheet one particle thick and droplets beside a smaller block), and
+// frames of simulations read from particle exports (--frames).
 #include "bench/commands.h"
 #include "bench/report.h"
 #include "cli/exit_codes.h"
+#include "cli/param_override.h"
 #include "export/surface_export.h"
+#include "io/frames_file.h"
+#include "io/scene.h"
 #include <omp.h>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <random>
 #include <unistd.h>
 #include <string>
@@ -67,9 +72,41 @@ struct Options {
   std::string out = "bench/surface";
   std::vector<size_t> sizes = {100000, 1000000};  // 3D
   std::vector<size_t> sizes2d = {100000};          // a 2D liquid's slab has two faces as large as its area
+  std::vector<std::string> frames;                 // FILE.h5:INDEX, a simulation's frame
+  std::vector<std::string> surface;                // KEY=VALUE over surfaceSettingsTable()
   int threads = 2;
   int repeats = 3;
 };
+
+// One liquid to mesh: its frame, dimension, particle radius and name.
+struct Case {
+  ParticleFrame frame;
+  int dim = 3;
+  double radius = kRadius;
+  std::string liquid;
+};
+
+// "FILE.h5:INDEX" (INDEX 0-based, negative from the end; default the last).
+Case frameOfExport(const std::string& spec) {
+  const size_t colon = spec.rfind(':');
+  const bool indexed = colon != std::string::npos && colon + 1 < spec.size() &&
+                       spec.find_first_not_of("-0123456789", colon + 1) == std::string::npos;
+  const std::string path = indexed ? spec.substr(0, colon) : spec;
+  const FramesFile file(path);
+  if (file.frames() == 0) throw FramesFileError(path + ": no frames");
+  long index = indexed ? std::stol(spec.substr(colon + 1)) : -1;
+  if (index < 0) index += long(file.frames());
+  if (index < 0 || index >= long(file.frames()))
+    throw FramesFileError(path + ": frame " + spec.substr(colon + 1) + " out of range (" +
+                          std::to_string(file.frames()) + " frames)");
+  Case c;
+  c.frame = file.frame(size_t(index));
+  c.dim = file.dimension();
+  c.radius = file.particleRadius();
+  const std::string scene = file.scene().empty() ? fs::path(path).stem().string() : file.scene();
+  c.liquid = scene + " t=" + fmt(file.times()[size_t(index)], "%.2f") + " s";
+  return c;
+}
 
 int benchSurface(const Options& opt) {
   omp_set_num_threads(opt.threads);
@@ -79,16 +116,29 @@ int benchSurface(const Options& opt) {
   std::vector<std::vector<std::string>> rows;
   std::printf("%-4s %-8s %9s %10s %10s %10s %10s %10s %10s\n", "dim", "liquid", "particles", "ms/frame", "us/particle",
               "triangles", "vdb MB", "ply MB", "points MB");
+  SurfaceSettings settings = surfaceSettingsTable().defaults();
+  for (const std::string& kv : opt.surface) {
+    const ParamOverride p = parseParamOverride(surfaceSettingsSpecs(), kv, "--surface", "surface");
+    surfaceSettingsTable().assign(settings, p.spec->name, p.value);
+  }
+  if (const std::string problem = surfaceSettingsProblem(settings); !problem.empty()) throw SceneError("surface", problem);
+  // The synthetic liquids, then the simulations' frames, one at a time in memory.
+  std::vector<std::function<Case()>> makers;
   for (int dim : {2, 3})
     for (bool splash : {false, true})
-      for (size_t n : dim == 2 ? opt.sizes2d : opt.sizes) {
-        const ParticleFrame frame = makeLiquid(n, dim, splash);
+      for (size_t n : dim == 2 ? opt.sizes2d : opt.sizes)
+        makers.push_back([=] { return Case{makeLiquid(n, dim, splash), dim, kRadius, splash ? "splash" : "block"}; });
+  for (const std::string& spec : opt.frames) makers.push_back([spec] { return frameOfExport(spec); });
+  for (const auto& make : makers) {
+        const Case c = make();
+        const ParticleFrame& frame = c.frame;
+        const int dim = c.dim;
         // The reconstruction alone, best of the repeats.
         double best = 1e30;
         size_t triangles = 0;
         Surface stages;  // the best run's stage times
         for (int r = 0; r < opt.repeats; ++r) {
-          Surface s = reconstructSurface(frame, kRadius, surfaceSettingsTable().defaults(), true, dim);
+          Surface s = reconstructSurface(frame, c.radius, settings, true, dim);
           triangles = s.mesh.triangles.size();
           if (s.ms < best) best = s.ms, stages = std::move(s);
         }
@@ -98,15 +148,21 @@ int benchSurface(const Options& opt) {
         info.name = "bench";
         info.directory = scratch;
         info.dimension = dim;
-        info.particleRadius = kRadius;
+        info.particleRadius = c.radius;
         info.frameRate = 60;
         info.createdBy = std::string("flowclip ") + FLOWCLIP_VERSION;
-        SurfaceExport e(info, {"vdb", "ply", "points"}, surfaceSettingsTable().defaults());
+        SurfaceExport e(info, {"vdb", "ply", "points"}, settings);
         e.writeFrame(frame);
-        const auto mb = [&](const std::string& name) { return double(fs::file_size(fs::path(scratch) / name)) / 1e6; };
-        const double vdb = mb("bench.0000.vdb"), ply = mb("bench.0000.ply"), points = mb("bench_points.0000.ply");
+        double vdb = 0, ply = 0, points = 0;  // MB; the files are named by the frame's index
+        for (const auto& file : fs::directory_iterator(scratch)) {
+          const std::string name = file.path().filename().string();
+          const double mb = double(file.file_size()) / 1e6;
+          if (name.rfind("bench_points.", 0) == 0) points += mb;
+          else if (file.path().extension() == ".vdb") vdb += mb;
+          else if (file.path().extension() == ".ply") ply += mb;
+        }
         const double us = best * 1e3 / double(frame.count());
-        const std::string kind = splash ? "splash" : "block";
+        const std::string& kind = c.liquid;
         std::printf("%-4d %-8s %9zu %10.1f %10.3f %10zu %10.2f %10.2f %10.2f  (classify %.0f, fill %.0f, smooth %.0f, mesh %.0f ms)\n",
                     dim, kind.c_str(), frame.count(), best, us, triangles, vdb, ply, points, stages.classifyMs,
                     stages.fillMs, stages.smoothMs, stages.meshMs);
@@ -120,21 +176,29 @@ int benchSurface(const Options& opt) {
                         fmt(stages.classifyMs, "%.0f") + " / " + fmt(stages.fillMs, "%.0f") + " / " +
                             fmt(stages.smoothMs, "%.0f") + " / " + fmt(stages.meshMs, "%.0f"),
                         std::to_string(triangles), fmt(vdb, "%.2f"), fmt(ply, "%.2f"), fmt(points, "%.2f")});
-      }
+  }
   fs::remove_all(scratch);
+  const ParamValues values = surfaceSettingsTable().values(settings);
+  std::string settingsText;
+  nlohmann::json settingsJson = nlohmann::json::object();
+  for (const ParamSpec& p : surfaceSettingsSpecs()) {
+    settingsText += (settingsText.empty() ? "`" : ", `") + p.name + "` " + fmt(values.get(p.name), "%g");
+    settingsJson[p.name] = values.get(p.name);
+  }
   std::string md =
       "Surface reconstruction (`reconstructSurface`: level set, velocity grid and mesh) of one frame, best of " +
-      std::to_string(opt.repeats) + " runs, default surface settings, particle radius 1 cm; then the frame's files " +
+      std::to_string(opt.repeats) + " runs, surface settings " + settingsText + "; then the frame's files " +
       "(`vdb`, `ply` mesh, `points` cache). *block*: a resting block on the simulation's lattice; *splash*: half " +
-      "the particles in a block, a quarter in a sheet one particle thick, a quarter in droplets of 1-30 particles. " +
+      "the particles in a block, a quarter in a sheet one particle thick, a quarter in droplets of 1-30 particles " +
+      "(both of particle radius 1 cm); a scene's name: a frame of its simulation, read from a particle export. " +
       "2D liquids are meshed as a slab at z = 0.\n\n" +
       markdownTable({"dim", "liquid", "particles", "ms / frame", "µs / particle",
                      "classify / fill / smooth / mesh ms", "triangles", "vdb MB", "ply MB", "points MB"},
                     rows) +
       "\nAnchor: splashsurf reports about 0.2 µs per particle on 16 cores; the target here is at most 1 µs per " +
       "particle on 2 cores.\n";
-  report.write(opt.out, "Surface reconstruction and export", md, {{"cases", cases}, {"repeats", opt.repeats},
-                                                                  {"particle_radius", kRadius}});
+  report.write(opt.out, "Surface reconstruction and export", md,
+               {{"cases", cases}, {"repeats", opt.repeats}, {"surface_settings", settingsJson}});
   std::printf("report: %s/surface.md\n", opt.out.c_str());
   return Ok;
 }
@@ -147,6 +211,15 @@ void addBenchSurfaceCommand(CLI::App& bench) {
   cmd->add_option("--out", opt->out, "report directory (default bench/surface)");
   cmd->add_option("--sizes", opt->sizes, "3D particle counts (default 100000,1000000)")->delimiter(',');
   cmd->add_option("--sizes-2d", opt->sizes2d, "2D particle counts (default 100000)")->delimiter(',');
+  cmd->add_option("--frames", opt->frames,
+                  "also mesh a frame of a particle export, FILE.h5[:INDEX] (0-based, negative from the end; default "
+                  "the last); repeatable")
+      ->check(CLI::Validator(
+          [](std::string& s) {
+            return fs::exists(s) || fs::exists(s.substr(0, s.rfind(':'))) ? std::string() : "no such file: " + s;
+          },
+          "FILE[:INDEX]"));
+  cmd->add_option("--surface", opt->surface, "a surface setting, KEY=VALUE (`flowclip params` lists them); repeatable");
   cmd->add_option("--threads", opt->threads, "threads (default 2)")->check(CLI::PositiveNumber);
   cmd->add_option("--repeats", opt->repeats, "runs per case, the best is kept (default 3)")->check(CLI::PositiveNumber);
   cmd->callback([opt] {

@@ -528,7 +528,16 @@ PublishRecovery recoverPublishing(const std::string& dir) {
     if (processAlive(p.pid, p.token)) continue;
     const std::string path = (fs::path(dir) / name).string();
     struct stat st;
-    if (!lexists(path, &st) || S_ISDIR(st.st_mode)) continue;  // only files are ours
+    if (!lexists(path, &st)) continue;
+    if (S_ISDIR(st.st_mode)) {
+      // Of folders, only one staged by this version (an export job's) is ours.
+      if (p.kind != NameKind::Staged) continue;
+      std::error_code ec;
+      fs::remove_all(path, ec);
+      if (ec) r.errors.push_back("cannot remove '" + path + "': " + ec.message());
+      else r.removed.push_back(path), changed = true;
+      continue;
+    }
     if (::unlink(path.c_str()) == 0) {
       r.removed.push_back(path);
       changed = true;

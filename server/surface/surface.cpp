@@ -12,9 +12,9 @@
 //           (SIGGRAPH) 24(3), 2005. DOI 10.1145/1073204.1073298
 #include "surface/surface.h"
 
+#include "core/key_map.h"
 #include "surface/volumes.h"
 
-#include <openvdb/tools/Filter.h>
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/VolumeToMesh.h>
 
@@ -23,11 +23,11 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <exception>
+#include <limits>
 #include <mutex>
 #include <stdexcept>
-#include <unordered_map>
-#include <unordered_set>
 
 namespace fc {
 
@@ -68,48 +68,56 @@ namespace {
 
 using openvdb::Coord;
 using LeafT = openvdb::FloatTree::LeafNodeType;
-constexpr int kBlock = int(LeafT::DIM);  // voxels per block side (8)
+using VLeafT = openvdb::Vec3STree::LeafNodeType;
+constexpr int kBlock = int(LeafT::DIM);     // voxels per block side
+constexpr int kVoxels = int(LeafT::SIZE);   // voxels per block
+static_assert(kBlock == 8 && kVoxels == 512, "a block row is one 8-float vector");
 
 void initialiseOpenVdb() {
   static std::once_flag once;
   std::call_once(once, [] { openvdb::initialize(); });
 }
 
+constexpr int64_t kKeyOffset = int64_t(1) << 20, kKeyMask = (int64_t(1) << 21) - 1;
 uint64_t key(int64_t i, int64_t j, int64_t k) {
-  constexpr int64_t off = int64_t(1) << 20, mask = (int64_t(1) << 21) - 1;
-  return (uint64_t((i + off) & mask) << 42) | (uint64_t((j + off) & mask) << 21) | uint64_t((k + off) & mask);
+  return (uint64_t((i + kKeyOffset) & kKeyMask) << 42) | (uint64_t((j + kKeyOffset) & kKeyMask) << 21) |
+         uint64_t((k + kKeyOffset) & kKeyMask);
 }
+int64_t unkey(uint64_t k, int d) { return int64_t((k >> (42 - 21 * d)) & uint64_t(kKeyMask)) - kKeyOffset; }
 
-// The surface particles bucketed in cubic cells of the kernel's radius.
+// The surface particles sorted into cubic cells of the kernel's radius.
 class Buckets {
  public:
   Buckets(const ParticleFrame& f, double cell) : inv_(1.0 / cell) {
+    std::vector<uint32_t> rows;
+    rows.reserve(f.count());
     for (size_t i = 0; i < f.count(); ++i) {
       const float* x = &f.position[3 * i];
       // A non-finite position has no place on the grid.
       if (formsSurface(f.kind[i]) && std::isfinite(x[0]) && std::isfinite(x[1]) && std::isfinite(x[2]))
-        rows_.push_back(uint32_t(i));
+        rows.push_back(uint32_t(i));
     }
-    std::vector<uint64_t> keys(rows_.size());
-    for (size_t n = 0; n < rows_.size(); ++n) {
-      const float* x = &f.position[size_t(rows_[n]) * 3];
-      keys[n] = key(cellOf(x[0]), cellOf(x[1]), cellOf(x[2]));
+    std::vector<std::pair<uint64_t, uint32_t>> keyed(rows.size());
+#pragma omp parallel for schedule(static)
+    for (size_t n = 0; n < rows.size(); ++n) {
+      const float* x = &f.position[size_t(rows[n]) * 3];
+      keyed[n] = {key(cellOf(x[0]), cellOf(x[1]), cellOf(x[2])), rows[n]};
     }
-    std::vector<uint32_t> order(rows_.size());
-    for (size_t n = 0; n < order.size(); ++n) order[n] = uint32_t(n);
-    std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return keys[a] < keys[b]; });
-    pos_.resize(order.size() * 3);
-    vel_.resize(order.size() * 3);
-    cells_.reserve(order.size() / 4 + 1);
-    for (size_t n = 0; n < order.size(); ++n) {
-      const size_t row = rows_[order[n]];
+    std::sort(keyed.begin(), keyed.end());
+    pos_.resize(keyed.size() * 3);
+    vel_.resize(keyed.size() * 3);
+#pragma omp parallel for schedule(static)
+    for (size_t n = 0; n < keyed.size(); ++n)
       for (int d = 0; d < 3; ++d) {
-        pos_[3 * n + d] = f.position[3 * row + d];
-        vel_[3 * n + d] = f.velocity[3 * row + d];
+        pos_[3 * n + d] = f.position[3 * size_t(keyed[n].second) + d];
+        vel_[3 * n + d] = f.velocity[3 * size_t(keyed[n].second) + d];
       }
-      auto [it, fresh] = cells_.try_emplace(keys[order[n]], uint32_t(n), uint32_t(n + 1));
-      if (!fresh) it->second.second = uint32_t(n + 1);
-    }
+    for (size_t n = 0; n < keyed.size(); ++n)
+      if (n == 0 || keyed[n].first != keyed[n - 1].first) {
+        cells_.insert(keyed[n].first, uint32_t(starts_.size()));
+        starts_.push_back(uint32_t(n));
+      }
+    starts_.push_back(uint32_t(keyed.size()));
   }
   size_t size() const { return pos_.size() / 3; }
   int64_t cellOf(double x) const { return int64_t(std::floor(x * inv_)); }
@@ -123,72 +131,188 @@ class Buckets {
     for (int64_t i = a[0]; i <= b[0]; ++i)
       for (int64_t j = a[1]; j <= b[1]; ++j)
         for (int64_t k = a[2]; k <= b[2]; ++k) {
-          auto it = cells_.find(key(i, j, k));
-          if (it == cells_.end()) continue;
-          for (uint32_t n = it->second.first; n < it->second.second; ++n) f(n);
+          const uint32_t c = cells_.find(key(i, j, k));
+          if (c == KeyMap::kMissing) continue;
+          for (uint32_t n = starts_[c]; n < starts_[c + 1]; ++n) f(n);
         }
   }
 
  private:
   double inv_;
-  std::vector<uint32_t> rows_;
   std::vector<float> pos_, vel_;
-  std::unordered_map<uint64_t, std::pair<uint32_t, uint32_t>> cells_;
+  std::vector<uint32_t> starts_;  // each cell's first particle, then the end
+  KeyMap cells_;                  // cell → its index in starts_
 };
 
-// [ZB05] Sec. 6: phi(x) = |x - x̄| - r̄ with x̄ the mean of
-// the neighbours within R weighted by k(s) = max(0, 1 - s²)³, s = |x - x_i| / R.
-struct FieldSample {
-  double phi = 0;
-  bool reached = false;  // some particle within R
-};
-
-class Field {
- public:
-  Field(double radius, double surfaceRadius) : R_(radius), invR2_(1.0 / (radius * radius)), rs_(surfaceRadius) {}
-
-  // From a list of candidate particles (positions, SoA).
-  FieldSample at(const double x[3], const std::vector<float>& px, const std::vector<float>& py,
-                 const std::vector<float>& pz) const {
-    double w = 0, sx = 0, sy = 0, sz = 0;
-    const size_t n = px.size();
-    for (size_t i = 0; i < n; ++i) {
-      const double dx = px[i] - x[0], dy = py[i] - x[1], dz = pz[i] - x[2];
-      const double s2 = (dx * dx + dy * dy + dz * dz) * invR2_;
-      if (s2 >= 1) continue;
-      const double t = 1 - s2, k = t * t * t;
-      w += k;
-      sx += k * px[i], sy += k * py[i], sz += k * pz[i];
-    }
-    FieldSample s;
-    if (w <= 0) return s;
-    s.reached = true;
-    const double mx = sx / w - x[0], my = sy / w - x[1], mz = sz / w - x[2];
-    s.phi = std::sqrt(mx * mx + my * my + mz * mz) - rs_;
-    return s;
-  }
-  double radius() const { return R_; }
-  double surfaceRadius() const { return rs_; }
-
- private:
-  double R_, invR2_, rs_;
-};
-
-// The particles within R of the box [lo, hi], as SoA.
+// The particles within the kernel radius of a block, in voxels from the
+// block's first voxel (small numbers: the sums keep their digits in float).
 struct Gathered {
-  std::vector<float> x, y, z, v;
-  void from(const Buckets& b, const double lo[3], const double hi[3], double R) {
-    x.clear(), y.clear(), z.clear(), v.clear();
-    const double elo[3] = {lo[0] - R, lo[1] - R, lo[2] - R}, ehi[3] = {hi[0] + R, hi[1] + R, hi[2] + R};
-    b.forRange(elo, ehi, [&](size_t n) {
+  std::vector<float> x, y, z, vx, vy, vz;
+  size_t size() const { return x.size(); }
+  void from(const Buckets& b, const double origin[3], double voxel, double R) {
+    x.clear(), y.clear(), z.clear(), vx.clear(), vy.clear(), vz.clear();
+    const double side = (kBlock - 1) * voxel;
+    const double lo[3] = {origin[0] - R, origin[1] - R, origin[2] - R};
+    const double hi[3] = {origin[0] + side + R, origin[1] + side + R, origin[2] + side + R};
+    const double inv = 1.0 / voxel;
+    b.forRange(lo, hi, [&](size_t n) {
       const float* p = b.pos(n);
-      if (p[0] < elo[0] || p[0] > ehi[0] || p[1] < elo[1] || p[1] > ehi[1] || p[2] < elo[2] || p[2] > ehi[2]) return;
-      x.push_back(p[0]), y.push_back(p[1]), z.push_back(p[2]);
+      if (p[0] < lo[0] || p[0] > hi[0] || p[1] < lo[1] || p[1] > hi[1] || p[2] < lo[2] || p[2] > hi[2]) return;
+      x.push_back(float((p[0] - origin[0]) * inv)), y.push_back(float((p[1] - origin[1]) * inv));
+      z.push_back(float((p[2] - origin[2]) * inv));
       const float* u = b.vel(n);
-      v.insert(v.end(), {u[0], u[1], u[2]});
+      vx.push_back(u[0]), vy.push_back(u[1]), vz.push_back(u[2]);
     });
   }
 };
+
+// [ZB05] Sec. 6: phi(x) = |x - x̄| - r̄, x̄ the mean of the particles within
+// R weighted by k(s) = max(0, 1 - s²)³, s = |x - x_i| / R. At one point
+// (u in voxels from the block's first voxel); +inf where no particle is
+// within R.
+float phiAt(const Gathered& g, const float u[3], float rv, float rs, bool planar) {
+  const float inv = 1.0f / (rv * rv);
+  float w = 0, sx = 0, sy = 0, sz = 0;
+  for (size_t n = 0; n < g.size(); ++n) {
+    const float dx = g.x[n] - u[0], dy = g.y[n] - u[1], dz = planar ? 0.0f : g.z[n] - u[2];
+    float t = 1.0f - (dx * dx + dy * dy + dz * dz) * inv;
+    t = t > 0.0f ? t : 0.0f;
+    const float k = t * t * t;
+    w += k, sx += k * dx, sy += k * dy, sz += k * dz;
+  }
+  if (!(w > 0)) return std::numeric_limits<float>::infinity();
+  const float mz = planar ? 0.0f : sz / w;  // planar: u lies in the particles' plane
+  return std::sqrt((sx / w) * (sx / w) + (sy / w) * (sy / w) + mz * mz) - rs;
+}
+
+// Per-voxel sums of the weights and the weighted positions and velocities
+// of one block, one array per quantity: a row of 8 voxels is one vector.
+struct alignas(64) Sums {
+  float w[kVoxels], x[kVoxels], y[kVoxels], z[kVoxels], vx[kVoxels], vy[kVoxels], vz[kVoxels];
+};
+
+// [ZB05] Sec. 6, scattered: every particle adds k(s) and k(s) x_i, k(s) v_i
+// to the voxels of its kernel ball, a whole row of the block at a time.
+void sumBlock(const Gathered& g, float rv, Sums& s) {
+  std::memset(&s, 0, sizeof s);
+  const float rv2 = rv * rv, inv = 1.0f / rv2;
+  for (size_t n = 0; n < g.size(); ++n) {
+    const float ux = g.x[n], uy = g.y[n], uz = g.z[n], ax = g.vx[n], ay = g.vy[n], az = g.vz[n];
+    // The distance from the particle to the block's rows, along z.
+    const float zOut = uz < 0 ? -uz : uz > kBlock - 1 ? uz - (kBlock - 1) : 0.0f;
+    const int i0 = std::max(0, int(std::ceil(ux - rv))), i1 = std::min(kBlock - 1, int(std::floor(ux + rv)));
+    for (int i = i0; i <= i1; ++i) {
+      const float dx = float(i) - ux, rx2 = rv2 - dx * dx;
+      if (rx2 <= 0) continue;
+      const float ry = std::sqrt(rx2);
+      const int j0 = std::max(0, int(std::ceil(uy - ry))), j1 = std::min(kBlock - 1, int(std::floor(uy + ry)));
+      for (int j = j0; j <= j1; ++j) {
+        const float dy = float(j) - uy, dxy2 = dx * dx + dy * dy;
+        if (dxy2 + zOut * zOut >= rv2) continue;
+        const int row = (i << 6) | (j << 3);
+        float* __restrict w = s.w + row;
+        float* __restrict x = s.x + row;
+        float* __restrict y = s.y + row;
+        float* __restrict z = s.z + row;
+        float* __restrict vx = s.vx + row;
+        float* __restrict vy = s.vy + row;
+        float* __restrict vz = s.vz + row;
+#pragma omp simd
+        for (int k = 0; k < kBlock; ++k) {
+          const float dz = float(k) - uz;
+          float t = 1.0f - (dxy2 + dz * dz) * inv;
+          t = t > 0.0f ? t : 0.0f;
+          const float c = t * t * t;
+          w[k] += c, x[k] += c * ux, y[k] += c * uy, z[k] += c * uz;
+          vx[k] += c * ax, vy[k] += c * ay, vz[k] += c * az;
+        }
+      }
+    }
+  }
+}
+
+// The same in the plane z = 0 of a 2D liquid: one sum per column (i, j).
+void sumColumns(const Gathered& g, float rv, Sums& s) {
+  std::memset(s.w, 0, sizeof s.w), std::memset(s.x, 0, sizeof s.x), std::memset(s.y, 0, sizeof s.y);
+  std::memset(s.vx, 0, sizeof s.vx), std::memset(s.vy, 0, sizeof s.vy);
+  const float rv2 = rv * rv, inv = 1.0f / rv2;
+  for (size_t n = 0; n < g.size(); ++n) {
+    const float ux = g.x[n], uy = g.y[n], ax = g.vx[n], ay = g.vy[n];
+    const int i0 = std::max(0, int(std::ceil(ux - rv))), i1 = std::min(kBlock - 1, int(std::floor(ux + rv)));
+    for (int i = i0; i <= i1; ++i) {
+      const float dx = float(i) - ux, dx2 = dx * dx;
+      if (dx2 >= rv2) continue;
+      float* __restrict w = s.w + 8 * i;
+      float* __restrict x = s.x + 8 * i;
+      float* __restrict y = s.y + 8 * i;
+      float* __restrict vx = s.vx + 8 * i;
+      float* __restrict vy = s.vy + 8 * i;
+#pragma omp simd
+      for (int j = 0; j < kBlock; ++j) {
+        const float dy = float(j) - uy;
+        float t = 1.0f - (dx2 + dy * dy) * inv;
+        t = t > 0.0f ? t : 0.0f;
+        const float c = t * t * t;
+        w[j] += c, x[j] += c * ux, y[j] += c * uy, vx[j] += c * ax, vy[j] += c * ay;
+      }
+    }
+  }
+}
+
+enum Kind : uint8_t { Outside, Inside, Crossed };
+
+// One block's field clamped to [-band, band] and its mean velocity, and
+// what the block is: crossed when some voxel is inside the band or the
+// sign changes.
+Kind fieldOfBlock(const Sums& s, bool planar, int zOrigin, float voxel, float rs, float band, float* phi,
+                  float* vel) {
+  bool in = false, out = false, near = false;
+  for (int n = 0; n < kVoxels; ++n) {
+    const int i = n >> 6, j = (n >> 3) & 7, k = n & 7, c = planar ? (n >> 3) : n;
+    float p = band;
+    vel[3 * n] = vel[3 * n + 1] = vel[3 * n + 2] = 0.0f;
+    if (s.w[c] > 0) {
+      const float iw = 1.0f / s.w[c];
+      const float mx = s.x[c] * iw - float(i), my = s.y[c] * iw - float(j);
+      const float mz = planar ? -float(zOrigin + k) : s.z[c] * iw - float(k);
+      p = std::min(band, std::max(-band, voxel * std::sqrt(mx * mx + my * my + mz * mz) - rs));
+      vel[3 * n] = s.vx[c] * iw, vel[3 * n + 1] = s.vy[c] * iw, vel[3 * n + 2] = planar ? 0.0f : s.vz[c] * iw;
+    }
+    phi[n] = p;
+    in |= p <= -band, out |= p >= band, near |= std::abs(p) < band;
+  }
+  return near || (in && out) ? Crossed : in ? Inside : Outside;
+}
+
+// The crossed blocks' six face neighbours, for the filter: another crossed
+// block's index, or the constant a tile or the outside holds.
+struct Faces {
+  int32_t block[6];  // -x, +x, -y, +y, -z, +z; -1 for a constant
+  float value[6];
+};
+
+// One pass of the 3-wide box along `axis` (0 = x, stride 64 in a block).
+void boxPass(int axis, const std::vector<Faces>& faces, const std::vector<float*>& in, const std::vector<float*>& out) {
+  const int stride = 1 << (3 * (2 - axis));
+#pragma omp parallel for schedule(static)
+  for (size_t b = 0; b < faces.size(); ++b) {
+    const float* src = in[b];
+    float* dst = out[b];
+    const Faces& f = faces[b];
+    const float* lowBlock = f.block[2 * axis] >= 0 ? in[size_t(f.block[2 * axis])] : nullptr;
+    const float* highBlock = f.block[2 * axis + 1] >= 0 ? in[size_t(f.block[2 * axis + 1])] : nullptr;
+    for (int n = 0; n < kVoxels; ++n) {
+      const int c = (n / stride) & 7;
+      const float prev = c > 0 ? src[n - stride] : lowBlock ? lowBlock[n + 7 * stride] : f.value[2 * axis];
+      const float next = c < 7 ? src[n + stride] : highBlock ? highBlock[n - 7 * stride] : f.value[2 * axis + 1];
+      dst[n] = (prev + src[n] + next) * (1.0f / 3.0f);
+    }
+  }
+}
+
+double msSince(std::chrono::steady_clock::time_point t) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
+}
 
 }  // namespace
 
@@ -204,7 +328,8 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   if (const std::string problem = surfaceSettingsProblem(s); !problem.empty()) throw std::invalid_argument(problem);
   const double voxel = s.voxelSize * particleRadius;
   const double R = s.kernelRadius * particleRadius;
-  const Field field(R, s.surfaceRadius * particleRadius);
+  const double rs = s.surfaceRadius * particleRadius;
+  const float rv = float(R / voxel);
   const Buckets buckets(frame, R);
 
   Surface out;
@@ -213,7 +338,7 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
 
   // Narrow band: 3 voxels each side, no deeper than the inside's depth (the
   // field's floor), and never under 1.5 voxels (meshing needs neighbours).
-  const float band = float(std::max(std::min(3.0 * voxel, field.surfaceRadius()), 1.5 * voxel));
+  const float band = float(std::max(std::min(3.0 * voxel, rs), 1.5 * voxel));
   auto sdf = openvdb::FloatGrid::create(band);
   sdf->setTransform(openvdb::math::Transform::createLinearTransform(voxel));
   sdf->setGridClass(openvdb::GRID_LEVEL_SET);
@@ -223,51 +348,58 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   velocity->setName("v");
   velocity->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
 
-  // Candidate blocks: those within R of a particle (the field is zero beyond).
+  // Particles per block (voxel centres at multiples of the voxel).
   const double blockSize = kBlock * voxel;
   const int ring = int(std::ceil(R / blockSize));
-  std::unordered_map<uint64_t, uint32_t> occupied;  // particles per block
+  const auto blockOf = [&](double x) { return int64_t(std::floor(x / blockSize + 0.5 / kBlock)); };
+  KeyMap occupied(buckets.size() / 4 + 16);
   for (size_t n = 0; n < buckets.size(); ++n) {
     const float* p = buckets.pos(n);
-    ++occupied[key(int64_t(std::floor(p[0] / blockSize + 0.5 / kBlock)), int64_t(std::floor(p[1] / blockSize + 0.5 / kBlock)),
-                   int64_t(std::floor(p[2] / blockSize + 0.5 / kBlock)))];
+    ++*occupied.insert(key(blockOf(p[0]), blockOf(p[1]), blockOf(p[2])), 0).first;
   }
-  std::unordered_set<uint64_t> candidateKeys;
-  std::vector<Coord> candidates;
-  const auto unkey = [](uint64_t k, int d) {
-    constexpr int64_t off = int64_t(1) << 20, mask = (int64_t(1) << 21) - 1;
-    return int64_t((k >> (42 - 21 * d)) & uint64_t(mask)) - off;
-  };
-  for (const auto& [k, count] : occupied)
-    for (int i = -ring; i <= ring; ++i)
-      for (int j = -ring; j <= ring; ++j)
-        for (int l = -ring; l <= ring; ++l) {
-          const int64_t b[3] = {unkey(k, 0) + i, unkey(k, 1) + j, unkey(k, 2) + l};
-          if (candidateKeys.insert(key(b[0], b[1], b[2])).second)
-            candidates.emplace_back(int(b[0] * kBlock), int(b[1] * kBlock), int(b[2] * kBlock));
-        }
-
-  // Classify each block from its corners and centre: the field grows at
-  // most about as fast as the distance, so a block whose centre is farther
-  // out than its half-diagonal holds no surface; one sampled deep inside
-  // everywhere is a tile of the inside.
-  enum Kind : uint8_t { Outside, Inside, Crossed };
-  std::vector<uint8_t> kinds(candidates.size());
   // A block whose neighbourhood is filled at half the rest density or more
-  // is inside without sampling: in a large pool, almost every block.
+  // is inside without evaluation: in a large pool, almost every block.
   const double full = 0.5 * std::pow(blockSize / (2 * particleRadius), 3);
-  const auto filled = [&](const Coord& o) {
-    const int64_t b[3] = {o.x() / kBlock, o.y() / kBlock, o.z() / kBlock};
+  const auto filled = [&](const int64_t b[3]) {
     for (int i = -ring; i <= ring; ++i)
       for (int j = -ring; j <= ring; ++j)
         for (int l = -ring; l <= ring; ++l) {
-          auto it = occupied.find(key(b[0] + i, b[1] + j, b[2] + l));
-          if (it == occupied.end() || it->second < full) return false;
+          const uint32_t count = occupied.find(key(b[0] + i, b[1] + j, b[2] + l));
+          if (count == KeyMap::kMissing || count < full) return false;
         }
     return true;
   };
-  const double halfDiagonal = 0.5 * std::sqrt(3.0) * blockSize;
-  const double deep = -0.5 * field.surfaceRadius();
+  // Candidates: the blocks within R of a particle (the field is zero beyond).
+  // Only an occupied block with an empty block in its ring widens the set.
+  std::vector<uint64_t> candidates;
+  KeyMap candidateIndex(2 * occupied.size() + 16);
+  occupied.forEach([&](uint64_t k, uint32_t) {
+    candidateIndex.insert(k, uint32_t(candidates.size()));
+    candidates.push_back(k);
+  });
+  const size_t occupiedCount = candidates.size();
+  for (size_t c = 0; c < occupiedCount; ++c) {
+    const int64_t b[3] = {unkey(candidates[c], 0), unkey(candidates[c], 1), unkey(candidates[c], 2)};
+    for (int i = -ring; i <= ring; ++i)
+      for (int j = -ring; j <= ring; ++j)
+        for (int l = -ring; l <= ring; ++l) {
+          const uint64_t k = key(b[0] + i, b[1] + j, b[2] + l);
+          if (!occupied.contains(k) && candidateIndex.insert(k, uint32_t(candidates.size())).second)
+            candidates.push_back(k);
+        }
+  }
+  out.classifyMs = msSince(t0);
+
+  // Each candidate: skipped when far outside (its centre farther than its
+  // half-diagonal and the band: the field grows about as fast as the
+  // distance), a tile when filled or sampled deep inside at its corners and
+  // centre, otherwise evaluated voxel by voxel and kept when crossed.
+  const auto tFill = std::chrono::steady_clock::now();
+  std::vector<uint8_t> kinds(candidates.size(), Outside);
+  std::vector<std::unique_ptr<LeafT>> leaves(candidates.size());
+  std::vector<std::unique_ptr<VLeafT>> velocityLeaves(candidates.size());
+  const float halfDiagonal = float(0.5 * std::sqrt(3.0) * (kBlock - 1));  // voxels
+  const float rsv = float(rs / voxel), bandv = float(band / voxel);
   // An exception may not leave an OpenMP region: kept, rethrown after it.
   std::exception_ptr failure;
   const auto keep = [&failure] {
@@ -277,145 +409,119 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
 #pragma omp parallel
   {
     Gathered g;
-#pragma omp for schedule(dynamic, 16)
+    std::unique_ptr<Sums> sums;
+    std::vector<float> phi(kVoxels), vel(3 * kVoxels);
+    try {
+      sums = std::make_unique<Sums>();
+    } catch (...) {
+      keep();
+    }
+#pragma omp for schedule(dynamic, 8)
     for (size_t c = 0; c < candidates.size(); ++c) try {
-      const Coord& o = candidates[c];
-      if (filled(o)) {
+      if (!sums) continue;
+      const int64_t b[3] = {unkey(candidates[c], 0), unkey(candidates[c], 1), unkey(candidates[c], 2)};
+      if (filled(b)) {
         kinds[c] = Inside;
         continue;
       }
-      const double lo[3] = {(o.x() - 0.5) * voxel, (o.y() - 0.5) * voxel, (o.z() - 0.5) * voxel};
-      const double hi[3] = {lo[0] + blockSize, lo[1] + blockSize, lo[2] + blockSize};
-      g.from(buckets, lo, hi, R);
-      const double centre[3] = {0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])};
-      const FieldSample mid = field.at(centre, g.x, g.y, g.z);
-      if (!mid.reached && g.x.empty()) {
-        kinds[c] = Outside;
+      const Coord o(int(b[0] * kBlock), int(b[1] * kBlock), int(b[2] * kBlock));
+      const double origin[3] = {o.x() * voxel, o.y() * voxel, o.z() * voxel};
+      g.from(buckets, origin, voxel, R);
+      if (g.size() == 0) continue;
+      const float mid[3] = {0.5f * (kBlock - 1), 0.5f * (kBlock - 1), planar ? float(-o.z()) : 0.5f * (kBlock - 1)};
+      const float phiMid = phiAt(g, mid, rv, rsv, planar);
+      if (phiMid > halfDiagonal + bandv) continue;
+      bool deep = phiMid < -0.5f * rsv;
+      for (int corner = 0; corner < 8 && deep; ++corner) {
+        const float u[3] = {corner & 1 ? kBlock - 1.0f : 0.0f, corner & 2 ? kBlock - 1.0f : 0.0f,
+                            planar ? float(-o.z()) : corner & 4 ? kBlock - 1.0f : 0.0f};
+        deep = phiAt(g, u, rv, rsv, planar) < -0.5f * rsv;
+      }
+      if (deep && !planar) {
+        kinds[c] = Inside;
         continue;
       }
-      if (mid.reached && mid.phi > halfDiagonal + voxel) {
-        kinds[c] = Outside;
-        continue;
-      }
-      bool inside = mid.reached && mid.phi < deep;
-      for (int corner = 0; corner < 8 && inside; ++corner) {
-        const double x[3] = {corner & 1 ? hi[0] : lo[0], corner & 2 ? hi[1] : lo[1], corner & 4 ? hi[2] : lo[2]};
-        const FieldSample cs = field.at(x, g.x, g.y, g.z);
-        inside = cs.reached && cs.phi < deep;
-      }
-      kinds[c] = inside ? Inside : Crossed;
+      if (planar) sumColumns(g, rv, *sums);
+      else sumBlock(g, rv, *sums);
+      const Kind kind = fieldOfBlock(*sums, planar, o.z(), float(voxel), float(rs), band, phi.data(), vel.data());
+      kinds[c] = kind;
+      if (kind != Crossed) continue;
+      leaves[c] = std::make_unique<LeafT>(o, band, false);
+      velocityLeaves[c] = std::make_unique<VLeafT>(o, openvdb::Vec3s(0.0f), false);
+      std::copy(phi.begin(), phi.end(), leaves[c]->buffer().data());
+      openvdb::Vec3s* v = velocityLeaves[c]->buffer().data();
+      for (int n = 0; n < kVoxels; ++n) v[n] = openvdb::Vec3s(vel[3 * n], vel[3 * n + 1], vel[3 * n + 2]);
     } catch (...) {
       keep();
     }
   }
   if (failure) std::rethrow_exception(failure);
+  out.fillMs = msSince(tFill);
 
-  const auto since = [](std::chrono::steady_clock::time_point t) {
-    return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
-  };
-  out.classifyMs = since(t0);
-  const auto tFill = std::chrono::steady_clock::now();
-  // The crossed blocks' leaves, created serially, filled in parallel.
-  std::vector<LeafT*> leaves(candidates.size(), nullptr);
-  std::vector<openvdb::Vec3STree::LeafNodeType*> velocityLeaves(candidates.size(), nullptr);
-  for (size_t c = 0; c < candidates.size(); ++c) {
-    if (kinds[c] == Inside) sdf->tree().addTile(1, candidates[c], -band, false);
-    if (kinds[c] != Crossed) continue;
-    leaves[c] = sdf->tree().touchLeaf(candidates[c]);
-    velocityLeaves[c] = velocity->tree().touchLeaf(candidates[c]);
-  }
-  // Each crossed block: every nearby particle adds its weight k(s) to the
-  // voxels of its kernel ball, row by row (z is the leaf's fastest index),
-  // then [ZB05] Sec. 6 per voxel: phi = |x - x̄| - r̄, and the mean velocity.
-#pragma omp parallel
-  {
-    Gathered g;
-    std::vector<double> acc;  // w, w x, w y, w z, w v per voxel
-    try {
-      acc.resize(7 * LeafT::SIZE);
-    } catch (...) {
-      keep();
-    }
-#pragma omp for schedule(dynamic, 4)
-    for (size_t c = 0; c < candidates.size(); ++c) try {
-      if (!leaves[c] || acc.empty()) continue;
-      const Coord& o = candidates[c];
-      const double lo[3] = {o.x() * voxel, o.y() * voxel, o.z() * voxel};
-      const double hi[3] = {lo[0] + (kBlock - 1) * voxel, lo[1] + (kBlock - 1) * voxel, lo[2] + (kBlock - 1) * voxel};
-      g.from(buckets, lo, hi, R);
-      std::fill(acc.begin(), acc.end(), 0.0);
-      const double invVoxel = 1.0 / voxel, rv = R * invVoxel, invR2 = 1.0 / (R * R);
-      for (size_t n = 0; n < g.x.size(); ++n) {
-        const double p[3] = {g.x[n], g.y[n], g.z[n]};
-        const double u[3] = {(p[0] - lo[0]) * invVoxel, (p[1] - lo[1]) * invVoxel, (p[2] - lo[2]) * invVoxel};
-        const int i0 = std::max(0, int(std::ceil(u[0] - rv))), i1 = std::min(kBlock - 1, int(std::floor(u[0] + rv)));
-        for (int i = i0; i <= i1; ++i) {
-          const double dx = (lo[0] + i * voxel) - p[0];
-          const double rx2 = R * R - dx * dx;
-          if (rx2 <= 0) continue;
-          const double ry = std::sqrt(rx2) * invVoxel;
-          const int j0 = std::max(0, int(std::ceil(u[1] - ry))), j1 = std::min(kBlock - 1, int(std::floor(u[1] + ry)));
-          for (int j = j0; j <= j1; ++j) {
-            const double dy = (lo[1] + j * voxel) - p[1];
-            const double ryz2 = rx2 - dy * dy;
-            if (ryz2 <= 0) continue;
-            const double rz = std::sqrt(ryz2) * invVoxel;
-            const int k0 = std::max(0, int(std::ceil(u[2] - rz))), k1 = std::min(kBlock - 1, int(std::floor(u[2] + rz)));
-            const double dxy2 = dx * dx + dy * dy;
-            double* a = &acc[7 * size_t((i << 6) | (j << 3))];
-            if (planar) {  // the plane z = 0 only, in the column's first slot
-              const double t = 1 - dxy2 * invR2, w = t * t * t;
-              a[0] += w, a[1] += w * p[0], a[2] += w * p[1];
-              a[4] += w * g.v[3 * n], a[5] += w * g.v[3 * n + 1];
-              continue;
-            }
-            for (int k = k0; k <= k1; ++k) {
-              const double dz = (lo[2] + k * voxel) - p[2];
-              const double t = 1 - (dxy2 + dz * dz) * invR2;
-              if (t <= 0) continue;
-              const double w = t * t * t;
-              double* v = a + 7 * k;
-              v[0] += w, v[1] += w * p[0], v[2] += w * p[1], v[3] += w * p[2];
-              v[4] += w * g.v[3 * n], v[5] += w * g.v[3 * n + 1], v[6] += w * g.v[3 * n + 2];
-            }
-          }
-        }
-      }
-      LeafT& leaf = *leaves[c];
-      auto& vleaf = *velocityLeaves[c];
-      for (openvdb::Index n = 0; n < LeafT::SIZE; ++n) {
-        const double* a = &acc[7 * (planar ? n & ~openvdb::Index(kBlock - 1) : n)];
-        const Coord ijk = leaf.offsetToGlobalCoord(n);
-        double phi = band;
-        if (a[0] > 0) {
-          // A 2D liquid's slab: its plane's field, rounded off in z.
-          const double mx = a[1] / a[0] - ijk.x() * voxel, my = a[2] / a[0] - ijk.y() * voxel,
-                       mz = planar ? -ijk.z() * voxel : a[3] / a[0] - ijk.z() * voxel;
-          phi = std::sqrt(mx * mx + my * my + mz * mz) - field.surfaceRadius();
-        }
-        if (std::abs(phi) < band) {
-          leaf.setValueOn(n, float(phi));
-          vleaf.setValueOn(n, openvdb::Vec3s(float(a[4] / a[0]), float(a[5] / a[0]), float(a[6] / a[0])));
-        } else {
-          leaf.setValueOff(n, phi < 0 ? -band : band);
-          vleaf.setValueOff(n, openvdb::Vec3s(0.0f));
-        }
-      }
-    } catch (...) {
-      keep();
-    }
-  }
-  if (failure) std::rethrow_exception(failure);
-  out.fillMs = since(tFill);
+  // The box filter over the crossed blocks; a tile reads -band, the outside
+  // +band, as OpenVDB's own filter reads its inactive values.
   const auto tSmooth = std::chrono::steady_clock::now();
-  if (s.smoothing > 0) {
-    openvdb::tools::Filter<openvdb::FloatGrid> smooth(*sdf);
-    smooth.mean(1, s.smoothing);
+  std::vector<size_t> crossed;
+  for (size_t c = 0; c < candidates.size(); ++c)
+    if (kinds[c] == Crossed) crossed.push_back(c);
+  if (s.smoothing > 0 && !crossed.empty()) {
+    std::vector<uint32_t> crossedIndex(candidates.size(), KeyMap::kMissing);
+    for (size_t n = 0; n < crossed.size(); ++n) crossedIndex[crossed[n]] = uint32_t(n);
+    std::vector<Faces> faces(crossed.size());
+    std::vector<float*> data(crossed.size()), scratch(crossed.size());
+    std::vector<float> scratchStore(crossed.size() * kVoxels);
+    for (size_t n = 0; n < crossed.size(); ++n) {
+      const uint64_t k = candidates[crossed[n]];
+      const int64_t b[3] = {unkey(k, 0), unkey(k, 1), unkey(k, 2)};
+      for (int f = 0; f < 6; ++f) {
+        int64_t nb[3] = {b[0], b[1], b[2]};
+        nb[f / 2] += f % 2 ? 1 : -1;
+        const uint32_t c = candidateIndex.find(key(nb[0], nb[1], nb[2]));
+        const bool isCrossed = c != KeyMap::kMissing && kinds[c] == Crossed;
+        faces[n].block[f] = isCrossed ? int32_t(crossedIndex[c]) : -1;
+        faces[n].value[f] = c != KeyMap::kMissing && kinds[c] == Inside ? -band : band;
+      }
+      data[n] = leaves[crossed[n]]->buffer().data();
+      scratch[n] = &scratchStore[n * kVoxels];
+    }
+    for (int pass = 0; pass < s.smoothing; ++pass) {
+      boxPass(0, faces, data, scratch);
+      boxPass(1, faces, scratch, data);
+      boxPass(2, faces, data, scratch);
+      std::swap(data, scratch);
+    }
+    if (s.smoothing % 2)
+#pragma omp parallel for schedule(static)
+      for (size_t n = 0; n < crossed.size(); ++n) std::copy(data[n], data[n] + kVoxels, scratch[n]);
+  }
+  // Active where the field is inside the band.
+#pragma omp parallel for schedule(static)
+  for (size_t n = 0; n < crossed.size(); ++n) {
+    LeafT& leaf = *leaves[crossed[n]];
+    VLeafT& vleaf = *velocityLeaves[crossed[n]];
+    float* phi = leaf.buffer().data();
+    openvdb::Vec3s* v = vleaf.buffer().data();
+    for (int i = 0; i < kVoxels; ++i) {
+      const bool on = std::abs(phi[i]) < band;
+      if (!on) phi[i] = phi[i] < 0 ? -band : band, v[i] = openvdb::Vec3s(0.0f);
+      leaf.setActiveState(openvdb::Index(i), on);
+      vleaf.setActiveState(openvdb::Index(i), on);
+    }
+  }
+  for (size_t c = 0; c < candidates.size(); ++c) {
+    if (kinds[c] == Inside) {
+      const Coord o(int(unkey(candidates[c], 0) * kBlock), int(unkey(candidates[c], 1) * kBlock),
+                    int(unkey(candidates[c], 2) * kBlock));
+      sdf->tree().addTile(1, o, -band, false);
+    } else if (kinds[c] == Crossed) {
+      sdf->tree().addLeaf(leaves[c].release());
+      velocity->tree().addLeaf(velocityLeaves[c].release());
+    }
   }
   sdf->pruneGrid();
   velocity->pruneGrid();
   out.volumes = std::make_shared<SurfaceVolumes>(SurfaceVolumes{sdf, velocity});
-  out.smoothMs = since(tSmooth);
+  out.smoothMs = msSince(tSmooth);
 
   const auto tMesh = std::chrono::steady_clock::now();
   if (withMesh) {
@@ -426,24 +532,32 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
     SurfaceMesh& m = out.mesh;
     m.points.resize(points.size());
     m.velocities.resize(points.size());
-    openvdb::tools::GridSampler<openvdb::Vec3STree, openvdb::tools::BoxSampler> sampler(velocity->tree(),
-                                                                                         velocity->transform());
-    for (size_t i = 0; i < points.size(); ++i) {
-      m.points[i] = {points[i][0], points[i][1], points[i][2]};
-      const openvdb::Vec3s v = sampler.wsSample(points[i]);
-      m.velocities[i] = {v[0], v[1], v[2]};
+#pragma omp parallel
+    {
+      const auto accessor = velocity->getConstAccessor();
+      const openvdb::tools::GridSampler<openvdb::Vec3SGrid::ConstAccessor, openvdb::tools::BoxSampler> sampler(
+          accessor, velocity->transform());
+#pragma omp for schedule(static)
+      for (size_t i = 0; i < points.size(); ++i) {
+        m.points[i] = {points[i][0], points[i][1], points[i][2]};
+        const openvdb::Vec3s v = sampler.wsSample(points[i]);
+        m.velocities[i] = {v[0], v[1], v[2]};
+      }
     }
     // OpenVDB winds its polygons clockwise seen from outside; renderers and
     // the enclosed-volume sum expect counter-clockwise.
-    m.triangles.reserve(triangles.size() + 2 * quads.size());
-    for (const auto& t : triangles) m.triangles.push_back({t[0], t[2], t[1]});
-    for (const auto& q : quads) {
-      m.triangles.push_back({q[0], q[2], q[1]});
-      m.triangles.push_back({q[0], q[3], q[2]});
+    m.triangles.resize(triangles.size() + 2 * quads.size());
+#pragma omp parallel for schedule(static)
+    for (size_t i = 0; i < triangles.size(); ++i) m.triangles[i] = {triangles[i][0], triangles[i][2], triangles[i][1]};
+#pragma omp parallel for schedule(static)
+    for (size_t i = 0; i < quads.size(); ++i) {
+      const auto& q = quads[i];
+      m.triangles[triangles.size() + 2 * i] = {q[0], q[2], q[1]};
+      m.triangles[triangles.size() + 2 * i + 1] = {q[0], q[3], q[2]};
     }
   }
-  out.meshMs = since(tMesh);
-  out.ms = since(t0);
+  out.meshMs = msSince(tMesh);
+  out.ms = msSince(t0);
   return out;
 }
 

@@ -369,13 +369,23 @@ TEST(StagedFiles, RecoveryRemovesLeftoversOfDeadProcessesOnly) {
       {".x.h5.stage-" + dead + "-0123ABCD-1", "x"}, {"t.h5.old-" + dead + "-2", "x"}};
   setFiles(dir, others);
   for (const auto& n : leftovers) std::ofstream(tmp.file("d/" + n)) << (n.find("journal") != std::string::npos ? "flowclip-pub" : "x");
-  fs::create_directory(tmp.file("d/.dir.h5.tmp-" + dead));  // only files are ours
+  fs::create_directory(tmp.file("d/.dir.h5.tmp-" + dead));  // of folders, only a staged one is ours
+  fs::create_directory(tmp.file("d/.live.stage-" + self + "-" + ownOwner().substr(self.size() + 1) + "-3"));
+  fs::create_directory(tmp.file("d/.x.old-" + dead + "-0123abcd-4"));
+  // A killed export job's folder, with its frames.
+  const std::string job = tmp.file("d/.shot.stage-" + dead + "-0123abcd-5");
+  fs::create_directories(job + "/sub");
+  std::ofstream(job + "/shot.0000.ply") << "x";
+  std::ofstream(job + "/sub/y") << "y";
   const PublishRecovery r = recoverPublishing(dir);
   EXPECT_TRUE(r.errors.empty()) << r.errors.front();
   EXPECT_TRUE(r.rolledBack.empty());
-  EXPECT_EQ(r.removed.size(), leftovers.size());
+  EXPECT_EQ(r.removed.size(), leftovers.size() + 1);
+  EXPECT_FALSE(fs::exists(job));
   Files expected = others;
   expected[".dir.h5.tmp-" + dead] = "<dir>";
+  expected[".live.stage-" + self + "-" + ownOwner().substr(self.size() + 1) + "-3"] = "<dir>";
+  expected[".x.old-" + dead + "-0123abcd-4"] = "<dir>";
   EXPECT_EQ(filesIn(dir), expected);
   // Nothing to do the second time; a missing directory is no error.
   EXPECT_TRUE(recoverPublishing(dir).removed.empty());
