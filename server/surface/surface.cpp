@@ -1,9 +1,11 @@
 // Surface reconstruction on an OpenVDB grid [Mus13], only where the surface
-// is: the liquid's 8³-voxel blocks are classified from samples at their corners and centre,
-// and only the blocks the surface crosses are evaluated voxel by voxel.
+// is: the liquid's 8³-voxel blocks are classified from their neighbourhood's
+// occupancy and samples at their corners and centre, and only the blocks the
+// surface crosses are evaluated voxel by voxel, a row of 8 voxels per vector.
 // The field is Zhu & Bridson's, the distance to the kernel-weighted mean of
-// the neighbouring particles minus a radius; then a box filter, then
-// volume-to-mesh. Parameters and the trade-offs: docs/surfaces.md.
+// the neighbouring particles minus a radius; then a box filter, then a mesh:
+// marching cubes over the blocks (surface/block_mesher.h) or OpenVDB's
+// adaptive volume-to-mesh. Parameters and the trade-offs: docs/surfaces.md.
 //
 // References (docs/references.md):
 //   [Mus13] K. Museth. VDB: High-resolution sparse volumes with dynamic
@@ -13,9 +15,9 @@
 #include "surface/surface.h"
 
 #include "core/key_map.h"
+#include "surface/block_mesher.h"
 #include "surface/volumes.h"
 
-#include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/VolumeToMesh.h>
 
 #include <omp.h>
@@ -50,7 +52,8 @@ const ParamTable<SurfaceSettings>& surfaceSettingsTable() {
                "and shrinks a lone droplet a little",
        .member = &SurfaceSettings::smoothing},
       {.name = "adaptivity", .unit = "", .min = 0, .max = 1, .def = 0.1,
-       .help = "volume-to-mesh adaptivity: 0 meshes every voxel, higher merges flat regions into larger polygons",
+       .help = "mesh adaptivity: 0 is a uniform mesh by marching cubes, the fastest, with the most triangles; "
+               "above 0, OpenVDB's volume-to-mesh merges flat regions into larger polygons",
        .member = &SurfaceSettings::adaptivity},
   };
   return table;
@@ -291,22 +294,43 @@ struct Faces {
   float value[6];
 };
 
-// One pass of the 3-wide box along `axis` (0 = x, stride 64 in a block).
+// One pass of the 3-wide box along `axis` (0 = x: stride 64 in a block, 1 =
+// y: 8, 2 = z: 1), a contiguous run of voxels at a time.
 void boxPass(int axis, const std::vector<Faces>& faces, const std::vector<float*>& in, const std::vector<float*>& out) {
-  const int stride = 1 << (3 * (2 - axis));
+  constexpr float third = 1.0f / 3.0f;
 #pragma omp parallel for schedule(static)
   for (size_t b = 0; b < faces.size(); ++b) {
     const float* src = in[b];
-    float* dst = out[b];
+    float* __restrict dst = out[b];
     const Faces& f = faces[b];
-    const float* lowBlock = f.block[2 * axis] >= 0 ? in[size_t(f.block[2 * axis])] : nullptr;
-    const float* highBlock = f.block[2 * axis + 1] >= 0 ? in[size_t(f.block[2 * axis + 1])] : nullptr;
-    for (int n = 0; n < kVoxels; ++n) {
-      const int c = (n / stride) & 7;
-      const float prev = c > 0 ? src[n - stride] : lowBlock ? lowBlock[n + 7 * stride] : f.value[2 * axis];
-      const float next = c < 7 ? src[n + stride] : highBlock ? highBlock[n - 7 * stride] : f.value[2 * axis + 1];
-      dst[n] = (prev + src[n] + next) * (1.0f / 3.0f);
+    const float* low = f.block[2 * axis] >= 0 ? in[size_t(f.block[2 * axis])] : nullptr;
+    const float* high = f.block[2 * axis + 1] >= 0 ? in[size_t(f.block[2 * axis + 1])] : nullptr;
+    const float lowValue = f.value[2 * axis], highValue = f.value[2 * axis + 1];
+    if (axis == 2) {
+      for (int r = 0; r < kVoxels; r += kBlock) {  // each row, padded with its neighbours' ends
+        float row[kBlock + 2];
+        row[0] = low ? low[r + kBlock - 1] : lowValue;
+        row[kBlock + 1] = high ? high[r] : highValue;
+        for (int k = 0; k < kBlock; ++k) row[k + 1] = src[r + k];
+#pragma omp simd
+        for (int k = 0; k < kBlock; ++k) dst[r + k] = (row[k] + row[k + 1] + row[k + 2]) * third;
+      }
+      continue;
     }
+    // Voxel o·8S + c·S + m: c along the axis, m a run of S contiguous voxels.
+    const int S = axis == 0 ? 64 : 8;
+    float lowRun[64], highRun[64];
+    std::fill(lowRun, lowRun + S, lowValue);
+    std::fill(highRun, highRun + S, highValue);
+    for (int o = 0; o < kVoxels; o += kBlock * S)
+      for (int c = 0; c < kBlock; ++c) {
+        const float* a = c > 0 ? src + o + (c - 1) * S : low ? low + o + (kBlock - 1) * S : lowRun;
+        const float* m = src + o + c * S;
+        const float* z = c < kBlock - 1 ? src + o + (c + 1) * S : high ? high + o : highRun;
+        float* d = dst + o + c * S;
+#pragma omp simd
+        for (int i = 0; i < S; ++i) d[i] = (a[i] + m[i] + z[i]) * third;
+      }
   }
 }
 
@@ -464,22 +488,26 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   std::vector<size_t> crossed;
   for (size_t c = 0; c < candidates.size(); ++c)
     if (kinds[c] == Crossed) crossed.push_back(c);
+  std::vector<uint32_t> crossedIndex(candidates.size(), KeyMap::kMissing);
+  for (size_t n = 0; n < crossed.size(); ++n) crossedIndex[crossed[n]] = uint32_t(n);
+  // A neighbour block: its index among the crossed ones, or -1 and its value.
+  const auto neighbourOf = [&](const int64_t b[3], int di, int dj, int dk, float& value) {
+    const uint32_t c = candidateIndex.find(key(b[0] + di, b[1] + dj, b[2] + dk));
+    value = c != KeyMap::kMissing && kinds[c] == Inside ? -band : band;
+    return c != KeyMap::kMissing && kinds[c] == Crossed ? int32_t(crossedIndex[c]) : -1;
+  };
   if (s.smoothing > 0 && !crossed.empty()) {
-    std::vector<uint32_t> crossedIndex(candidates.size(), KeyMap::kMissing);
-    for (size_t n = 0; n < crossed.size(); ++n) crossedIndex[crossed[n]] = uint32_t(n);
     std::vector<Faces> faces(crossed.size());
     std::vector<float*> data(crossed.size()), scratch(crossed.size());
-    std::vector<float> scratchStore(crossed.size() * kVoxels);
+    std::unique_ptr<float[]> scratchStore(new float[crossed.size() * kVoxels]);
+#pragma omp parallel for schedule(static)
     for (size_t n = 0; n < crossed.size(); ++n) {
       const uint64_t k = candidates[crossed[n]];
       const int64_t b[3] = {unkey(k, 0), unkey(k, 1), unkey(k, 2)};
       for (int f = 0; f < 6; ++f) {
-        int64_t nb[3] = {b[0], b[1], b[2]};
-        nb[f / 2] += f % 2 ? 1 : -1;
-        const uint32_t c = candidateIndex.find(key(nb[0], nb[1], nb[2]));
-        const bool isCrossed = c != KeyMap::kMissing && kinds[c] == Crossed;
-        faces[n].block[f] = isCrossed ? int32_t(crossedIndex[c]) : -1;
-        faces[n].value[f] = c != KeyMap::kMissing && kinds[c] == Inside ? -band : band;
+        int d[3] = {0, 0, 0};
+        d[f / 2] = f % 2 ? 1 : -1;
+        faces[n].block[f] = neighbourOf(b, d[0], d[1], d[2], faces[n].value[f]);
       }
       data[n] = leaves[crossed[n]]->buffer().data();
       scratch[n] = &scratchStore[n * kVoxels];
@@ -500,13 +528,45 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
     LeafT& leaf = *leaves[crossed[n]];
     VLeafT& vleaf = *velocityLeaves[crossed[n]];
     float* phi = leaf.buffer().data();
-    openvdb::Vec3s* v = vleaf.buffer().data();
     for (int i = 0; i < kVoxels; ++i) {
       const bool on = std::abs(phi[i]) < band;
-      if (!on) phi[i] = phi[i] < 0 ? -band : band, v[i] = openvdb::Vec3s(0.0f);
+      if (!on) phi[i] = phi[i] < 0 ? -band : band;
       leaf.setActiveState(openvdb::Index(i), on);
       vleaf.setActiveState(openvdb::Index(i), on);
     }
+  }
+  out.smoothMs = msSince(tSmooth);
+
+  // A uniform mesh from the blocks themselves, while they are at hand.
+  const bool uniform = withMesh && s.adaptivity <= 0;
+  auto tMesh = std::chrono::steady_clock::now();
+  if (uniform) {
+    std::vector<MeshBlock> blocks(crossed.size());
+#pragma omp parallel for schedule(static)
+    for (size_t n = 0; n < crossed.size(); ++n) {
+      MeshBlock& m = blocks[n];
+      const uint64_t k = candidates[crossed[n]];
+      for (int d = 0; d < 3; ++d) m.block[d] = unkey(k, d);
+      m.phi = leaves[crossed[n]]->buffer().data();
+      m.velocity = &velocityLeaves[crossed[n]]->buffer().data()[0][0];
+      for (int di = -1; di <= 1; ++di)
+        for (int dj = -1; dj <= 1; ++dj)
+          for (int dk = -1; dk <= 1; ++dk) {
+            const int slot = (di + 1) * 9 + (dj + 1) * 3 + (dk + 1);
+            m.neighbour[slot] = neighbourOf(m.block, di, dj, dk, m.constant[slot]);
+          }
+    }
+    meshBlocks(blocks, voxel, band, out.mesh);
+  }
+  out.meshMs = msSince(tMesh);
+  const auto tInsert = std::chrono::steady_clock::now();
+  // The velocity of a voxel outside the band is no one's.
+#pragma omp parallel for schedule(static)
+  for (size_t n = 0; n < crossed.size(); ++n) {
+    VLeafT& vleaf = *velocityLeaves[crossed[n]];
+    openvdb::Vec3s* v = vleaf.buffer().data();
+    for (int i = 0; i < kVoxels; ++i)
+      if (!vleaf.isValueOn(openvdb::Index(i))) v[i] = openvdb::Vec3s(0.0f);
   }
   for (size_t c = 0; c < candidates.size(); ++c) {
     if (kinds[c] == Inside) {
@@ -521,10 +581,11 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   sdf->pruneGrid();
   velocity->pruneGrid();
   out.volumes = std::make_shared<SurfaceVolumes>(SurfaceVolumes{sdf, velocity});
-  out.smoothMs = msSince(tSmooth);
+  out.smoothMs += msSince(tInsert);
 
-  const auto tMesh = std::chrono::steady_clock::now();
-  if (withMesh) {
+  // An adaptive mesh: OpenVDB's volume-to-mesh.
+  tMesh = std::chrono::steady_clock::now();
+  if (withMesh && !uniform) {
     std::vector<openvdb::Vec3s> points;
     std::vector<openvdb::Vec3I> triangles;
     std::vector<openvdb::Vec4I> quads;
@@ -532,16 +593,27 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
     SurfaceMesh& m = out.mesh;
     m.points.resize(points.size());
     m.velocities.resize(points.size());
+    // Each vertex: the trilinear mean of the velocities of the active voxels
+    // around it (an inactive voxel may have no particle near it).
 #pragma omp parallel
     {
       const auto accessor = velocity->getConstAccessor();
-      const openvdb::tools::GridSampler<openvdb::Vec3SGrid::ConstAccessor, openvdb::tools::BoxSampler> sampler(
-          accessor, velocity->transform());
 #pragma omp for schedule(static)
       for (size_t i = 0; i < points.size(); ++i) {
         m.points[i] = {points[i][0], points[i][1], points[i][2]};
-        const openvdb::Vec3s v = sampler.wsSample(points[i]);
-        m.velocities[i] = {v[0], v[1], v[2]};
+        const openvdb::Vec3d x = velocity->transform().worldToIndex(points[i]);
+        const Coord base(int(std::floor(x[0])), int(std::floor(x[1])), int(std::floor(x[2])));
+        const double f[3] = {x[0] - base.x(), x[1] - base.y(), x[2] - base.z()};
+        openvdb::Vec3d sum(0.0);
+        double weight = 0;
+        for (int c = 0; c < 8; ++c) {
+          openvdb::Vec3s v;
+          if (!accessor.probeValue(base.offsetBy(c & 1, (c >> 1) & 1, (c >> 2) & 1), v)) continue;
+          const double w = (c & 1 ? f[0] : 1 - f[0]) * (c & 2 ? f[1] : 1 - f[1]) * (c & 4 ? f[2] : 1 - f[2]);
+          sum += w * openvdb::Vec3d(v), weight += w;
+        }
+        if (weight > 0) sum /= weight;
+        m.velocities[i] = {float(sum[0]), float(sum[1]), float(sum[2])};
       }
     }
     // OpenVDB winds its polygons clockwise seen from outside; renderers and
@@ -556,7 +628,7 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
       m.triangles[triangles.size() + 2 * i + 1] = {q[0], q[3], q[2]};
     }
   }
-  out.meshMs = msSince(tMesh);
+  out.meshMs += msSince(tMesh);
   out.ms = msSince(t0);
   return out;
 }

@@ -2,8 +2,9 @@
 // The liquid's surface from its particles, frame by frame: a level set on
 // an OpenVDB grid (Zhu & Bridson's distance to the neighbourhood's mean
 // position, evaluated only in the blocks the surface crosses), a box filter,
-// and a triangle mesh (OpenVDB's volume-to-mesh). docs/surfaces.md says how the parameters trade
-// thin sheets and droplets against smoothness.
+// and a triangle mesh (marching cubes, or OpenVDB's adaptive volume-to-mesh).
+// docs/surfaces.md says how the parameters trade thin sheets and droplets
+// against smoothness, and what each costs.
 //
 // Only surface.cpp and the exporters that write grids include OpenVDB
 // (surface/volumes.h): everything else sees the mesh and an opaque handle.
@@ -24,7 +25,7 @@ struct SurfaceSettings {
   double kernelRadius = 4.0;   // × r: the neighbourhood averaged
   double surfaceRadius = 1.15; // × r: the surface's distance from the neighbourhood's mean
   int smoothing = 1;           // box-filter passes
-  double adaptivity = 0.1;     // volume-to-mesh adaptivity, 0 = uniform
+  double adaptivity = 0.1;     // 0: uniform marching cubes; above: OpenVDB's adaptive volume-to-mesh
 };
 const ParamTable<SurfaceSettings>& surfaceSettingsTable();
 const ParamSpecs& surfaceSettingsSpecs();
