@@ -51,6 +51,11 @@ const ParamTable<SurfaceSettings>& surfaceSettingsTable() {
        .help = "box-filter passes over the field before meshing: each flattens the ripple between particles "
                "and shrinks a lone droplet a little",
        .member = &SurfaceSettings::smoothing},
+      {.name = "trail", .unit = "s", .min = 0, .max = 0.1, .def = 0,
+       .help = "velocity trails: each particle also forms the surface along its path of the last `trail` seconds, "
+               "stretching fast liquid along its motion for renderers without motion blur (half a frame's shutter: "
+               "0.01 s at 50 fps); 0 = none",
+       .member = &SurfaceSettings::trail},
       {.name = "adaptivity", .unit = "", .min = 0, .max = 1, .def = 0.1,
        .help = "mesh adaptivity: 0 is a uniform mesh by marching cubes, the fastest, with the most triangles; "
                "above 0, OpenVDB's volume-to-mesh merges flat regions into larger polygons",
@@ -91,41 +96,56 @@ int64_t unkey(uint64_t k, int d) { return int64_t((k >> (42 - 21 * d)) & uint64_
 // The surface particles sorted into cubic cells of the kernel's radius.
 class Buckets {
  public:
-  Buckets(const ParticleFrame& f, double cell) : inv_(1.0 / cell) {
-    std::vector<uint32_t> rows;
-    rows.reserve(f.count());
+  // trail (s): each particle also leaves samples along its last trail
+  // seconds of motion, x - v t, at most `spacing` apart (and 16 of them).
+  Buckets(const ParticleFrame& f, double cell, double trail, double spacing) : inv_(1.0 / cell) {
+    std::vector<float> x, v;  // the particles and their trails' samples
+    std::vector<uint8_t> isTrail;
+    x.reserve(3 * f.count()), v.reserve(3 * f.count()), isTrail.reserve(f.count());
     for (size_t i = 0; i < f.count(); ++i) {
-      const float* x = &f.position[3 * i];
+      const float* p = &f.position[3 * i];
+      const float* u = &f.velocity[3 * i];
       // A non-finite position has no place on the grid.
-      if (formsSurface(f.kind[i]) && std::isfinite(x[0]) && std::isfinite(x[1]) && std::isfinite(x[2]))
-        rows.push_back(uint32_t(i));
-    }
-    std::vector<std::pair<uint64_t, uint32_t>> keyed(rows.size());
-#pragma omp parallel for schedule(static)
-    for (size_t n = 0; n < rows.size(); ++n) {
-      const float* x = &f.position[size_t(rows[n]) * 3];
-      keyed[n] = {key(cellOf(x[0]), cellOf(x[1]), cellOf(x[2])), rows[n]};
-    }
-    std::sort(keyed.begin(), keyed.end());
-    pos_.resize(keyed.size() * 3);
-    vel_.resize(keyed.size() * 3);
-#pragma omp parallel for schedule(static)
-    for (size_t n = 0; n < keyed.size(); ++n)
-      for (int d = 0; d < 3; ++d) {
-        pos_[3 * n + d] = f.position[3 * size_t(keyed[n].second) + d];
-        vel_[3 * n + d] = f.velocity[3 * size_t(keyed[n].second) + d];
+      if (!formsSurface(f.kind[i]) || !std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) continue;
+      ++particles_;
+      const double speed = std::sqrt(double(u[0]) * u[0] + double(u[1]) * u[1] + double(u[2]) * u[2]);
+      const int samples = trail > 0 && std::isfinite(speed) ? std::min(16, int(std::ceil(speed * trail / spacing))) : 0;
+      for (int m = 0; m <= samples; ++m) {
+        const double t = samples ? trail * m / samples : 0.0;
+        for (int d = 0; d < 3; ++d) x.push_back(float(p[d] - u[d] * t)), v.push_back(u[d]);
+        isTrail.push_back(m > 0);
       }
-    for (size_t n = 0; n < keyed.size(); ++n)
+    }
+    const size_t count = x.size() / 3;
+    std::vector<std::pair<uint64_t, uint32_t>> keyed(count);
+#pragma omp parallel for schedule(static)
+    for (size_t n = 0; n < count; ++n)
+      keyed[n] = {key(cellOf(x[3 * n]), cellOf(x[3 * n + 1]), cellOf(x[3 * n + 2])), uint32_t(n)};
+    std::sort(keyed.begin(), keyed.end());
+    pos_.resize(count * 3);
+    vel_.resize(count * 3);
+    trail_.resize(count);
+#pragma omp parallel for schedule(static)
+    for (size_t n = 0; n < count; ++n) {
+      for (int d = 0; d < 3; ++d) {
+        pos_[3 * n + d] = x[3 * size_t(keyed[n].second) + d];
+        vel_[3 * n + d] = v[3 * size_t(keyed[n].second) + d];
+      }
+      trail_[n] = isTrail[keyed[n].second];
+    }
+    for (size_t n = 0; n < count; ++n)
       if (n == 0 || keyed[n].first != keyed[n - 1].first) {
         cells_.insert(keyed[n].first, uint32_t(starts_.size()));
         starts_.push_back(uint32_t(n));
       }
-    starts_.push_back(uint32_t(keyed.size()));
+    starts_.push_back(uint32_t(count));
   }
-  size_t size() const { return pos_.size() / 3; }
+  size_t particles() const { return particles_; }
+  size_t size() const { return pos_.size() / 3; }  // particles and trail samples
   int64_t cellOf(double x) const { return int64_t(std::floor(x * inv_)); }
   const float* pos(size_t n) const { return &pos_[3 * n]; }
   const float* vel(size_t n) const { return &vel_[3 * n]; }
+  bool trail(size_t n) const { return trail_[n] != 0; }
   // Calls f(n) for the particles of every cell overlapping [lo, hi].
   template <class F>
   void forRange(const double lo[3], const double hi[3], F&& f) const {
@@ -142,18 +162,25 @@ class Buckets {
 
  private:
   double inv_;
+  size_t particles_ = 0;
   std::vector<float> pos_, vel_;
+  std::vector<uint8_t> trail_;  // a trail's sample, not a particle
   std::vector<uint32_t> starts_;  // each cell's first particle, then the end
   KeyMap cells_;                  // cell → its index in starts_
 };
 
 // The particles within the kernel radius of a block, in voxels from the
 // block's first voxel (small numbers: the sums keep their digits in float).
-struct Gathered {
+struct Points {
   std::vector<float> x, y, z, vx, vy, vz;
   size_t size() const { return x.size(); }
+  void clear() { x.clear(), y.clear(), z.clear(), vx.clear(), vy.clear(), vz.clear(); }
+};
+struct Gathered {
+  Points real, trail;  // the particles, and their trails' samples
+  size_t size() const { return real.size() + trail.size(); }
   void from(const Buckets& b, const double origin[3], double voxel, double R) {
-    x.clear(), y.clear(), z.clear(), vx.clear(), vy.clear(), vz.clear();
+    real.clear(), trail.clear();
     const double side = (kBlock - 1) * voxel;
     const double lo[3] = {origin[0] - R, origin[1] - R, origin[2] - R};
     const double hi[3] = {origin[0] + side + R, origin[1] + side + R, origin[2] + side + R};
@@ -161,10 +188,11 @@ struct Gathered {
     b.forRange(lo, hi, [&](size_t n) {
       const float* p = b.pos(n);
       if (p[0] < lo[0] || p[0] > hi[0] || p[1] < lo[1] || p[1] > hi[1] || p[2] < lo[2] || p[2] > hi[2]) return;
-      x.push_back(float((p[0] - origin[0]) * inv)), y.push_back(float((p[1] - origin[1]) * inv));
-      z.push_back(float((p[2] - origin[2]) * inv));
+      Points& to = b.trail(n) ? trail : real;
+      to.x.push_back(float((p[0] - origin[0]) * inv)), to.y.push_back(float((p[1] - origin[1]) * inv));
+      to.z.push_back(float((p[2] - origin[2]) * inv));
       const float* u = b.vel(n);
-      vx.push_back(u[0]), vy.push_back(u[1]), vz.push_back(u[2]);
+      to.vx.push_back(u[0]), to.vy.push_back(u[1]), to.vz.push_back(u[2]);
     });
   }
 };
@@ -175,17 +203,28 @@ struct Gathered {
 // within R.
 float phiAt(const Gathered& g, const float u[3], float rv, float rs, bool planar) {
   const float inv = 1.0f / (rv * rv);
-  float w = 0, sx = 0, sy = 0, sz = 0;
-  for (size_t n = 0; n < g.size(); ++n) {
-    const float dx = g.x[n] - u[0], dy = g.y[n] - u[1], dz = planar ? 0.0f : g.z[n] - u[2];
-    float t = 1.0f - (dx * dx + dy * dy + dz * dz) * inv;
-    t = t > 0.0f ? t : 0.0f;
-    const float k = t * t * t;
-    w += k, sx += k * dx, sy += k * dy, sz += k * dz;
+  float sum[2][4] = {};  // w, w dx, w dy, w dz: of the particles, of the trails
+  for (int which = 0; which < 2; ++which) {
+    const Points& points = which ? g.trail : g.real;
+    float* a = sum[which];
+    for (size_t n = 0; n < points.size(); ++n) {
+      const float dx = points.x[n] - u[0], dy = points.y[n] - u[1], dz = planar ? 0.0f : points.z[n] - u[2];
+      float t = 1.0f - (dx * dx + dy * dy + dz * dz) * inv;
+      t = t > 0.0f ? t : 0.0f;
+      const float k = t * t * t;
+      a[0] += k, a[1] += k * dx, a[2] += k * dy, a[3] += k * dz;
+    }
   }
-  if (!(w > 0)) return std::numeric_limits<float>::infinity();
-  const float mz = planar ? 0.0f : sz / w;  // planar: u lies in the particles' plane
-  return std::sqrt((sx / w) * (sx / w) + (sy / w) * (sy / w) + mz * mz) - rs;
+  const auto distance = [&](float w, float sx, float sy, float sz) {
+    if (!(w > 0)) return std::numeric_limits<float>::infinity();
+    const float mz = planar ? 0.0f : sz / w;  // planar: u lies in the particles' plane
+    return std::sqrt((sx / w) * (sx / w) + (sy / w) * (sy / w) + mz * mz) - rs;
+  };
+  const float liquid = distance(sum[0][0], sum[0][1], sum[0][2], sum[0][3]);
+  if (g.trail.size() == 0) return liquid;
+  // The union of the liquid and its trails, as fieldOfBlock.
+  return std::min(liquid, distance(sum[0][0] + sum[1][0], sum[0][1] + sum[1][1], sum[0][2] + sum[1][2],
+                                   sum[0][3] + sum[1][3]));
 }
 
 // Per-voxel sums of the weights and the weighted positions and velocities
@@ -196,7 +235,7 @@ struct alignas(64) Sums {
 
 // [ZB05] Sec. 6, scattered: every particle adds k(s) and k(s) x_i, k(s) v_i
 // to the voxels of its kernel ball, a whole row of the block at a time.
-void sumBlock(const Gathered& g, float rv, Sums& s) {
+void sumBlock(const Points& g, float rv, Sums& s) {
   std::memset(&s, 0, sizeof s);
   const float rv2 = rv * rv, inv = 1.0f / rv2;
   for (size_t n = 0; n < g.size(); ++n) {
@@ -235,7 +274,7 @@ void sumBlock(const Gathered& g, float rv, Sums& s) {
 }
 
 // The same in the plane z = 0 of a 2D liquid: one sum per column (i, j).
-void sumColumns(const Gathered& g, float rv, Sums& s) {
+void sumColumns(const Points& g, float rv, Sums& s) {
   std::memset(s.w, 0, sizeof s.w), std::memset(s.x, 0, sizeof s.x), std::memset(s.y, 0, sizeof s.y);
   std::memset(s.vx, 0, sizeof s.vx), std::memset(s.vy, 0, sizeof s.vy);
   const float rv2 = rv * rv, inv = 1.0f / rv2;
@@ -267,20 +306,30 @@ enum Kind : uint8_t { Outside, Inside, Crossed };
 // One block's field clamped to [-band, band] and its mean velocity, and
 // what the block is: crossed when some voxel is inside the band or the
 // sign changes.
-Kind fieldOfBlock(const Sums& s, bool planar, int zOrigin, float voxel, float rs, float band, float* phi,
-                  float* vel) {
+Kind fieldOfBlock(const Sums& s, const Sums* trail, bool planar, int zOrigin, float voxel, float rs, float band,
+                  float* phi, float* vel) {
+  const auto distance = [&](float w, float x, float y, float z, int i, int j, int k) {
+    const float iw = 1.0f / w;
+    const float mx = x * iw - float(i), my = y * iw - float(j);
+    const float mz = planar ? -float(zOrigin + k) : z * iw - float(k);
+    return voxel * std::sqrt(mx * mx + my * my + mz * mz) - rs;
+  };
   bool in = false, out = false, near = false;
   for (int n = 0; n < kVoxels; ++n) {
     const int i = n >> 6, j = (n >> 3) & 7, k = n & 7, c = planar ? (n >> 3) : n;
-    float p = band;
+    float p = band, w = s.w[c];
     vel[3 * n] = vel[3 * n + 1] = vel[3 * n + 2] = 0.0f;
-    if (s.w[c] > 0) {
-      const float iw = 1.0f / s.w[c];
-      const float mx = s.x[c] * iw - float(i), my = s.y[c] * iw - float(j);
-      const float mz = planar ? -float(zOrigin + k) : s.z[c] * iw - float(k);
-      p = std::min(band, std::max(-band, voxel * std::sqrt(mx * mx + my * my + mz * mz) - rs));
-      vel[3 * n] = s.vx[c] * iw, vel[3 * n + 1] = s.vy[c] * iw, vel[3 * n + 2] = planar ? 0.0f : s.vz[c] * iw;
+    if (w > 0) p = distance(w, s.x[c], s.y[c], s.z[c], i, j, k);
+    float vx = s.vx[c], vy = s.vy[c], vz = s.vz[c];
+    if (trail && trail->w[c] > 0) {
+      // With the trails: the union of the liquid and its trails. The trails'
+      // samples alone would also draw the front back towards them.
+      const Sums& t = *trail;
+      w += t.w[c], vx += t.vx[c], vy += t.vy[c], vz += t.vz[c];
+      p = std::min(p, distance(w, s.x[c] + t.x[c], s.y[c] + t.y[c], s.z[c] + t.z[c], i, j, k));
     }
+    if (w > 0) vel[3 * n] = vx / w, vel[3 * n + 1] = vy / w, vel[3 * n + 2] = planar ? 0.0f : vz / w;
+    p = std::min(band, std::max(-band, p));
     phi[n] = p;
     in |= p <= -band, out |= p >= band, near |= std::abs(p) < band;
   }
@@ -354,10 +403,10 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   const double R = s.kernelRadius * particleRadius;
   const double rs = s.surfaceRadius * particleRadius;
   const float rv = float(R / voxel);
-  const Buckets buckets(frame, R);
+  const Buckets buckets(frame, R, s.trail, particleRadius);
 
   Surface out;
-  out.particles = buckets.size();
+  out.particles = buckets.particles();
   if (buckets.size() == 0) return out;
 
   // Narrow band: 3 voxels each side, no deeper than the inside's depth (the
@@ -433,10 +482,11 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
 #pragma omp parallel
   {
     Gathered g;
-    std::unique_ptr<Sums> sums;
+    std::unique_ptr<Sums> sums, trailSums;
     std::vector<float> phi(kVoxels), vel(3 * kVoxels);
     try {
       sums = std::make_unique<Sums>();
+      if (s.trail > 0) trailSums = std::make_unique<Sums>();
     } catch (...) {
       keep();
     }
@@ -465,9 +515,15 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
         kinds[c] = Inside;
         continue;
       }
-      if (planar) sumColumns(g, rv, *sums);
-      else sumBlock(g, rv, *sums);
-      const Kind kind = fieldOfBlock(*sums, planar, o.z(), float(voxel), float(rs), band, phi.data(), vel.data());
+      const auto sum = [&](const Points& points, Sums& into) {
+        if (planar) sumColumns(points, rv, into);
+        else sumBlock(points, rv, into);
+      };
+      sum(g.real, *sums);
+      const bool trails = g.trail.size() > 0;
+      if (trails) sum(g.trail, *trailSums);
+      const Kind kind = fieldOfBlock(*sums, trails ? trailSums.get() : nullptr, planar, o.z(), float(voxel),
+                                     float(rs), band, phi.data(), vel.data());
       kinds[c] = kind;
       if (kind != Crossed) continue;
       leaves[c] = std::make_unique<LeafT>(o, band, false);

@@ -246,6 +246,40 @@ TEST(Surface, A2DLiquidIsAClosedSlab) {
   }
 }
 
+TEST(Surface, VelocityTrailsStretchTheLiquidBehindItsMotion) {
+  const double r = 0.01;
+  ParticleFrame f = lattice(2, 2, 2, r, {0.3, 0.3, 0.3});
+  for (size_t i = 0; i < f.count(); ++i) f.velocity[3 * i] = 2, f.velocity[3 * i + 1] = f.velocity[3 * i + 2] = 0;
+  const auto extent = [](const SurfaceMesh& m, int d) {
+    float lo = 1e30f, hi = -1e30f;
+    for (const auto& p : m.points) lo = std::min(lo, p[d]), hi = std::max(hi, p[d]);
+    return std::pair<double, double>(lo, hi);
+  };
+  for (const double adaptivity : kMeshers) {
+    SCOPED_TRACE("adaptivity " + std::to_string(adaptivity));
+    SurfaceSettings settings = meshedWith(adaptivity);
+    const Surface still = reconstructSurface(f, r, settings);
+    settings.trail = 0.01;  // 2 m/s: 2 cm, two radii, behind the particles
+    const Surface trailed = reconstructSurface(f, r, settings);
+    EXPECT_EQ(trailed.particles, still.particles);
+    EXPECT_TRUE(closedAndOriented(trailed.mesh));
+    const auto [x0, x1] = extent(still.mesh, 0);
+    const auto [t0, t1] = extent(trailed.mesh, 0);
+    EXPECT_NEAR(t1, x1, 0.25 * r);           // the front stays
+    // The back reaches most of the 2 cm further: the field's mean position
+    // at the trail's end lies a little ahead of its last sample.
+    EXPECT_GT(x0 - t0, 0.6 * 0.02);
+    EXPECT_LT(x0 - t0, 0.02 + 0.25 * r);
+    for (int d = 1; d < 3; ++d) {
+      const auto [a0, a1] = extent(still.mesh, d);
+      const auto [b0, b1] = extent(trailed.mesh, d);
+      EXPECT_NEAR(b1 - b0, a1 - a0, 0.5 * r);  // no wider across the motion
+    }
+    EXPECT_GT(enclosedVolume(trailed.mesh), 1.3 * enclosedVolume(still.mesh));
+    for (const auto& u : trailed.mesh.velocities) ASSERT_NEAR(u[0], 2.0f, 1e-4);
+  }
+}
+
 TEST(Surface, MarchingCubesIsClosedAndOrientedInASplash) {
   const double r = 0.01;
   for (unsigned seed : {1u, 2u, 3u}) {
