@@ -74,6 +74,7 @@ struct Options {
   std::vector<size_t> sizes2d = {100000};          // a 2D liquid's slab has two faces as large as its area
   std::vector<std::string> frames;                 // FILE.h5:INDEX, a simulation's frame
   std::vector<std::string> surface;                // KEY=VALUE over surfaceSettingsTable()
+  std::string knobs;                               // FILE.h5:INDEX, the frame each setting's price is measured on
   int threads = 2;
   int repeats = 3;
 };
@@ -108,12 +109,88 @@ Case frameOfExport(const std::string& spec) {
   return c;
 }
 
+// Signed volume enclosed by a mesh (m³).
+double enclosedVolume(const SurfaceMesh& m) {
+  double v = 0;
+  for (const auto& t : m.triangles) {
+    const auto& a = m.points[t[0]];
+    const auto& b = m.points[t[1]];
+    const auto& c = m.points[t[2]];
+    v += (double(a[0]) * (double(b[1]) * c[2] - double(b[2]) * c[1]) -
+          double(a[1]) * (double(b[0]) * c[2] - double(b[2]) * c[0]) +
+          double(a[2]) * (double(b[0]) * c[1] - double(b[1]) * c[0])) / 6.0;
+  }
+  return v;
+}
+
+// One case measured: the best of the repeats, and its files.
+struct Measured {
+  double ms = 1e30, us = 0, volume = 0;  // volume: the mesh's, over the particles' N (2r)³ (3D)
+  size_t triangles = 0;
+  double vdb = 0, ply = 0, points = 0;   // MB
+  Surface stages;                        // the best run's stage times
+};
+
+Measured measure(const Case& c, const SurfaceSettings& settings, int repeats, const std::string& scratch) {
+  Measured m;
+  for (int r = 0; r < repeats; ++r) {
+    Surface s = reconstructSurface(c.frame, c.radius, settings, true, c.dim);
+    m.triangles = s.mesh.triangles.size();
+    if (c.dim == 3) m.volume = enclosedVolume(s.mesh) / (double(s.particles) * std::pow(2 * c.radius, 3));
+    if (s.ms < m.ms) m.ms = s.ms, m.stages = std::move(s);
+  }
+  m.us = m.ms * 1e3 / double(c.frame.count());
+  // The files of one frame.
+  fs::remove_all(scratch);
+  ExportInfo info;
+  info.name = "bench";
+  info.directory = scratch;
+  info.dimension = c.dim;
+  info.particleRadius = c.radius;
+  info.frameRate = 60;
+  info.createdBy = std::string("flowclip ") + FLOWCLIP_VERSION;
+  SurfaceExport e(info, {"vdb", "ply", "points"}, settings);
+  e.writeFrame(c.frame);
+  for (const auto& file : fs::directory_iterator(scratch)) {  // named by the frame's index
+    const std::string name = file.path().filename().string();
+    const double mb = double(file.file_size()) / 1e6;
+    if (name.rfind("bench_points.", 0) == 0) m.points += mb;
+    else if (file.path().extension() == ".vdb") m.vdb += mb;
+    else if (file.path().extension() == ".ply") m.ply += mb;
+  }
+  fs::remove_all(scratch);
+  return m;
+}
+
+std::string stagesText(const Surface& s) {
+  return fmt(s.classifyMs, "%.0f") + " / " + fmt(s.fillMs, "%.0f") + " / " + fmt(s.smoothMs, "%.0f") + " / " +
+         fmt(s.meshMs, "%.0f");
+}
+
+nlohmann::json stagesJson(const Surface& s) {
+  return {{"classify", s.classifyMs}, {"fill", s.fillMs}, {"smooth", s.smoothMs}, {"mesh", s.meshMs}};
+}
+
+// Each accuracy setting's price on one frame: one or two settings changed at a time.
+const std::vector<std::vector<std::pair<std::string, double>>> kKnobs = {
+    {},
+    {{"adaptivity", 0}},
+    {{"voxel_size", 0.75}},
+    {{"voxel_size", 1}},
+    {{"voxel_size", 1}, {"adaptivity", 0}},
+    {{"kernel_radius", 3}},
+    {{"kernel_radius", 6}},
+    {{"smoothing", 0}},
+    {{"smoothing", 3}},
+    {{"trail", 0.01}},
+};
+
 int benchSurface(const Options& opt) {
   omp_set_num_threads(opt.threads);
   const Report report("surface", opt.threads);
   const std::string scratch = (fs::temp_directory_path() / ("flowclip-bench-surface-" + std::to_string(getpid()))).string();
-  nlohmann::json cases = nlohmann::json::array();
-  std::vector<std::vector<std::string>> rows;
+  nlohmann::json cases = nlohmann::json::array(), knobs = nlohmann::json::array();
+  std::vector<std::vector<std::string>> rows, knobRows;
   std::printf("%-4s %-8s %9s %10s %10s %10s %10s %10s %10s\n", "dim", "liquid", "particles", "ms/frame", "us/particle",
               "triangles", "vdb MB", "ply MB", "points MB");
   SurfaceSettings settings = surfaceSettingsTable().defaults();
@@ -130,52 +207,45 @@ int benchSurface(const Options& opt) {
         makers.push_back([=] { return Case{makeLiquid(n, dim, splash), dim, kRadius, splash ? "splash" : "block"}; });
   for (const std::string& spec : opt.frames) makers.push_back([spec] { return frameOfExport(spec); });
   for (const auto& make : makers) {
-        const Case c = make();
-        const ParticleFrame& frame = c.frame;
-        const int dim = c.dim;
-        // The reconstruction alone, best of the repeats.
-        double best = 1e30;
-        size_t triangles = 0;
-        Surface stages;  // the best run's stage times
-        for (int r = 0; r < opt.repeats; ++r) {
-          Surface s = reconstructSurface(frame, c.radius, settings, true, dim);
-          triangles = s.mesh.triangles.size();
-          if (s.ms < best) best = s.ms, stages = std::move(s);
-        }
-        // The files of one frame.
-        fs::remove_all(scratch);
-        ExportInfo info;
-        info.name = "bench";
-        info.directory = scratch;
-        info.dimension = dim;
-        info.particleRadius = c.radius;
-        info.frameRate = 60;
-        info.createdBy = std::string("flowclip ") + FLOWCLIP_VERSION;
-        SurfaceExport e(info, {"vdb", "ply", "points"}, settings);
-        e.writeFrame(frame);
-        double vdb = 0, ply = 0, points = 0;  // MB; the files are named by the frame's index
-        for (const auto& file : fs::directory_iterator(scratch)) {
-          const std::string name = file.path().filename().string();
-          const double mb = double(file.file_size()) / 1e6;
-          if (name.rfind("bench_points.", 0) == 0) points += mb;
-          else if (file.path().extension() == ".vdb") vdb += mb;
-          else if (file.path().extension() == ".ply") ply += mb;
-        }
-        const double us = best * 1e3 / double(frame.count());
-        const std::string& kind = c.liquid;
-        std::printf("%-4d %-8s %9zu %10.1f %10.3f %10zu %10.2f %10.2f %10.2f  (classify %.0f, fill %.0f, smooth %.0f, mesh %.0f ms)\n",
-                    dim, kind.c_str(), frame.count(), best, us, triangles, vdb, ply, points, stages.classifyMs,
-                    stages.fillMs, stages.smoothMs, stages.meshMs);
-        std::fflush(stdout);
-        cases.push_back({{"dimension", dim}, {"liquid", kind}, {"particles", frame.count()}, {"ms_per_frame", best},
-                         {"us_per_particle", us}, {"triangles", triangles}, {"vdb_mb", vdb}, {"ply_mb", ply},
-                         {"points_mb", points},
-                         {"stages_ms", {{"classify", stages.classifyMs}, {"fill", stages.fillMs},
-                                        {"smooth", stages.smoothMs}, {"mesh", stages.meshMs}}}});
-        rows.push_back({std::to_string(dim) + "D", kind, std::to_string(frame.count()), fmt(best, "%.1f"), fmt(us, "%.3f"),
-                        fmt(stages.classifyMs, "%.0f") + " / " + fmt(stages.fillMs, "%.0f") + " / " +
-                            fmt(stages.smoothMs, "%.0f") + " / " + fmt(stages.meshMs, "%.0f"),
-                        std::to_string(triangles), fmt(vdb, "%.2f"), fmt(ply, "%.2f"), fmt(points, "%.2f")});
+    const Case c = make();
+    const Measured m = measure(c, settings, opt.repeats, scratch);
+    std::printf("%-4d %-8s %9zu %10.1f %10.3f %10zu %10.2f %10.2f %10.2f  (classify %.0f, fill %.0f, smooth %.0f, mesh %.0f ms)\n",
+                c.dim, c.liquid.c_str(), c.frame.count(), m.ms, m.us, m.triangles, m.vdb, m.ply, m.points,
+                m.stages.classifyMs, m.stages.fillMs, m.stages.smoothMs, m.stages.meshMs);
+    std::fflush(stdout);
+    cases.push_back({{"dimension", c.dim}, {"liquid", c.liquid}, {"particles", c.frame.count()}, {"ms_per_frame", m.ms},
+                     {"us_per_particle", m.us}, {"triangles", m.triangles}, {"vdb_mb", m.vdb}, {"ply_mb", m.ply},
+                     {"points_mb", m.points}, {"stages_ms", stagesJson(m.stages)}});
+    rows.push_back({std::to_string(c.dim) + "D", c.liquid, std::to_string(c.frame.count()), fmt(m.ms, "%.1f"),
+                    fmt(m.us, "%.3f"), stagesText(m.stages), std::to_string(m.triangles), fmt(m.vdb, "%.2f"),
+                    fmt(m.ply, "%.2f"), fmt(m.points, "%.2f")});
+  }
+  std::string knobFrame;
+  if (!opt.knobs.empty()) {
+    const Case c = frameOfExport(opt.knobs);
+    knobFrame = c.liquid + ", " + std::to_string(c.frame.count()) + " particles";
+    std::printf("\nprices on %s:\n", knobFrame.c_str());
+    for (const auto& changes : kKnobs) {
+      SurfaceSettings knob = settings;
+      std::string changed;
+      nlohmann::json changedJson = nlohmann::json::object();
+      for (const auto& [name, value] : changes) {
+        surfaceSettingsTable().assign(knob, name, value);
+        changed += (changed.empty() ? "`" : ", `") + name + "` " + fmt(value, "%g");
+        changedJson[name] = value;
+      }
+      if (changed.empty()) changed = "(the settings above)";
+      const Measured m = measure(c, knob, opt.repeats, scratch);
+      std::printf("  %-40s %9.1f ms %8.3f us/particle %9zu triangles volume %.4f ply %.2f MB\n", changed.c_str(), m.ms,
+                  m.us, m.triangles, m.volume, m.ply);
+      std::fflush(stdout);
+      knobs.push_back({{"changed", changedJson}, {"ms_per_frame", m.ms}, {"us_per_particle", m.us},
+                       {"triangles", m.triangles}, {"volume_ratio", m.volume}, {"vdb_mb", m.vdb}, {"ply_mb", m.ply},
+                       {"stages_ms", stagesJson(m.stages)}});
+      knobRows.push_back({changed, fmt(m.ms, "%.1f"), fmt(m.us, "%.3f"), stagesText(m.stages),
+                          std::to_string(m.triangles), c.dim == 3 ? fmt(m.volume, "%.4f") : "-", fmt(m.vdb, "%.2f"),
+                          fmt(m.ply, "%.2f")});
+    }
   }
   fs::remove_all(scratch);
   const ParamValues values = surfaceSettingsTable().values(settings);
@@ -197,8 +267,15 @@ int benchSurface(const Options& opt) {
                     rows) +
       "\nAnchor: splashsurf reports about 0.2 µs per particle on 16 cores; the target here is at most 1 µs per " +
       "particle on 2 cores.\n";
+  if (!knobRows.empty())
+    md += "\n## The price of each setting\n\nOn " + knobFrame + ", one or two settings changed at a time from " +
+          "those above. *volume*: the mesh's enclosed volume over the particles' N (2r)³.\n\n" +
+          markdownTable({"changed", "ms / frame", "µs / particle", "classify / fill / smooth / mesh ms", "triangles",
+                         "volume", "vdb MB", "ply MB"},
+                        knobRows);
   report.write(opt.out, "Surface reconstruction and export", md,
-               {{"cases", cases}, {"repeats", opt.repeats}, {"surface_settings", settingsJson}});
+               {{"cases", cases}, {"knobs", knobs}, {"knob_frame", knobFrame}, {"repeats", opt.repeats},
+                {"surface_settings", settingsJson}});
   std::printf("report: %s/surface.md\n", opt.out.c_str());
   return Ok;
 }
@@ -219,6 +296,9 @@ void addBenchSurfaceCommand(CLI::App& bench) {
             return fs::exists(s) || fs::exists(s.substr(0, s.rfind(':'))) ? std::string() : "no such file: " + s;
           },
           "FILE[:INDEX]"));
+  cmd->add_option("--knobs", opt->knobs,
+                  "measure each surface setting's price on this frame, FILE.h5[:INDEX]: one or two settings changed "
+                  "at a time");
   cmd->add_option("--surface", opt->surface, "a surface setting, KEY=VALUE (`flowclip params` lists them); repeatable");
   cmd->add_option("--threads", opt->threads, "threads (default 2)")->check(CLI::PositiveNumber);
   cmd->add_option("--repeats", opt->repeats, "runs per case, the best is kept (default 3)")->check(CLI::PositiveNumber);

@@ -56,7 +56,7 @@ const ParamTable<SurfaceSettings>& surfaceSettingsTable() {
                "stretching fast liquid along its motion for renderers without motion blur (half a frame's shutter: "
                "0.01 s at 50 fps); 0 = none",
        .member = &SurfaceSettings::trail},
-      {.name = "adaptivity", .unit = "", .min = 0, .max = 1, .def = 0.1,
+      {.name = "adaptivity", .unit = "", .min = 0, .max = 1, .def = 0,
        .help = "mesh adaptivity: 0 is a uniform mesh by marching cubes, the fastest, with the most triangles; "
                "above 0, OpenVDB's volume-to-mesh merges flat regions into larger polygons",
        .member = &SurfaceSettings::adaptivity},

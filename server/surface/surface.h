@@ -26,7 +26,7 @@ struct SurfaceSettings {
   double surfaceRadius = 1.15; // × r: the surface's distance from the neighbourhood's mean
   int smoothing = 1;           // box-filter passes
   double trail = 0;            // s: velocity trails, the path of the last `trail` seconds
-  double adaptivity = 0.1;     // 0: uniform marching cubes; above: OpenVDB's adaptive volume-to-mesh
+  double adaptivity = 0;       // 0: uniform marching cubes; above: OpenVDB's adaptive volume-to-mesh
 };
 const ParamTable<SurfaceSettings>& surfaceSettingsTable();
 const ParamSpecs& surfaceSettingsSpecs();
