@@ -9,9 +9,11 @@ For each scene: the templates its instances play are recorded when missing
 `flowclip export` meshes the frames to show (PLY), and
 tools/blender/render_mesh.py renders them from the scene's "camera". This
 both makes the pictures and shows that Blender imports FlowClip's meshes.
-Only the liquid is drawn (obstacles and bodies are not exported).
+Only the liquid is drawn (obstacles and bodies are not exported). With
+--animate K, K frames through the scene's duration also become an animated
+WebP preview, NAME.webp, beside the contact sheet.
 
-    build/venv/bin/python tools/gallery.py [--scenes drop2d,letters3d] [--frames 4]
+    build/venv/bin/python tools/gallery.py [--scenes drop2d,letters3d] [--frames 4] [--animate 24]
 """
 
 from __future__ import annotations
@@ -88,6 +90,18 @@ def contact_sheet(images: list[Path], labels: list[str], title: str, out: Path, 
     plt.close(fig)
 
 
+def animate(images: list[Path], out: Path, frame_ms: float) -> None:
+    """An animated WebP that plays the frames at the scene's speed, looping."""
+    from PIL import Image
+
+    frames = [Image.open(str(p)).convert("RGB") for p in images]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp")
+    frames[0].save(str(tmp), format="WEBP", save_all=True, append_images=frames[1:], duration=max(20, round(frame_ms)),
+                   loop=0, quality=80, method=4)
+    tmp.replace(out)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenes", default=",".join(SCENES))
@@ -95,6 +109,10 @@ def main() -> None:
     ap.add_argument("--size", default="320x200", help="pixels per frame, WxH")
     ap.add_argument("--samples", type=int, default=12, help="Cycles samples per pixel")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--animate", type=int, default=24, help="frames of the animated preview (0: none)")
+    ap.add_argument("--animate-samples", type=int, default=6, help="Cycles samples per pixel of its frames")
+    ap.add_argument("--reuse-runs", action="store_true",
+                    help="use a scene's particle export from an earlier run when the work folder has one")
     ap.add_argument("--work", default=str(ROOT / "build" / "gallery"))
     ap.add_argument("--out", default=str(ROOT / "docs" / "images" / "gallery"))
     a = ap.parse_args()
@@ -114,24 +132,36 @@ def main() -> None:
         log(f"[{n}/{len(names)}] {name}")
         ensure_templates(templates_of(scene), a.threads)
         h5 = work / f"{name}.h5"
-        subprocess.run([str(FLOWCLIP), "run", str(scene_path), "--export", str(h5), "--threads", str(a.threads),
-                        "--quiet"], cwd=ROOT, check=True)
+        if not (a.reuse_runs and h5.exists()):
+            subprocess.run([str(FLOWCLIP), "run", str(scene_path), "--export", str(h5), "--threads", str(a.threads),
+                            "--quiet"], cwd=ROOT, check=True)
         rate = scene.get("settings", {}).get("frame_rate", 60)
         last = int(round(scene.get("duration", 2) * rate))
-        shown = sorted({max(1, round(last * (k + 1) / a.frames)) for k in range(a.frames)})
-        images, labels = [], []
-        for f in shown:
-            mesh_dir = work / name
+        mesh_dir = work / name
+
+        def frame_png(f: int, png: Path, samples: int) -> Path:
             subprocess.run([str(FLOWCLIP), "export", str(h5), "--out", str(mesh_dir), "--name", name, "--formats",
                             "ply", "--first", str(f), "--last", str(f), "--threads", str(a.threads), "--quiet"],
                            cwd=ROOT, check=True)
-            png = work / f"{name}.{f:04d}.png"
-            render(mesh_dir / f"{name}.{f:04d}.ply", png, scene.get("camera"), size, a.samples)
-            images.append(png)
-            labels.append(f"t = {f / rate:.2f} s")
+            render(mesh_dir / f"{name}.{f:04d}.ply", png, scene.get("camera"), size, samples)
+            return png
+
+        shown = sorted({max(1, round(last * (k + 1) / a.frames)) for k in range(a.frames)})
+        images = [frame_png(f, work / f"{name}.{f:04d}.png", a.samples) for f in shown]
+        labels = [f"t = {f / rate:.2f} s" for f in shown]
         contact_sheet(images, labels, name, out / f"{name}.png", columns=len(images))
         (work / f"{name}.shown").write_text(images[len(images) // 2].name)
         log(f"  {len(images)} frames in {time.monotonic() - t0:.0f} s -> {out / (name + '.png')}")
+        if a.animate > 0:
+            t1 = time.monotonic()
+            frames = sorted({max(1, round(last * (k + 1) / a.animate)) for k in range(a.animate)})
+            pngs = []
+            for k, f in enumerate(frames, 1):
+                pngs.append(frame_png(f, work / f"{name}.anim.{f:04d}.png", a.animate_samples))
+                print(f"\r  animation: frame {k}/{len(frames)}", end="", file=sys.stderr, flush=True)
+            print(file=sys.stderr)
+            animate(pngs, out / f"{name}.webp", 1000 * last / rate / len(frames))
+            log(f"  {len(pngs)} animation frames in {time.monotonic() - t1:.0f} s -> {out / (name + '.webp')}")
     # gallery.png: the middle frame of every scene rendered so far (this run or an earlier one).
     for name in SCENES:
         shown = work / f"{name}.shown"

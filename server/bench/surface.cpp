@@ -174,10 +174,10 @@ nlohmann::json stagesJson(const Surface& s) {
 // Each accuracy setting's price on one frame: one or two settings changed at a time.
 const std::vector<std::vector<std::pair<std::string, double>>> kKnobs = {
     {},
-    {{"adaptivity", 0}},
+    {{"adaptivity", 0.1}},
     {{"voxel_size", 0.75}},
     {{"voxel_size", 1}},
-    {{"voxel_size", 1}, {"adaptivity", 0}},
+    {{"voxel_size", 1}, {"adaptivity", 0.1}},
     {{"kernel_radius", 3}},
     {{"kernel_radius", 6}},
     {{"smoothing", 0}},

@@ -60,6 +60,10 @@ const ParamTable<SurfaceSettings>& surfaceSettingsTable() {
        .help = "mesh adaptivity: 0 is a uniform mesh by marching cubes, the fastest, with the most triangles; "
                "above 0, OpenVDB's volume-to-mesh merges flat regions into larger polygons",
        .member = &SurfaceSettings::adaptivity},
+      {.name = "adaptivity_2d", .unit = "", .min = 0, .max = 1, .def = 0.1,
+       .help = "mesh adaptivity of a 2D liquid's slab, in place of `adaptivity`: its two faces are flat and as "
+               "large as the liquid's area, and 0.1 meshes them with a fortieth of the triangles",
+       .member = &SurfaceSettings::adaptivity2d},
   };
   return table;
 }
@@ -594,7 +598,8 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   out.smoothMs = msSince(tSmooth);
 
   // A uniform mesh from the blocks themselves, while they are at hand.
-  const bool uniform = withMesh && s.adaptivity <= 0;
+  const double adaptivity = planar ? s.adaptivity2d : s.adaptivity;
+  const bool uniform = withMesh && adaptivity <= 0;
   auto tMesh = std::chrono::steady_clock::now();
   if (uniform) {
     std::vector<MeshBlock> blocks(crossed.size());
@@ -645,7 +650,7 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
     std::vector<openvdb::Vec3s> points;
     std::vector<openvdb::Vec3I> triangles;
     std::vector<openvdb::Vec4I> quads;
-    openvdb::tools::volumeToMesh(*sdf, points, triangles, quads, 0.0, s.adaptivity);
+    openvdb::tools::volumeToMesh(*sdf, points, triangles, quads, 0.0, adaptivity);
     SurfaceMesh& m = out.mesh;
     m.points.resize(points.size());
     m.velocities.resize(points.size());

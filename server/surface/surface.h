@@ -27,6 +27,7 @@ struct SurfaceSettings {
   int smoothing = 1;           // box-filter passes
   double trail = 0;            // s: velocity trails, the path of the last `trail` seconds
   double adaptivity = 0;       // 0: uniform marching cubes; above: OpenVDB's adaptive volume-to-mesh
+  double adaptivity2d = 0.1;   // the same for a 2D liquid's slab
 };
 const ParamTable<SurfaceSettings>& surfaceSettingsTable();
 const ParamSpecs& surfaceSettingsSpecs();

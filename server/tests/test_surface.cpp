@@ -62,7 +62,7 @@ bool closedAndOriented(const SurfaceMesh& m) {
 // The default settings with one mesher: adaptivity 0 is our marching cubes.
 SurfaceSettings meshedWith(double adaptivity) {
   SurfaceSettings s = surfaceSettingsTable().defaults();
-  s.adaptivity = adaptivity;
+  s.adaptivity = s.adaptivity2d = adaptivity;
   return s;
 }
 constexpr double kMeshers[] = {0.0, 0.1};
@@ -244,6 +244,12 @@ TEST(Surface, A2DLiquidIsAClosedSlab) {
     EXPECT_NEAR(zmax, settings.surfaceRadius * r, 0.5 * settings.voxelSize * r);
     for (const auto& u : s.mesh.velocities) ASSERT_EQ(u[2], 0.0f);
   }
+  // By default a slab's flat faces are meshed adaptively (adaptivity_2d), a 3D liquid uniformly.
+  const SurfaceSettings defaults = surfaceSettingsTable().defaults();
+  const size_t byDefault = reconstructSurface(f, r, defaults, true, 2).mesh.triangles.size();
+  EXPECT_LT(3 * byDefault, reconstructSurface(f, r, meshedWith(0), true, 2).mesh.triangles.size());
+  EXPECT_EQ(reconstructSurface(f, r, defaults, true, 3).mesh.triangles.size(),
+            reconstructSurface(f, r, meshedWith(0), true, 3).mesh.triangles.size());
 }
 
 TEST(Surface, VelocityTrailsStretchTheLiquidBehindItsMotion) {
