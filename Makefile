@@ -8,7 +8,7 @@ CMAKE_FLAGS ?=
 PORT ?= 8080
 ABS_BUILD_DIR = $(abspath $(BUILD_DIR))
 
-.PHONY: all setup build web templates run run-headless docs gallery test test-parts test-ctest test-pytest test-web test-web-only bench bench-accuracy bench-web clean \
+.PHONY: all setup build web templates run run-headless docs gallery portable bench-portable test test-parts test-ctest test-pytest test-web test-web-only bench bench-accuracy bench-web clean \
   fuzz fuzz-build fuzz-regress test-fuzz asan-build test-asan bench-soak bench-cache bench-suite bench-spheric2
 
 # 2D templates are recorded when missing (seconds); larger ones on demand:
@@ -72,6 +72,20 @@ test-web-only:
 
 bench: build
 	$(BUILD_DIR)/flowclip bench solver
+
+# Executables for other x86-64 CPUs (docs/portable.md): one per x86-64 level
+# and the launcher that picks one, in $(PORTABLE_DIR)/bin; the Docker image
+# ships them. bench-portable measures them beside the native build.
+PORTABLE_DIR ?= build-portable
+portable: setup
+	@tools/build_portable.sh $(PORTABLE_DIR) $(JOBS)
+
+bench-portable: build portable
+	@for level in x86-64-v3 x86-64-v4; do \
+	  $(BUILD_DIR)/venv/bin/python tools/compare_builds.py --old $(BUILD_DIR)/flowclip \
+	    --new $(PORTABLE_DIR)/bin/flowclip-$$level scenes/dambreak2d.json:60 scenes/dambreak3d.json:20 \
+	    --repeat 5 --out bench/portable/$$level || exit 1; \
+	done
 
 # The accuracy/cost study's full sweep (docs/benchmarks/accuracy.md; 1 thread
 # per run, the fastest of 3: about 15 min at load 5) into bench/accuracy,

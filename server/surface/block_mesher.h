@@ -9,8 +9,9 @@
 //
 // References (docs/references.md):
 //   [LC87] W. E. Lorensen, H. E. Cline. Marching cubes: a high resolution 3D
-//          surface construction algorithm. SIGGRAPH 1987, 163-169.
-//          DOI 10.1145/37401.37422
+//          surface construction algorithm. ACM SIGGRAPH Computer
+//          Graphics 21(4), 1987, 163-169.
+//          DOI 10.1145/37402.37422
 #include "surface/surface.h"
 #include <cstdint>
 #include <vector>
