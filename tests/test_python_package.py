@@ -29,7 +29,7 @@ from repo_paths import ROOT
 
 PACKAGE = ROOT / "clients" / "python"
 PROTO = ROOT / "proto"
-MODULES = {"__init__.py", "client.py", "codec.py", "operations.py", "server.py", "stream.py"}
+MODULES = {"__init__.py", "batch.py", "client.py", "codec.py", "operations.py", "server.py", "stream.py"}
 BUILD_TIMEOUT = 300
 
 
@@ -145,7 +145,8 @@ def test_dependencies_are_the_requirements_pins():
     dependencies = project["project"]["dependencies"]
     assert {re.split(r"[<>=!~ ]", d)[0].lower() for d in dependencies} == \
         {"requests", "websockets", "numpy", "flatbuffers", "pyyaml"}
-    for dependency in dependencies + project["build-system"]["requires"]:
+    optional = [d for group in project["project"].get("optional-dependencies", {}).values() for d in group]
+    for dependency in dependencies + optional + project["build-system"]["requires"]:
         m = re.fullmatch(r"([A-Za-z0-9_.-]+)(>=|==)(\S+)", dependency)
         assert m, f"{dependency}: a lower bound (>=) of a dependency or a pin (==) of the build backend"
         pin = pins.get(m.group(1).lower())

@@ -1,0 +1,303 @@
+"""`flowclip-batch`: many runs of one scene, each with its own overrides (a wedge), as tasks of a
+Dask distributed cluster: a LocalCluster on one machine, or any scheduler's address.
+
+A job spec (JSON or YAML, docs/batch.md):
+
+    scene: scenes/drop2d.json          # relative to the spec's folder
+    templates: templates               # the template database the workers read
+    frames: 60                         # or seconds: 1.0 (default: the scene's duration)
+    grid:                              # every combination
+      "instances[drop].speed": [0.5, 1, 2]
+      "instances[drop].start": [0.1, 0.3]
+    list:                              # and/or these, one task each
+      - {particle_radius: 0.008}
+    outputs: {frames: true, surface: [ply]}
+    out: build/batch/drop-wedge        # one folder per task, named by a hash of its inputs
+    threads: 1                         # OpenMP threads per task
+
+A key path names a scene key: `a.b`, `list[NAME]` (the element whose "name" is NAME) or `list[3]`.
+Every task's scene is checked by `flowclip run --frames 0` before anything is submitted, so an
+unknown key, a value out of range or a missing template stops the batch naming the key. A task
+writes into a hidden folder renamed into place when it is whole: a re-run skips the tasks whose
+folders exist, and a task whose worker dies is retried elsewhere without its partial files.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import hashlib
+import itertools
+import json
+import os
+import re
+import secrets
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+SPEC_KEYS = {"scene", "templates", "frames", "seconds", "grid", "list", "outputs", "out", "threads", "name"}
+OUTPUT_KEYS = {"stats", "frames", "surface"}
+
+
+class SpecError(ValueError):
+    """A job spec that cannot run; the message names the key."""
+
+
+@dataclass
+class Task:
+    id: str
+    overrides: dict
+    scene: dict
+    folder: Path
+    args: list = field(default_factory=list)  # `flowclip run` arguments after the scene file
+
+
+def _binary(binary=None) -> str:
+    found = binary or os.environ.get("FLOWCLIP_BIN") or shutil.which("flowclip")
+    if not found or not Path(found).exists():
+        raise SpecError("no flowclip executable: pass --binary, set FLOWCLIP_BIN or put flowclip on PATH")
+    return str(Path(found).resolve())
+
+
+_TOKEN = re.compile(r"([^.\[\]]+)|\[([^\]]*)\]")
+
+
+def _tokens(path: str) -> list:
+    pos, out = 0, []
+    for m in _TOKEN.finditer(path):
+        if m.start() != pos and path[pos:m.start()] != ".":
+            raise SpecError(f"{path}: not a key path (a.b, list[NAME], list[3])")
+        out.append(("key", m.group(1)) if m.group(1) is not None else ("item", m.group(2)))
+        pos = m.end()
+    if pos != len(path) or not out or out[0][0] != "key":
+        raise SpecError(f"{path}: not a key path (a.b, list[NAME], list[3])")
+    return out
+
+
+def set_path(scene: dict, path: str, value) -> None:
+    """Sets the key `path` of `scene`; every container on the way must exist (the last key may be new)."""
+    tokens = _tokens(path)
+    node, where = scene, ""
+    for n, (kind, name) in enumerate(tokens):
+        last = n == len(tokens) - 1
+        if kind == "key":
+            if not isinstance(node, dict):
+                raise SpecError(f"{path}: {where or 'the scene'} is not an object")
+            if last:
+                node[name] = value
+                return
+            if name not in node:
+                raise SpecError(f"{path}: the scene has no {where + '.' if where else ''}{name}")
+            node, where = node[name], f"{where}.{name}" if where else name
+        else:
+            if not isinstance(node, list):
+                raise SpecError(f"{path}: {where} is not a list")
+            if name.isdigit():
+                index = int(name)
+                if index >= len(node):
+                    raise SpecError(f"{path}: {where} has {len(node)} elements")
+            else:
+                matches = [i for i, e in enumerate(node) if isinstance(e, dict) and e.get("name") == name]
+                if not matches:
+                    names = [e.get("name") for e in node if isinstance(e, dict) and "name" in e]
+                    raise SpecError(f"{path}: no element of {where} named {name!r} (names: {names})")
+                index = matches[0]
+            if last:
+                node[index] = value
+                return
+            node, where = node[index], f"{where}[{name}]"
+
+
+def load_spec(path) -> dict:
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise SpecError(f"{path}: {e.strerror}") from None
+    try:
+        if path.suffix in (".yaml", ".yml"):
+            import yaml
+            spec = yaml.safe_load(text)
+        else:
+            spec = json.loads(text)
+    except Exception as e:  # the parser's own message says where
+        raise SpecError(f"{path}: not valid {'YAML' if path.suffix in ('.yaml', '.yml') else 'JSON'}: {e}") from None
+    if not isinstance(spec, dict):
+        raise SpecError(f"{path}: a job spec is an object")
+    unknown = sorted(set(spec) - SPEC_KEYS)
+    if unknown:
+        raise SpecError(f"{unknown[0]}: unknown key of a job spec; expected one of: {', '.join(sorted(SPEC_KEYS))}")
+    spec["_dir"] = str(path.resolve().parent)
+    return spec
+
+
+def plan(spec: dict, binary=None) -> list[Task]:
+    """The tasks of a spec, each checked by the executable; SpecError at the first that cannot run."""
+    base = Path(spec.get("_dir", "."))
+    if "scene" not in spec:
+        raise SpecError("scene: a job spec needs a scene file")
+    scene_path = (base / spec["scene"]).resolve()
+    try:
+        scene = json.loads(scene_path.read_text())
+    except (OSError, ValueError) as e:
+        raise SpecError(f"scene: cannot read {scene_path}: {e}") from None
+    if "frames" in spec and "seconds" in spec:
+        raise SpecError("frames: give frames or seconds, not both")
+    outputs = spec.get("outputs", {"stats": True, "frames": True})
+    if not isinstance(outputs, dict) or set(outputs) - OUTPUT_KEYS:
+        raise SpecError(f"outputs: an object of {', '.join(sorted(OUTPUT_KEYS))}")
+    grid = spec.get("grid", {})
+    if not isinstance(grid, dict) or not all(isinstance(v, list) and v for v in grid.values()):
+        raise SpecError("grid: an object of key path -> non-empty list of values")
+    variations = [dict(zip(grid, values)) for values in itertools.product(*grid.values())] if grid else []
+    listed = spec.get("list", [])
+    if not isinstance(listed, list) or not all(isinstance(v, dict) for v in listed):
+        raise SpecError("list: a list of objects of key path -> value")
+    variations += listed
+    if not variations:
+        variations = [{}]
+    threads = spec.get("threads", 1)
+    if not isinstance(threads, int) or threads < 1:
+        raise SpecError("threads: a positive integer")
+    args = []
+    for key in ("frames", "seconds"):
+        if key in spec:
+            value = spec[key]
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
+                raise SpecError(f"{key}: a number >= 0")
+            args += [f"--{key}", str(value)]
+    args += ["--threads", str(threads), "--quiet"]
+    surface = outputs.get("surface") or []
+    if surface:
+        args += ["--formats", ",".join(surface)]
+    templates = str((base / spec.get("templates", "templates")).resolve())
+    out = (base / spec.get("out", "batch")).resolve()
+    exe = _binary(binary)
+    version = subprocess.run([exe, "--version"], capture_output=True, text=True, timeout=60).stdout.strip()
+    tasks = []
+    for overrides in variations:
+        task_scene = copy.deepcopy(scene)
+        for path, value in overrides.items():
+            set_path(task_scene, path, value)
+        key = json.dumps({"scene": task_scene, "args": args, "outputs": outputs, "flowclip": version},
+                         sort_keys=True, separators=(",", ":"))
+        tid = hashlib.sha256(key.encode()).hexdigest()[:16]
+        tasks.append(Task(tid, overrides, task_scene, out / tid, list(args)))
+    # The executable's own checks: every key, range and template, before anything runs.
+    with tempfile.TemporaryDirectory(prefix="flowclip-batch-") as tmp:
+        for task in tasks:
+            f = Path(tmp) / f"{task.id}.json"
+            f.write_text(json.dumps(task.scene))
+            r = subprocess.run([exe, "run", str(f), "--frames", "0", "--quiet", "--templates", templates],
+                               capture_output=True, text=True, timeout=300)
+            if r.returncode != 0:
+                message = r.stderr.strip().replace(str(f) + ": ", "")
+                raise SpecError(f"{json.dumps(task.overrides) if task.overrides else 'the scene'}: {message}")
+    for task in tasks:
+        task.args += ["--templates", templates]
+        task.args += ["--stats", "stats.json"] if outputs.get("stats", True) else []
+        task.args += ["--export", "frames.h5"] if outputs.get("frames", True) else []
+        task.args += ["--export-surface", "surface"] if surface else []
+    return tasks
+
+
+def run_task(task: Task, binary: str) -> dict:
+    """One task on a worker: skipped when its folder exists, else run in a hidden folder that is
+    renamed into place whole."""
+    done = task.folder / "task.json"
+    if done.exists():
+        return {**json.loads(done.read_text()), "skipped": True}
+    task.folder.parent.mkdir(parents=True, exist_ok=True)
+    staging = task.folder.parent / f".{task.id}.stage-{os.getpid()}-{secrets.token_hex(4)}"
+    staging.mkdir()
+    try:
+        (staging / "scene.json").write_text(json.dumps(task.scene, indent=1))
+        t0 = time.monotonic()
+        r = subprocess.run([binary, "run", "scene.json", *task.args], cwd=staging, capture_output=True, text=True)
+        if r.returncode != 0:
+            raise RuntimeError(f"task {task.id} {json.dumps(task.overrides)}: flowclip exited with {r.returncode}: "
+                               f"{r.stderr.strip()[-2000:]}")
+        summary = {"id": task.id, "overrides": task.overrides, "wall_s": time.monotonic() - t0,
+                   "command": ["flowclip", "run", "scene.json", *task.args]}
+        stats = staging / "stats.json"
+        if stats.exists():
+            summary["summary"] = json.loads(stats.read_text()).get("summary", {})
+        (staging / "task.json").write_text(json.dumps(summary, indent=1))
+        try:
+            staging.rename(task.folder)  # the task is complete exactly when its folder exists
+        except OSError:
+            if not done.exists():  # not another attempt's complete folder
+                raise
+        return {**summary, "skipped": False}
+    finally:
+        if staging.exists():
+            shutil.rmtree(staging, ignore_errors=True)
+
+
+def run_batch(spec: dict, *, local=None, scheduler=None, binary=None, retries=2, log=print) -> list[dict]:
+    """Plans the spec, then runs its tasks on the cluster; the summaries in the spec's order."""
+    tasks = plan(spec, binary)
+    exe = _binary(binary)
+    out = tasks[0].folder.parent
+    out.mkdir(parents=True, exist_ok=True)
+    # A killed worker's hidden folders: never complete, removed before the batch starts.
+    for left in out.glob(".*.stage-*"):
+        shutil.rmtree(left, ignore_errors=True)
+    from distributed import Client, LocalCluster, as_completed
+
+    cluster = LocalCluster(n_workers=local, threads_per_worker=1, processes=True,
+                           dashboard_address=None) if scheduler is None else None
+    try:
+        with Client(cluster if cluster is not None else scheduler) as client:
+            futures = [client.submit(run_task, t, exe, key=f"flowclip-task-{t.id}", pure=False, retries=retries)
+                       for t in tasks]
+            index = {f.key: n for n, f in enumerate(futures)}
+            results = [None] * len(tasks)
+            for done, future in enumerate(as_completed(futures), 1):
+                result = future.result()
+                results[index[future.key]] = result
+                state = "skipped (complete)" if result["skipped"] else f"{result['wall_s']:.1f} s"
+                log(f"batch: {done}/{len(tasks)} {result['id']} {json.dumps(result['overrides'])} {state}")
+    finally:
+        if cluster is not None:
+            cluster.close()
+    table = {"spec": {k: v for k, v in spec.items() if not k.startswith("_")}, "tasks": results}
+    staged = out / f".batch.json.{os.getpid()}"
+    staged.write_text(json.dumps(table, indent=1))
+    staged.replace(out / "batch.json")
+    return results
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="flowclip-batch", description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="run a job spec's tasks on a Dask cluster")
+    run.add_argument("spec")
+    where = run.add_mutually_exclusive_group()
+    where.add_argument("--local", type=int, default=None, help="a LocalCluster of N worker processes (default)")
+    where.add_argument("--scheduler", help="a running scheduler's address, tcp://HOST:8786")
+    run.add_argument("--binary", help="the flowclip executable (default: $FLOWCLIP_BIN or flowclip on PATH)")
+    run.add_argument("--dry-run", action="store_true", help="check the spec and list its tasks; run nothing")
+    a = ap.parse_args(argv)
+    try:
+        spec = load_spec(a.spec)
+        if a.dry_run:
+            for t in plan(spec, a.binary):
+                print(f"{t.id} {json.dumps(t.overrides)} -> {t.folder}")
+            return 0
+        results = run_batch(spec, local=a.local or os.cpu_count(), scheduler=a.scheduler, binary=a.binary)
+    except SpecError as e:
+        print(f"flowclip-batch: {e}", file=sys.stderr)
+        return 2
+    ran = sum(not r["skipped"] for r in results)
+    print(f"flowclip-batch: {len(results)} tasks, {ran} run, {len(results) - ran} already complete")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

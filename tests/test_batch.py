@@ -1,0 +1,142 @@
+"""Batch runs on a Dask cluster (clients/python/flowclip/batch.py, docs/batch.md): a wedge of
+drop2d on a real LocalCluster of 2 worker processes gives, task by task, the frames and statistics
+of a plain `flowclip run` of the same scene bit for bit; a re-run runs nothing; a spec that cannot
+run is refused before anything is submitted, naming the key.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+
+from flowclip.batch import SpecError, load_spec, plan, run_batch, set_path
+from repo_paths import FLOWCLIP_BIN, ROOT
+
+FRAMES = 12
+
+
+def write_spec(tmp_path, **extra):
+    spec = {"scene": str(ROOT / "scenes" / "drop2d.json"), "templates": str(ROOT / "templates"),
+            "frames": FRAMES, "out": str(tmp_path / "out"), "threads": 1,
+            "grid": {"instances[drop].speed": [0.75, 1.5], "instances[drop].start": [0.0, 0.05, 0.1]}}
+    spec.update(extra)
+    path = tmp_path / "wedge.json"
+    path.write_text(json.dumps(spec))
+    return path
+
+
+def frames_of(path):
+    with h5py.File(path, "r") as f:
+        out = {}
+        f.visititems(lambda name, obj: out.__setitem__(name, obj[()]) if isinstance(obj, h5py.Dataset) else None)
+        return out
+
+
+def test_a_wedge_on_a_local_cluster_equals_plain_runs_and_resumes(tmp_path):
+    spec = load_spec(write_spec(tmp_path))
+    lines = []
+    results = run_batch(spec, local=2, binary=FLOWCLIP_BIN, log=lines.append)
+    assert len(results) == 6 and not any(r["skipped"] for r in results)
+    assert len({r["id"] for r in results}) == 6
+    assert len(lines) == 6 and lines[-1].startswith("batch: 6/6 ")
+    table = json.loads((tmp_path / "out" / "batch.json").read_text())
+    assert [t["id"] for t in table["tasks"]] == [r["id"] for r in results]
+    speeds = set()
+    for r in results:
+        folder = tmp_path / "out" / r["id"]
+        assert sorted(p.name for p in folder.iterdir()) == ["frames.h5", "scene.json", "stats.json", "task.json"]
+        scene = json.loads((folder / "scene.json").read_text())
+        drop = scene["instances"][0]
+        assert drop["speed"] == r["overrides"]["instances[drop].speed"]
+        assert drop["start"] == r["overrides"]["instances[drop].start"]
+        speeds.add(drop["speed"])
+        # The same scene run plainly, here: the same frames bit for bit, the same statistics.
+        plain = tmp_path / f"plain-{r['id']}"
+        plain.mkdir()
+        (plain / "scene.json").write_text(json.dumps(scene))
+        subprocess.run([str(FLOWCLIP_BIN), "run", "scene.json", "--frames", str(FRAMES), "--threads", "1",
+                        "--quiet", "--templates", str(ROOT / "templates"), "--export", "frames.h5",
+                        "--stats", "stats.json"], cwd=plain, check=True, timeout=600)
+        ours, theirs = frames_of(folder / "frames.h5"), frames_of(plain / "frames.h5")
+        assert ours.keys() == theirs.keys() and any(k.endswith("position") for k in ours)
+        for name in ours:
+            assert np.array_equal(ours[name], theirs[name]), f"{r['id']}: {name} differs"
+        a = json.loads((folder / "stats.json").read_text())
+        b = json.loads((plain / "stats.json").read_text())
+        assert len(a["frames"]) == len(b["frames"]) == FRAMES
+        for fa, fb in zip(a["frames"], b["frames"]):
+            for key in ("particles", "substeps", "density_iterations", "divergence_iterations"):
+                assert fa[key] == fb[key], f"{r['id']} frame {fa.get('frame')}: {key}"
+    assert speeds == {0.75, 1.5}
+    # Different instances' timing: the wedge's takes are not all the same liquid.
+    finals = {r["id"]: frames_of(tmp_path / "out" / r["id"] / "frames.h5") for r in results}
+    positions = [next(v for k, v in f.items() if k.endswith("position")) for f in finals.values()]
+    assert any(not np.array_equal(positions[0], p) for p in positions[1:])
+
+    # Again: everything is complete, nothing runs, nothing is rewritten.
+    stamps = {r["id"]: (tmp_path / "out" / r["id"] / "frames.h5").stat().st_mtime_ns for r in results}
+    again = run_batch(load_spec(write_spec(tmp_path)), local=2, binary=FLOWCLIP_BIN, log=lambda _: None)
+    assert [r["id"] for r in again] == [r["id"] for r in results] and all(r["skipped"] for r in again)
+    assert stamps == {r["id"]: (tmp_path / "out" / r["id"] / "frames.h5").stat().st_mtime_ns for r in again}
+
+
+def test_a_killed_tasks_leftovers_never_count_as_complete(tmp_path):
+    spec = load_spec(write_spec(tmp_path, grid={"instances[drop].speed": [1.0]}))
+    [task] = plan(spec, FLOWCLIP_BIN)
+    out = tmp_path / "out"
+    # A worker killed mid-task left a hidden, half-written folder.
+    half = out / f".{task.id}.stage-99999-deadbeef"
+    half.mkdir(parents=True)
+    (half / "frames.h5").write_bytes(b"half")
+    [result] = run_batch(spec, local=1, binary=FLOWCLIP_BIN, log=lambda _: None)
+    assert not result["skipped"] and not half.exists()
+    assert (out / task.id / "task.json").exists()
+
+
+@pytest.mark.parametrize("change, names", [
+    ({"color": 1}, "color: unknown key of a job spec"),
+    ({"grid": {"instances[rain].speed": [1]}}, "no element of instances named 'rain'"),
+    ({"grid": {"instances[drop].sped": [1]}}, "instances[0].sped: unknown parameter of an instance"),
+    ({"grid": {"particle_radius": [0.01, -1]}}, "particle_radius: -1 m must be > 0"),
+    ({"list": [{"instances[drop].template": "nope"}]}, "instances[0].template: no template 'nope'"),
+    ({"grid": {"domain.min[7]": [0]}}, "domain.min has 2 elements"),
+    ({"frames": -3}, "frames: a number >= 0"),
+])
+def test_a_spec_that_cannot_run_is_refused_before_anything_runs(tmp_path, change, names):
+    spec = load_spec(write_spec(tmp_path, **change)) if "color" not in change else None
+    if spec is None:
+        with pytest.raises(SpecError, match="color: unknown key"):
+            load_spec(write_spec(tmp_path, **change))
+        return
+    with pytest.raises(SpecError) as e:
+        plan(spec, FLOWCLIP_BIN)
+    assert names in str(e.value)
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_command_line_checks_and_lists_the_tasks(tmp_path):
+    path = write_spec(tmp_path)
+    r = subprocess.run([sys.executable, "-m", "flowclip.batch", "run", str(path), "--dry-run", "--binary",
+                        str(FLOWCLIP_BIN)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert len(r.stdout.splitlines()) == 6 and not (tmp_path / "out").exists()
+    bad = write_spec(tmp_path, grid={"particle_radius": [-1]})
+    r = subprocess.run([sys.executable, "-m", "flowclip.batch", "run", str(bad), "--binary", str(FLOWCLIP_BIN)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "particle_radius: -1 m must be > 0" in r.stderr
+
+
+def test_key_paths():
+    scene = {"a": {"b": [1, 2]}, "items": [{"name": "x", "v": 1}, {"name": "y", "v": 2}]}
+    set_path(scene, "items[y].v", 5)
+    set_path(scene, "a.b[1]", 7)
+    set_path(scene, "items[0].w", 3)
+    assert scene == {"a": {"b": [1, 7]}, "items": [{"name": "x", "v": 1, "w": 3}, {"name": "y", "v": 5}]}
+    for bad in ("", "a..b", "[0]", "a.b]", "a.missing.c"):
+        with pytest.raises(SpecError):
+            set_path(scene, bad, 1)
