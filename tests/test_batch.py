@@ -7,8 +7,12 @@ run is refused before anything is submitted, naming the key.
 from __future__ import annotations
 
 import json
+import os
+import signal
 import subprocess
 import sys
+import threading
+import time
 
 import h5py
 import numpy as np
@@ -96,6 +100,38 @@ def test_a_killed_tasks_leftovers_never_count_as_complete(tmp_path):
     [result] = run_batch(spec, local=1, binary=FLOWCLIP_BIN, log=lambda _: None)
     assert not result["skipped"] and not half.exists()
     assert (out / task.id / "task.json").exists()
+
+
+def test_a_worker_killed_mid_task_is_retried_and_leaves_nothing_partial(tmp_path):
+    spec = load_spec(write_spec(tmp_path, frames=200, grid={"instances[drop].speed": [1.0, 2.0]}))
+    out = tmp_path / "out"
+    killed = []
+
+    def kill_a_worker_mid_task():
+        # A task's hidden folder carries its worker's pid: SIGKILL that worker once the task runs.
+        deadline = time.monotonic() + 600
+        while time.monotonic() < deadline and not killed:
+            for folder in (out.glob(".*.stage-*") if out.exists() else []):
+                if (folder / "scene.json").exists():
+                    pid = int(folder.name.split(".stage-")[1].split("-")[0])
+                    os.kill(pid, signal.SIGKILL)
+                    killed.append(pid)
+                    return
+            time.sleep(0.02)
+
+    killer = threading.Thread(target=kill_a_worker_mid_task)
+    killer.start()
+    results = run_batch(spec, local=2, binary=FLOWCLIP_BIN, log=lambda _: None)
+    killer.join()
+    assert killed, "no task was caught running"
+    assert len(results) == 2 and not any(r["skipped"] for r in results)
+    # Both tasks whole, and nothing else: no hidden half-written folder.
+    assert sorted(p.name for p in out.iterdir()) == sorted([r["id"] for r in results] + ["batch.json"])
+    for r in results:
+        stats = json.loads((out / r["id"] / "stats.json").read_text())
+        assert len(stats["frames"]) == 200
+        with h5py.File(out / r["id"] / "frames.h5", "r") as f:
+            assert len(f["frames/time"]) == 201  # the initial state and 200 frames
 
 
 @pytest.mark.parametrize("change, names", [

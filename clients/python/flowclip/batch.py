@@ -206,6 +206,17 @@ def plan(spec: dict, binary=None) -> list[Task]:
     return tasks
 
 
+def _die_with_parent() -> None:
+    """In the child: killed when the worker that started it dies, so that no orphan keeps writing."""
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
 def run_task(task: Task, binary: str) -> dict:
     """One task on a worker: skipped when its folder exists, else run in a hidden folder that is
     renamed into place whole."""
@@ -218,7 +229,8 @@ def run_task(task: Task, binary: str) -> dict:
     try:
         (staging / "scene.json").write_text(json.dumps(task.scene, indent=1))
         t0 = time.monotonic()
-        r = subprocess.run([binary, "run", "scene.json", *task.args], cwd=staging, capture_output=True, text=True)
+        r = subprocess.run([binary, "run", "scene.json", *task.args], cwd=staging, capture_output=True, text=True,
+                           preexec_fn=_die_with_parent)
         if r.returncode != 0:
             raise RuntimeError(f"task {task.id} {json.dumps(task.overrides)}: flowclip exited with {r.returncode}: "
                                f"{r.stderr.strip()[-2000:]}")
@@ -245,9 +257,11 @@ def run_batch(spec: dict, *, local=None, scheduler=None, binary=None, retries=2,
     exe = _binary(binary)
     out = tasks[0].folder.parent
     out.mkdir(parents=True, exist_ok=True)
-    # A killed worker's hidden folders: never complete, removed before the batch starts.
-    for left in out.glob(".*.stage-*"):
-        shutil.rmtree(left, ignore_errors=True)
+    def remove_leftovers():  # a killed worker's hidden folders: never complete
+        for left in out.glob(".*.stage-*"):
+            shutil.rmtree(left, ignore_errors=True)
+
+    remove_leftovers()
     from distributed import Client, LocalCluster, as_completed
 
     cluster = LocalCluster(n_workers=local, threads_per_worker=1, processes=True,
@@ -266,6 +280,7 @@ def run_batch(spec: dict, *, local=None, scheduler=None, binary=None, retries=2,
     finally:
         if cluster is not None:
             cluster.close()
+    remove_leftovers()  # every task is over: what is hidden is a dead attempt's
     table = {"spec": {k: v for k, v in spec.items() if not k.startswith("_")}, "tasks": results}
     staged = out / f".batch.json.{os.getpid()}"
     staged.write_text(json.dumps(table, indent=1))
