@@ -18,7 +18,7 @@ import h5py
 import numpy as np
 import pytest
 
-from flowclip.batch import SpecError, load_spec, plan, run_batch, set_path
+from flowclip.batch import SpecError, export_frames, load_spec, plan, run_batch, set_path
 from repo_paths import FLOWCLIP_BIN, ROOT
 
 FRAMES = 12
@@ -176,3 +176,29 @@ def test_key_paths():
     for bad in ("", "a..b", "[0]", "a.b]", "a.missing.c"):
         with pytest.raises(SpecError):
             set_path(scene, bad, 1)
+
+
+def test_a_frame_parallel_export_equals_one_export(tmp_path):
+    """Frame ranges meshed on two workers and put together: the files of one `flowclip export`."""
+    h5 = tmp_path / "drop.h5"
+    subprocess.run([str(FLOWCLIP_BIN), "run", str(ROOT / "scenes" / "drop2d.json"), "--frames", "9", "--quiet",
+                    "--templates", str(ROOT / "templates"), "--export", str(h5)], check=True, timeout=600)
+    formats = ["ply", "points", "obj", "usd"]
+    parallel, single = tmp_path / "parallel", tmp_path / "single"
+    lines = []
+    manifest = export_frames(h5, parallel, formats, name="shot", chunk=3, local=2, binary=FLOWCLIP_BIN,
+                             log=lines.append)
+    assert lines[-1] == "export: 5/5 parts"  # frames 0-9 in four ranges, and the USD stage
+    subprocess.run([str(FLOWCLIP_BIN), "export", str(h5), "--out", str(single), "--name", "shot", "--formats",
+                    ",".join(formats), "--quiet"], check=True, timeout=600)
+    names = sorted(p.name for p in single.iterdir())
+    assert sorted(p.name for p in parallel.iterdir()) == names  # nothing hidden left behind
+    assert len([n for n in names if n.endswith(".obj")]) == 10
+    for n in names:
+        if n.endswith(".export.json"):
+            continue
+        assert (parallel / n).read_bytes() == (single / n).read_bytes(), n
+    one = json.loads((single / "shot.export.json").read_text())
+    ours = json.loads((parallel / "shot.export.json").read_text())
+    assert ours == manifest
+    assert ours["frames"] == one["frames"] and ours["files"] == one["files"] and ours["formats"] == one["formats"]

@@ -10,9 +10,10 @@ void addSurfaceOptions(CLI::App* command, SurfaceOptions& o) {
   std::string names;
   for (const auto& n : ExporterRegistry::instance().names()) names += (names.empty() ? "" : ", ") + n;
   command->add_option("--formats", o.formats, "comma-separated export formats (" + names + "; default vdb,ply)");
+  std::string settings;
+  for (const ParamSpec& p : surfaceSettingsSpecs()) settings += (settings.empty() ? "" : ", ") + p.name;
   command->add_option("--surface", o.surface,
-                      "a surface setting, KEY=VALUE (voxel_size, kernel_radius, surface_radius, smoothing, "
-                      "adaptivity; `flowclip params` lists them); repeatable");
+                      "a surface setting, KEY=VALUE (" + settings + "; `flowclip params` lists them); repeatable");
   command->add_option("--format-setting", o.formatSettings,
                       "a format's setting, FORMAT.KEY=VALUE (e.g. usd.meshes=1, vdb.half=1); repeatable");
 }

@@ -288,6 +288,86 @@ def run_batch(spec: dict, *, local=None, scheduler=None, binary=None, retries=2,
     return results
 
 
+def _export_part(binary: str, frames_file: str, stage: str, name: str, first: int, last: int | None,
+                 formats: list, options: list) -> dict:
+    """One part of a frame-parallel export on a worker: `flowclip export` of frames first..last into
+    its own hidden folder; returns that part's manifest."""
+    cmd = [binary, "export", frames_file, "--out", stage, "--name", name, "--formats", ",".join(formats),
+           "--threads", "1", "--quiet", *options, "--first", str(first)]
+    if last is not None:
+        cmd += ["--last", str(last)]
+    r = subprocess.run(cmd, capture_output=True, text=True, preexec_fn=_die_with_parent)
+    if r.returncode != 0:
+        raise RuntimeError(f"flowclip export of frames {first}-{last}: exit {r.returncode}: {r.stderr.strip()[-2000:]}")
+    return json.loads((Path(stage) / f"{name}.export.json").read_text())
+
+
+def export_frames(frames_file, out, formats, *, name=None, surface=(), format_settings=(), chunk=None, local=None,
+                  scheduler=None, binary=None, log=print) -> dict:
+    """`flowclip export` split into frame ranges across a cluster's workers, put together in order:
+    the same files as one `flowclip export`, and one manifest, written last (the export is complete
+    exactly when NAME.export.json exists). A USD stage holds every frame, so it is one task of its own."""
+    import h5py
+    from distributed import Client, LocalCluster, as_completed
+
+    exe = _binary(binary)
+    frames_file = str(Path(frames_file).resolve())
+    name = name or Path(frames_file).stem
+    out = Path(out).resolve()
+    with h5py.File(frames_file, "r") as f:
+        numbers = [int(i) for i in f["frames/index"][()]]
+    if not numbers:
+        raise SpecError(f"{frames_file}: no frames")
+    options = [a for kv in surface for a in ("--surface", kv)] + [a for kv in format_settings for a in ("--format-setting", kv)]
+    per_frame = [f for f in formats if f != "usd"]
+    workers = local or os.cpu_count() or 1
+    chunk = chunk or max(1, -(-len(numbers) // (2 * workers)))
+    parts = [(numbers[i], numbers[min(i + chunk, len(numbers)) - 1]) for i in range(0, len(numbers), chunk)]
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{name}.export.json").unlink(missing_ok=True)  # incomplete from now until the new one is written
+    token = f"{os.getpid()}-{secrets.token_hex(4)}"
+    stages = [str(out / f".{name}.part{n}.stage-{token}") for n in range(len(parts) + 1)]
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                           dashboard_address=None) if scheduler is None else None
+    try:
+        with Client(cluster if cluster is not None else scheduler) as client:
+            futures = [client.submit(_export_part, exe, frames_file, stages[n], name, a, b, per_frame, options,
+                                     pure=False, retries=2) for n, (a, b) in enumerate(parts) if per_frame]
+            if "usd" in formats:
+                futures.append(client.submit(_export_part, exe, frames_file, stages[-1], name, numbers[0], None,
+                                             ["usd"], options, pure=False, retries=2))
+            order = {f.key: n for n, f in enumerate(futures)}
+            manifests = [None] * len(futures)
+            for done, future in enumerate(as_completed(futures), 1):
+                manifests[order[future.key]] = future.result()
+                log(f"export: {done}/{len(futures)} parts")
+        # Every part's files into place, then the one manifest.
+        merged = dict(manifests[0])
+        merged["formats"] = list(formats)
+        frames = {}
+        for m in manifests:
+            for entry in m["frames"]:
+                known = frames.setdefault(entry["frame"], dict(entry, files=[]))
+                known["files"] += [f for f in entry["files"] if f not in known["files"]]
+        merged["frames"] = [frames[k] for k in sorted(frames)]
+        merged["files"] = sorted({f for m in manifests for f in m.get("files", [])})
+        for stage in stages:
+            if not Path(stage).exists():
+                continue
+            for f in Path(stage).iterdir():
+                if f.name != f"{name}.export.json":
+                    f.replace(out / f.name)
+        staged = out / f".{name}.export.json.{token}"
+        staged.write_text(json.dumps(merged, indent=1))
+        staged.replace(out / f"{name}.export.json")
+        return merged
+    finally:
+        if cluster is not None:
+            cluster.close()
+        for stage in stages:
+            shutil.rmtree(stage, ignore_errors=True)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="flowclip-batch", description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="command", required=True)
@@ -298,7 +378,29 @@ def main(argv=None) -> int:
     where.add_argument("--scheduler", help="a running scheduler's address, tcp://HOST:8786")
     run.add_argument("--binary", help="the flowclip executable (default: $FLOWCLIP_BIN or flowclip on PATH)")
     run.add_argument("--dry-run", action="store_true", help="check the spec and list its tasks; run nothing")
+    exp = sub.add_parser("export", help="surfaces of a particle export, frame ranges across a Dask cluster")
+    exp.add_argument("frames", help="a particle export (.h5) of `flowclip run --export` or a session")
+    exp.add_argument("--out", required=True)
+    exp.add_argument("--formats", default="vdb,ply")
+    exp.add_argument("--name")
+    exp.add_argument("--surface", action="append", default=[], help="KEY=VALUE, as flowclip export")
+    exp.add_argument("--format-setting", action="append", default=[], help="FORMAT.KEY=VALUE, as flowclip export")
+    exp.add_argument("--chunk", type=int, help="frames per task (default: a fair share, two per worker)")
+    where = exp.add_mutually_exclusive_group()
+    where.add_argument("--local", type=int, default=None, help="a LocalCluster of N worker processes (default)")
+    where.add_argument("--scheduler", help="a running scheduler's address, tcp://HOST:8786")
+    exp.add_argument("--binary", help="the flowclip executable (default: $FLOWCLIP_BIN or flowclip on PATH)")
     a = ap.parse_args(argv)
+    if a.command == "export":
+        try:
+            m = export_frames(a.frames, a.out, [f for f in a.formats.split(",") if f], name=a.name,
+                              surface=a.surface, format_settings=a.format_setting, chunk=a.chunk,
+                              local=a.local, scheduler=a.scheduler, binary=a.binary)
+        except (SpecError, RuntimeError, OSError) as e:
+            print(f"flowclip-batch: {e}", file=sys.stderr)
+            return 2
+        print(f"flowclip-batch: {len(m['frames'])} frames exported into {a.out}")
+        return 0
     try:
         spec = load_spec(a.spec)
         if a.dry_run:
