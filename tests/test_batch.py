@@ -47,7 +47,13 @@ def test_a_wedge_on_a_local_cluster_equals_plain_runs_and_resumes(tmp_path):
     results = run_batch(spec, local=2, binary=FLOWCLIP_BIN, log=lines.append)
     assert len(results) == 6 and not any(r["skipped"] for r in results)
     assert len({r["id"] for r in results}) == 6
-    assert len(lines) == 6 and lines[-1].startswith("batch: 6/6 ")
+    done = [line for line in lines if line.startswith("batch: ")]
+    assert len(done) == 6 and done[-1].startswith("batch: 6/6 ")
+    # Each task's own progress, from its flowclip's frame lines, reaches the client as it runs.
+    progress = [line for line in lines if line.startswith("task ")]
+    assert progress and all(line.split(": frame ")[1].split("/")[1] == str(FRAMES) for line in progress)
+    assert any(line.endswith(f": frame {FRAMES}/{FRAMES}") for line in progress)
+    assert len(progress) <= 6 * 11  # at most ten reports a task, and its last
     table = json.loads((tmp_path / "out" / "batch.json").read_text())
     assert [t["id"] for t in table["tasks"]] == [r["id"] for r in results]
     speeds = set()

@@ -217,6 +217,20 @@ def _die_with_parent() -> None:
         pass
 
 
+_FRAME = re.compile(r"^frame (\d+)/(\d+)")
+PROGRESS_TOPIC = "flowclip-task-progress"
+
+
+def _report(progress: dict) -> None:
+    """A task's progress, to the client that watches the cluster's events (none outside a worker)."""
+    try:
+        from distributed import get_worker
+
+        get_worker().log_event(PROGRESS_TOPIC, progress)
+    except (ImportError, ValueError):
+        pass
+
+
 def run_task(task: Task, binary: str) -> dict:
     """One task on a worker: skipped when its folder exists, else run in a hidden folder that is
     renamed into place whole."""
@@ -229,11 +243,23 @@ def run_task(task: Task, binary: str) -> dict:
     try:
         (staging / "scene.json").write_text(json.dumps(task.scene, indent=1))
         t0 = time.monotonic()
-        r = subprocess.run([binary, "run", "scene.json", *task.args], cwd=staging, capture_output=True, text=True,
-                           preexec_fn=_die_with_parent)
-        if r.returncode != 0:
-            raise RuntimeError(f"task {task.id} {json.dumps(task.overrides)}: flowclip exited with {r.returncode}: "
-                               f"{r.stderr.strip()[-2000:]}")
+        args = [a for a in task.args if a != "--quiet"]  # its per-frame lines are the task's progress
+        proc = subprocess.Popen([binary, "run", "scene.json", *args], cwd=staging, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, text=True, preexec_fn=_die_with_parent)
+        tail, reported = [], -1.0
+        for line in proc.stderr:
+            tail = (tail + [line.rstrip()])[-20:]
+            m = _FRAME.match(line)
+            if m:
+                done, total = int(m.group(1)), int(m.group(2))
+                # Ten reports per task at most, and the last.
+                if done == total or done / total >= reported + 0.1:
+                    reported = done / total
+                    _report({"id": task.id, "frame": done, "frames": total})
+        if proc.wait() != 0:
+            message = "\n".join(line for line in tail if not _FRAME.match(line))
+            raise RuntimeError(f"task {task.id} {json.dumps(task.overrides)}: flowclip exited with {proc.returncode}: "
+                               f"{message[-2000:]}")
         summary = {"id": task.id, "overrides": task.overrides, "wall_s": time.monotonic() - t0,
                    "command": ["flowclip", "run", "scene.json", *task.args]}
         stats = staging / "stats.json"
@@ -268,6 +294,14 @@ def run_batch(spec: dict, *, local=None, scheduler=None, binary=None, retries=2,
                            dashboard_address=None) if scheduler is None else None
     try:
         with Client(cluster if cluster is not None else scheduler) as client:
+            ids = {t.id for t in tasks}
+
+            def progress(event):
+                message = event[1] if isinstance(event, tuple) else event
+                if isinstance(message, dict) and message.get("id") in ids:
+                    log(f"task {message['id']}: frame {message['frame']}/{message['frames']}")
+
+            client.subscribe_topic(PROGRESS_TOPIC, progress)
             futures = [client.submit(run_task, t, exe, key=f"flowclip-task-{t.id}", pure=False, retries=retries)
                        for t in tasks]
             index = {f.key: n for n, f in enumerate(futures)}
@@ -391,6 +425,9 @@ def main(argv=None) -> int:
     where.add_argument("--scheduler", help="a running scheduler's address, tcp://HOST:8786")
     exp.add_argument("--binary", help="the flowclip executable (default: $FLOWCLIP_BIN or flowclip on PATH)")
     a = ap.parse_args(argv)
+    import logging
+
+    logging.getLogger("distributed").setLevel(logging.WARNING)  # the progress lines are ours
     if a.command == "export":
         try:
             m = export_frames(a.frames, a.out, [f for f in a.formats.split(",") if f], name=a.name,
