@@ -18,7 +18,7 @@ import h5py
 import numpy as np
 import pytest
 
-from flowclip.batch import SpecError, export_frames, load_spec, plan, run_batch, set_path
+from flowclip.batch import SpecError, export_frames, load_spec, make_cluster, plan, run_batch, set_path
 from repo_paths import FLOWCLIP_BIN, ROOT
 
 FRAMES = 12
@@ -208,3 +208,32 @@ def test_a_frame_parallel_export_equals_one_export(tmp_path):
     ours = json.loads((parallel / "shot.export.json").read_text())
     assert ours == manifest
     assert ours["frames"] == one["frames"] and ours["files"] == one["files"] and ours["formats"] == one["formats"]
+
+
+@pytest.mark.parametrize("kind, lines", [
+    ("slurm", ["#SBATCH -p sim", "#SBATCH --cpus-per-task=4", "#SBATCH -t 02:00:00"]),
+    ("pbs", ["#PBS -q sim", "#PBS -l walltime=02:00:00"]),
+])
+def test_a_cluster_config_becomes_batch_system_jobs(kind, lines):
+    """The job script a batch system would run: the config's queue, cores and time, and workers that
+    offer their cores as the resource each task takes the spec's threads of."""
+    cluster = make_cluster({"kind": kind, "jobs": 3, "cores": 4, "memory": "8GB", "walltime": "02:00:00",
+                            "queue": "sim"}, threads=2)
+    try:
+        script = cluster.job_script()
+    finally:
+        cluster.close()
+    for line in lines:
+        assert line in script
+    assert "--resources cores=4" in script and "--nthreads 4" in script
+
+
+@pytest.mark.parametrize("config, names", [
+    ({"kind": "yarn", "cores": 2}, "kind: 'yarn' is not one of"),
+    ({"kind": "slurm", "cores": 1, "memory": "1GB"}, "cores: the cores of a job"),
+    ({"kind": "slurm", "cores": 4, "memory": "1GB", "colour": "red"}, "colour"),
+])
+def test_a_cluster_config_that_cannot_start_is_refused_naming_the_key(config, names):
+    with pytest.raises(SpecError) as e:
+        make_cluster(config, threads=2)
+    assert names in str(e.value)

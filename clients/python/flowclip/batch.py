@@ -15,6 +15,9 @@ A job spec (JSON or YAML, docs/batch.md):
     out: build/batch/drop-wedge        # one folder per task, named by a hash of its inputs
     threads: 1                         # OpenMP threads per task
 
+`--cluster FILE` starts the workers as jobs of a batch system instead (dask-jobqueue: Slurm, PBS,
+SGE, LSF, HTCondor, OAR, Moab): `kind`, `jobs`, and the jobqueue class's own arguments.
+
 A key path names a scene key: `a.b`, `list[NAME]` (the element whose "name" is NAME) or `list[3]`.
 Every task's scene is checked by `flowclip run --frames 0` before anything is submitted, so an
 unknown key, a value out of range or a missing template stops the batch naming the key. A task
@@ -277,7 +280,55 @@ def run_task(task: Task, binary: str) -> dict:
             shutil.rmtree(staging, ignore_errors=True)
 
 
-def run_batch(spec: dict, *, local=None, scheduler=None, binary=None, retries=2, log=print) -> list[dict]:
+# A cluster started on a batch system (dask-jobqueue): the config's `kind`, the class that starts it.
+JOBQUEUE = {"slurm": "SLURMCluster", "pbs": "PBSCluster", "sge": "SGECluster", "lsf": "LSFCluster",
+            "htcondor": "HTCondorCluster", "oar": "OARCluster", "moab": "MoabCluster"}
+
+
+def load_cluster_config(path) -> dict:
+    """A cluster config file (JSON or YAML): kind, jobs, and the dask-jobqueue class's own arguments."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+        import yaml
+        config = yaml.safe_load(text) if path.suffix in (".yaml", ".yml") else json.loads(text)
+    except OSError as e:
+        raise SpecError(f"{path}: {e.strerror}") from None
+    except Exception as e:
+        raise SpecError(f"{path}: not a valid cluster config: {e}") from None
+    if not isinstance(config, dict):
+        raise SpecError(f"{path}: a cluster config is an object")
+    return config
+
+
+def make_cluster(config: dict, threads: int = 1):
+    """The cluster a config describes, not yet scaled: a dask-jobqueue cluster whose workers each
+    offer `cores` (the config's cores over its processes) as the resource a task takes `threads` of."""
+    config = dict(config)
+    kind = config.pop("kind", None)
+    config.pop("jobs", None)
+    if kind not in JOBQUEUE:
+        raise SpecError(f"kind: {kind!r} is not one of {', '.join(sorted(JOBQUEUE))}")
+    try:
+        import dask_jobqueue
+    except ImportError:
+        raise SpecError(f"kind: {kind} needs dask-jobqueue (pip install \"flowclip[batch]\")") from None
+    if "cores" not in config or not isinstance(config["cores"], int) or config["cores"] < threads:
+        raise SpecError(f"cores: the cores of a job, an integer of at least the spec's threads ({threads})")
+    processes = config.setdefault("processes", 1)
+    per_worker = config["cores"] // max(1, processes)
+    config["worker_extra_args"] = list(config.get("worker_extra_args", [])) + ["--resources", f"cores={per_worker}"]
+    config.setdefault("scheduler_options", {"dashboard_address": None})
+    try:
+        return getattr(dask_jobqueue, JOBQUEUE[kind])(**config)
+    except (TypeError, ValueError) as e:  # an argument the class does not take
+        m = re.search(r"argument '(\w+)'", str(e))
+        raise SpecError(f"{m.group(1) if m else kind}: not an argument of dask-jobqueue's {JOBQUEUE[kind]}: "
+                        f"{str(e).splitlines()[0]}") from None
+
+
+def run_batch(spec: dict, *, local=None, scheduler=None, cluster_config=None, binary=None, retries=2,
+              log=print) -> list[dict]:
     """Plans the spec, then runs its tasks on the cluster; the summaries in the spec's order."""
     tasks = plan(spec, binary)
     exe = _binary(binary)
@@ -290,8 +341,16 @@ def run_batch(spec: dict, *, local=None, scheduler=None, binary=None, retries=2,
     remove_leftovers()
     from distributed import Client, LocalCluster, as_completed
 
-    cluster = LocalCluster(n_workers=local, threads_per_worker=1, processes=True,
-                           dashboard_address=None) if scheduler is None else None
+    resources = None
+    if cluster_config is not None:  # a batch system's jobs, each task taking `threads` of a worker's cores
+        threads = spec.get("threads", 1)
+        cluster = make_cluster(cluster_config, threads)
+        cluster.scale(jobs=cluster_config.get("jobs", 1))
+        resources = {"cores": threads}
+    elif scheduler is None:
+        cluster = LocalCluster(n_workers=local, threads_per_worker=1, processes=True, dashboard_address=None)
+    else:
+        cluster = None
     try:
         with Client(cluster if cluster is not None else scheduler) as client:
             ids = {t.id for t in tasks}
@@ -302,8 +361,8 @@ def run_batch(spec: dict, *, local=None, scheduler=None, binary=None, retries=2,
                     log(f"task {message['id']}: frame {message['frame']}/{message['frames']}")
 
             client.subscribe_topic(PROGRESS_TOPIC, progress)
-            futures = [client.submit(run_task, t, exe, key=f"flowclip-task-{t.id}", pure=False, retries=retries)
-                       for t in tasks]
+            futures = [client.submit(run_task, t, exe, key=f"flowclip-task-{t.id}", pure=False, retries=retries,
+                                     resources=resources) for t in tasks]
             index = {f.key: n for n, f in enumerate(futures)}
             results = [None] * len(tasks)
             for done, future in enumerate(as_completed(futures), 1):
@@ -410,6 +469,8 @@ def main(argv=None) -> int:
     where = run.add_mutually_exclusive_group()
     where.add_argument("--local", type=int, default=None, help="a LocalCluster of N worker processes (default)")
     where.add_argument("--scheduler", help="a running scheduler's address, tcp://HOST:8786")
+    where.add_argument("--cluster", help="a cluster config (YAML/JSON): jobs on Slurm, PBS, SGE, LSF... "
+                                         "through dask-jobqueue (docs/batch.md)")
     run.add_argument("--binary", help="the flowclip executable (default: $FLOWCLIP_BIN or flowclip on PATH)")
     run.add_argument("--dry-run", action="store_true", help="check the spec and list its tasks; run nothing")
     exp = sub.add_parser("export", help="surfaces of a particle export, frame ranges across a Dask cluster")
@@ -444,7 +505,11 @@ def main(argv=None) -> int:
             for t in plan(spec, a.binary):
                 print(f"{t.id} {json.dumps(t.overrides)} -> {t.folder}")
             return 0
-        results = run_batch(spec, local=a.local or os.cpu_count(), scheduler=a.scheduler, binary=a.binary)
+        config = load_cluster_config(a.cluster) if a.cluster else None
+        if config is not None:
+            make_cluster(config, spec.get("threads", 1)).close()  # checked before anything is submitted
+        results = run_batch(spec, local=a.local or os.cpu_count(), scheduler=a.scheduler, cluster_config=config,
+                            binary=a.binary)
     except SpecError as e:
         print(f"flowclip-batch: {e}", file=sys.stderr)
         return 2
