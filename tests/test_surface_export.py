@@ -221,7 +221,7 @@ def test_blender_imports_the_mesh_and_the_volume(exported, tmp_path):
 def test_unknown_format_is_refused_naming_the_known_ones(tmp_path):
     proc = run("run", SCENE, "--frames", 1, "--export-surface", tmp_path / "out", "--formats", "vdb,stl", check=False)
     assert proc.returncode == 2
-    assert "unknown export format 'stl' (known: obj, ply, points, usd, vdb)" in proc.stderr
+    assert "unknown export format 'stl' (known: obj, ply, points, svg, usd, vdb)" in proc.stderr
     assert not (tmp_path / "out").exists() or not list((tmp_path / "out").iterdir())
 
 
@@ -277,3 +277,26 @@ def test_a_killed_export_leaves_complete_frames_and_no_manifest(exported, tmp_pa
     run("export", exported / "pool.h5", "--out", out, "--formats", "ply", "--last", 3, "--quiet")
     assert (out / "pool.export.json").exists()
     assert not [p.name for p in out.iterdir() if p.name.startswith(".")]
+
+
+def test_a_2d_liquid_outline_in_svg(tmp_path):
+    """The svg format, read with Python's own XML parser: closed loops around the resting 2D column
+    whose area is its particles' (N (2r)²) within a few percent; a 3D scene's svg is refused."""
+    import xml.etree.ElementTree as ET
+
+    scene = ROOT / "scenes" / "hydrostatic2d.json"
+    run("run", scene, "--frames", 2, "--quiet", "--export", tmp_path / "column.h5")
+    run("export", tmp_path / "column.h5", "--out", tmp_path / "svg", "--formats", "svg", "--quiet")
+    radius = json.loads(scene.read_text())["particle_radius"]
+    root = ET.parse(tmp_path / "svg" / "column.0002.svg").getroot()
+    assert root.tag == "{http://www.w3.org/2000/svg}svg"
+    d = root.find("{http://www.w3.org/2000/svg}path").get("d")
+    loops = [np.array([[float(t[1:] if t[0] in "ML" else t) for t in pair] for pair in
+                       re.findall(r"[ML](\S+) (\S+)", loop)]) for loop in d.split("Z") if loop.strip()]
+    assert len(loops) == 1 and len(loops[0]) > 20
+    x, y = loops[0][:, 0], -loops[0][:, 1]  # SVG's y points down
+    area = 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)
+    liquid = int(np.sum(frame_rows(tmp_path / "column.h5", 2)["kind"] == 0))
+    assert abs(area / (liquid * 4 * radius**2) - 1) < 0.05
+    proc = run("run", SCENE, "--frames", 1, "--export-surface", tmp_path / "3d", "--formats", "svg", check=False)
+    assert proc.returncode == 2 and "svg export: the outline of a 2D liquid" in proc.stderr

@@ -14,6 +14,8 @@ ParamSpecs plyPointsExporterParams();
 std::unique_ptr<Exporter> makePlyPointsExporter(const ParamValues&);
 ParamSpecs objExporterParams();
 std::unique_ptr<Exporter> makeObjExporter(const ParamValues&);
+ParamSpecs svgExporterParams();
+std::unique_ptr<Exporter> makeSvgExporter(const ParamValues&);
 ParamSpecs usdExporterParams();
 std::unique_ptr<Exporter> makeUsdExporter(const ParamValues&);
 

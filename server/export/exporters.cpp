@@ -16,6 +16,8 @@ void registerBuiltinExporters() {
                      "density",
                      plyPointsExporterParams(), makePlyPointsExporter});
     r.add("obj", {"surface meshes per frame (NAME.0001.obj)", objExporterParams(), makeObjExporter});
+    r.add("svg", {"a 2D liquid's outline per frame (NAME.0001.svg): closed paths at z = 0, in metres",
+                  svgExporterParams(), makeSvgExporter});
     r.add("usd", {"one time-sampled USD stage (NAME.usda): the points with velocities, ids and widths, and the "
                   "surface mesh with `meshes`",
                   usdExporterParams(), makeUsdExporter});

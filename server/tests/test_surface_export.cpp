@@ -5,8 +5,11 @@
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
+#include <sstream>
 
 namespace fc {
 namespace {
@@ -51,6 +54,80 @@ ExportInfo info(const std::string& dir) {
   i.frameRate = 60;
   i.createdBy = "test";
   return i;
+}
+
+// The loops of an SVG path's d attribute "M x y L x y ... Z ...", in metres (y flipped back).
+std::vector<std::vector<std::array<double, 2>>> svgLoops(const std::string& file) {
+  std::ifstream in(file);
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const size_t d = text.find(" d=\"");
+  EXPECT_NE(d, std::string::npos);
+  std::istringstream path(text.substr(d + 4, text.find('"', d + 4) - d - 4));
+  std::vector<std::vector<std::array<double, 2>>> loops;
+  std::string token;
+  while (path >> token) {
+    if (token == "Z") continue;
+    if (token[0] == 'M') loops.emplace_back();
+    const double x = std::stod(token.substr(1));
+    double y = 0;
+    path >> y;
+    loops.back().push_back({x, -y});
+  }
+  return loops;
+}
+
+double signedArea(const std::vector<std::array<double, 2>>& loop) {
+  double a = 0;
+  for (size_t k = 0; k < loop.size(); ++k) {
+    const auto& p = loop[k];
+    const auto& q = loop[(k + 1) % loop.size()];
+    a += 0.5 * (p[0] * q[1] - q[0] * p[1]);
+  }
+  return a;
+}
+
+TEST(SurfaceExport, SvgOutlinesA2DLiquidWithItsHolesAndDroplets) {
+  TempDir dir;
+  const double r = 0.01;
+  ParticleFrame f;
+  f.index = 3;
+  const auto add = [&](double x, double y) {
+    f.position.insert(f.position.end(), {float(x), float(y), 0.0f});
+    f.velocity.insert(f.velocity.end(), {0, 0, 0});
+    f.kind.push_back(0);
+    f.phase.push_back(0);
+  };
+  // A 30 x 20 block with a 10 x 8 hole, and a droplet of four particles beside it.
+  size_t liquid = 0;
+  for (int i = 0; i < 30; ++i)
+    for (int j = 0; j < 20; ++j)
+      if (!(i >= 10 && i < 20 && j >= 6 && j < 14)) add(2 * r * i, 2 * r * j), ++liquid;
+  for (int k = 0; k < 4; ++k) add(0.8 + 2 * r * (k & 1), 0.2 + 2 * r * (k >> 1)), ++liquid;
+  ExportInfo i = info(dir.file(""));
+  i.dimension = 2;
+  {
+    SurfaceExport e(i, {"svg"}, surfaceSettingsTable().defaults());
+    e.writeFrame(f);
+    e.close();
+  }
+  const auto loops = svgLoops(dir.file("drop.0003.svg"));
+  ASSERT_EQ(loops.size(), 3u);  // the block's outside, its hole, the droplet
+  int outer = 0, holes = 0;
+  double area = 0;
+  for (const auto& l : loops) {
+    const double a = signedArea(l);
+    (a > 0 ? outer : holes) += 1;
+    area += a;
+  }
+  EXPECT_EQ(outer, 2);
+  EXPECT_EQ(holes, 1);
+  // The outline lies about a radius beyond the outer particles: the liquid's area, within a few percent.
+  const double particles = double(liquid) * 4 * r * r;
+  std::printf("svg: %zu loops, area %.5f m2 (particles %.5f)\n", loops.size(), area, particles);
+  EXPECT_NEAR(area / particles, 1.0, 0.08);
+  // A 3D scene has no outline: refused before anything is written.
+  ExportInfo three = info(dir.file("3d"));
+  EXPECT_THROW(SurfaceExport(three, {"svg"}, surfaceSettingsTable().defaults()), ExportSetupError);
 }
 
 TEST(SurfaceExport, FormatsAreKnownNamesGivenOnce) {
