@@ -127,7 +127,7 @@ double enclosedVolume(const SurfaceMesh& m) {
 struct Measured {
   double ms = 1e30, us = 0, volume = 0;  // volume: the mesh's, over the particles' N (2r)³ (3D)
   size_t triangles = 0;
-  double vdb = 0, ply = 0, points = 0;   // MB
+  double vdb = 0, ply = 0, points = 0, svg = 0;  // MB; svg: a 2D liquid's outline
   Surface stages;                        // the best run's stage times
 };
 
@@ -149,7 +149,9 @@ Measured measure(const Case& c, const SurfaceSettings& settings, int repeats, co
   info.particleRadius = c.radius;
   info.frameRate = 60;
   info.createdBy = std::string("flowclip ") + FLOWCLIP_VERSION;
-  SurfaceExport e(info, {"vdb", "ply", "points"}, settings);
+  std::vector<std::string> formats = {"vdb", "ply", "points"};
+  if (c.dim == 2) formats.push_back("svg");
+  SurfaceExport e(info, formats, settings);
   e.writeFrame(c.frame);
   for (const auto& file : fs::directory_iterator(scratch)) {  // named by the frame's index
     const std::string name = file.path().filename().string();
@@ -157,6 +159,7 @@ Measured measure(const Case& c, const SurfaceSettings& settings, int repeats, co
     if (name.rfind("bench_points.", 0) == 0) m.points += mb;
     else if (file.path().extension() == ".vdb") m.vdb += mb;
     else if (file.path().extension() == ".ply") m.ply += mb;
+    else if (file.path().extension() == ".svg") m.svg += mb;
   }
   fs::remove_all(scratch);
   return m;
@@ -215,10 +218,10 @@ int benchSurface(const Options& opt) {
     std::fflush(stdout);
     cases.push_back({{"dimension", c.dim}, {"liquid", c.liquid}, {"particles", c.frame.count()}, {"ms_per_frame", m.ms},
                      {"us_per_particle", m.us}, {"triangles", m.triangles}, {"vdb_mb", m.vdb}, {"ply_mb", m.ply},
-                     {"points_mb", m.points}, {"stages_ms", stagesJson(m.stages)}});
+                     {"points_mb", m.points}, {"svg_mb", m.svg}, {"stages_ms", stagesJson(m.stages)}});
     rows.push_back({std::to_string(c.dim) + "D", c.liquid, std::to_string(c.frame.count()), fmt(m.ms, "%.1f"),
                     fmt(m.us, "%.3f"), stagesText(m.stages), std::to_string(m.triangles), fmt(m.vdb, "%.2f"),
-                    fmt(m.ply, "%.2f"), fmt(m.points, "%.2f")});
+                    fmt(m.ply, "%.2f"), fmt(m.points, "%.2f"), c.dim == 2 ? fmt(m.svg, "%.3f") : "-"});
   }
   std::string knobFrame;
   if (!opt.knobs.empty()) {
@@ -261,9 +264,9 @@ int benchSurface(const Options& opt) {
       "(`vdb`, `ply` mesh, `points` cache). *block*: a resting block on the simulation's lattice; *splash*: half " +
       "the particles in a block, a quarter in a sheet one particle thick, a quarter in droplets of 1-30 particles " +
       "(both of particle radius 1 cm); a scene's name: a frame of its simulation, read from a particle export. " +
-      "2D liquids are meshed as a slab at z = 0.\n\n" +
+      "2D liquids are meshed as a slab at z = 0; their outline is also written as SVG (`svg`).\n\n" +
       markdownTable({"dim", "liquid", "particles", "ms / frame", "µs / particle",
-                     "classify / fill / smooth / mesh ms", "triangles", "vdb MB", "ply MB", "points MB"},
+                     "classify / fill / smooth / mesh ms", "triangles", "vdb MB", "ply MB", "points MB", "svg MB"},
                     rows) +
       "\nAnchor: splashsurf reports about 0.2 µs per particle on 16 cores; the target here is at most 1 µs per " +
       "particle on 2 cores.\n";

@@ -25,55 +25,64 @@ using Loop = std::vector<std::array<double, 2>>;
 // chain through the edges they share into closed loops, counter-clockwise
 // around the liquid, clockwise around a hole.
 std::vector<Loop> outline(const openvdb::FloatGrid& grid) {
-  const openvdb::CoordBBox box = grid.evalActiveVoxelBoundingBox();
-  if (box.empty()) return {};
-  const int i0 = box.min().x() - 1, j0 = box.min().y() - 1;
-  const int w = box.max().x() + 2 - i0, h = box.max().y() + 2 - j0;  // cells, with a border outside
-  std::vector<float> v(size_t(w + 1) * size_t(h + 1));
   auto acc = grid.getConstAccessor();
-  for (int j = 0; j <= h; ++j)
-    for (int i = 0; i <= w; ++i) v[size_t(j) * size_t(w + 1) + size_t(i)] = acc.getValue(openvdb::Coord(i0 + i, j0 + j, 0));
-  const auto at = [&](int i, int j) { return v[size_t(j) * size_t(w + 1) + size_t(i)]; };
-  // Edge ids: 2 (j (w + 1) + i) for the edge from (i, j) along x, + 1 along y.
-  const auto edge = [&](int i, int j, int axis) { return int64_t(2) * (int64_t(j) * (w + 1) + i) + axis; };
+  const auto at = [&](int i, int j) { return acc.getValue(openvdb::Coord(i, j, 0)); };
+  // Edge ids: (i, j) and the axis (0: along x, 1: along y) packed in 64 bits.
+  constexpr int64_t off = int64_t(1) << 30;
+  const auto edge = [](int i, int j, int axis) {
+    return int64_t((uint64_t(int64_t(i) + off) << 33) | (uint64_t(int64_t(j) + off) << 1) | uint64_t(axis));
+  };
   std::unordered_map<int64_t, int64_t> next;
-  for (int j = 0; j < h; ++j)
-    for (int i = 0; i < w; ++i) {
-      // Corners counter-clockwise, and the edge from each to the next.
-      const int ci[4] = {i, i + 1, i + 1, i}, cj[4] = {j, j, j + 1, j + 1};
-      const int64_t e[4] = {edge(i, j, 0), edge(i + 1, j, 1), edge(i, j + 1, 0), edge(i, j, 1)};
-      bool in[4];
-      for (int c = 0; c < 4; ++c) in[c] = at(ci[c], cj[c]) < 0;
-      for (int k = 0; k < 4; ++k) {
-        if (!(in[k] && !in[(k + 1) % 4])) continue;  // the liquid ends across edge k
-        for (int back = 1; back < 4; ++back) {       // and begins across the edge before it
-          const int m = (k + 4 - back) % 4;
-          if (!in[m] && in[(m + 1) % 4]) {
-            next[e[k]] = e[m];
-            break;
-          }
+  const auto cell = [&](int i, int j) {
+    // Corners counter-clockwise, and the edge from each to the next.
+    const int ci[4] = {i, i + 1, i + 1, i}, cj[4] = {j, j, j + 1, j + 1};
+    const int64_t e[4] = {edge(i, j, 0), edge(i + 1, j, 1), edge(i, j + 1, 0), edge(i, j, 1)};
+    bool in[4];
+    for (int c = 0; c < 4; ++c) in[c] = at(ci[c], cj[c]) < 0;
+    for (int k = 0; k < 4; ++k) {
+      if (!(in[k] && !in[(k + 1) % 4])) continue;  // the liquid ends across edge k
+      for (int back = 1; back < 4; ++back) {       // and begins across the edge before it
+        const int m = (k + 4 - back) % 4;
+        if (!in[m] && in[(m + 1) % 4]) {
+          next[e[k]] = e[m];
+          break;
         }
       }
     }
+  };
+  // Only the cells at the narrow band's voxels of the slice: the outline is there, and a
+  // sparse liquid (a long sheet, far droplets) costs its band, not its bounding box.
+  for (auto leaf = grid.tree().cbeginLeaf(); leaf; ++leaf) {
+    const openvdb::Coord o = leaf->origin();
+    if (o.z() > 0 || o.z() + int(leaf->dim()) <= 0) continue;
+    for (auto v = leaf->cbeginValueOn(); v; ++v) {
+      const openvdb::Coord c = v.getCoord();
+      if (c.z() != 0) continue;
+      for (int di = -1; di <= 0; ++di)
+        for (int dj = -1; dj <= 0; ++dj) cell(c.x() + di, c.y() + dj);
+    }
+  }
   const double voxel = grid.voxelSize()[0];
   const auto point = [&](int64_t id) {
     const int axis = int(id & 1);
-    const int64_t cell = id >> 1;
-    const int i = int(cell % (w + 1)), j = int(cell / (w + 1));
+    const int i = int(int64_t(uint64_t(id) >> 33) - off), j = int(int64_t((uint64_t(id) >> 1) & ((uint64_t(1) << 32) - 1)) - off);
     const float a = at(i, j), b = axis ? at(i, j + 1) : at(i + 1, j);
     const double t = std::clamp(double(a) / (double(a) - double(b)), 0.0, 1.0);
-    return std::array<double, 2>{(i0 + i + (axis ? 0.0 : t)) * voxel, (j0 + j + (axis ? t : 0.0)) * voxel};
+    return std::array<double, 2>{(i + (axis ? 0.0 : t)) * voxel, (j + (axis ? t : 0.0)) * voxel};
   };
   std::vector<Loop> loops;
   std::unordered_map<int64_t, bool> used;
-  for (const auto& [start, ignored] : next) {
+  std::vector<int64_t> starts;
+  for (const auto& entry : next) starts.push_back(entry.first);
+  std::sort(starts.begin(), starts.end());  // the same file whatever the hash order
+  for (const int64_t start : starts) {
     if (used[start]) continue;
     Loop loop;
     for (int64_t id = start; !used[id];) {
       used[id] = true;
       loop.push_back(point(id));
       auto it = next.find(id);
-      if (it == next.end()) break;  // cannot happen with the outside border
+      if (it == next.end()) break;  // an outline that leaves the band: not closed here
       id = it->second;
     }
     if (loop.size() >= 3) loops.push_back(std::move(loop));

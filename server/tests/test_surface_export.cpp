@@ -125,6 +125,25 @@ TEST(SurfaceExport, SvgOutlinesA2DLiquidWithItsHolesAndDroplets) {
   const double particles = double(liquid) * 4 * r * r;
   std::printf("svg: %zu loops, area %.5f m2 (particles %.5f)\n", loops.size(), area, particles);
   EXPECT_NEAR(area / particles, 1.0, 0.08);
+  // Two droplets half a kilometre apart diagonally: the outline costs their band, not the square between.
+  ParticleFrame far;
+  far.index = 4;
+  for (const double at : {0.0, 500.0})
+    for (int k = 0; k < 4; ++k) {
+      far.position.insert(far.position.end(), {float(at + 2 * r * (k & 1)), float(at + 2 * r * (k >> 1)), 0.0f});
+      far.velocity.insert(far.velocity.end(), {0, 0, 0});
+      far.kind.push_back(0);
+      far.phase.push_back(0);
+    }
+  {
+    SurfaceExport e(i, {"svg"}, surfaceSettingsTable().defaults());
+    e.writeFrame(far);
+    e.close();
+  }
+  const auto apart = svgLoops(dir.file("drop.0004.svg"));
+  ASSERT_EQ(apart.size(), 2u);
+  EXPECT_GT(signedArea(apart[0]), 0);
+  EXPECT_GT(signedArea(apart[1]), 0);
   // A 3D scene has no outline: refused before anything is written.
   ExportInfo three = info(dir.file("3d"));
   EXPECT_THROW(SurfaceExport(three, {"svg"}, surfaceSettingsTable().defaults()), ExportSetupError);
