@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <exception>
 #include <vector>
 
 namespace fc {
@@ -149,9 +150,16 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
   std::vector<std::vector<std::array<float, 6>>> vertices(nb);  // position (voxels), velocity
   const int unit[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
 
+  // An exception may not leave an OpenMP region: kept, rethrown after it.
+  std::exception_ptr failure;
+  const auto keep = [&failure] {
+#pragma omp critical(block_mesher_failure)
+    if (!failure) failure = std::current_exception();
+  };
+
   // The crossing edges each block owns, and their vertices.
 #pragma omp parallel for schedule(dynamic, 16)
-  for (size_t n = 0; n < nb; ++n) {
+  for (size_t n = 0; n < nb; ++n) try {
     const Around around{blocks, blocks[n]};
     float P[1000];
     around.pad(P);
@@ -185,7 +193,10 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
             owned.at(axis, i, j, k) = int32_t(verts.size());
             verts.push_back(v);
           }
+  } catch (...) {
+    keep();
   }
+  if (failure) std::rethrow_exception(failure);
   std::vector<size_t> first(nb + 1, 0);
   for (size_t n = 0; n < nb; ++n) first[n + 1] = first[n] + vertices[n].size();
   mesh.points.resize(first[nb]);
@@ -204,7 +215,7 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
   // values (corner 0 first) is in it.
   std::vector<std::vector<std::array<uint32_t, 3>>> triangles(nb);
 #pragma omp parallel for schedule(dynamic, 16)
-  for (size_t n = 0; n < nb; ++n) {
+  for (size_t n = 0; n < nb; ++n) try {
     const Around around{blocks, blocks[n]};
     float P[1000];
     around.pad(P);
@@ -260,7 +271,10 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
             if (whole) tris.push_back(tri);
           }
         }
+  } catch (...) {
+    keep();
   }
+  if (failure) std::rethrow_exception(failure);
   std::vector<size_t> firstTriangle(nb + 1, 0);
   for (size_t n = 0; n < nb; ++n) firstTriangle[n + 1] = firstTriangle[n] + triangles[n].size();
   mesh.triangles.resize(firstTriangle[nb]);
