@@ -12,7 +12,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 
 import h5py
 import numpy as np
@@ -20,6 +19,7 @@ import pytest
 
 from flowclip.batch import SpecError, export_frames, load_spec, make_cluster, plan, run_batch, set_path
 from repo_paths import FLOWCLIP_BIN, ROOT
+from service_helpers import wait_until
 
 FRAMES = 12
 
@@ -113,17 +113,19 @@ def test_a_worker_killed_mid_task_is_retried_and_leaves_nothing_partial(tmp_path
     out = tmp_path / "out"
     killed = []
 
+    def running_task():
+        return next((f for f in (out.glob(".*.stage-*") if out.exists() else []) if (f / "scene.json").exists()),
+                    None)
+
     def kill_a_worker_mid_task():
         # A task's hidden folder carries its worker's pid: SIGKILL that worker once the task runs.
-        deadline = time.monotonic() + 600
-        while time.monotonic() < deadline and not killed:
-            for folder in (out.glob(".*.stage-*") if out.exists() else []):
-                if (folder / "scene.json").exists():
-                    pid = int(folder.name.split(".stage-")[1].split("-")[0])
-                    os.kill(pid, signal.SIGKILL)
-                    killed.append(pid)
-                    return
-            time.sleep(0.02)
+        try:
+            folder = wait_until(running_task, timeout=600, what="a task running")
+        except TimeoutError:
+            return  # the assertion below says so
+        pid = int(folder.name.split(".stage-")[1].split("-")[0])
+        os.kill(pid, signal.SIGKILL)
+        killed.append(pid)
 
     killer = threading.Thread(target=kill_a_worker_mid_task)
     killer.start()

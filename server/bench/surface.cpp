@@ -109,20 +109,6 @@ Case frameOfExport(const std::string& spec) {
   return c;
 }
 
-// Signed volume enclosed by a mesh (m³).
-double enclosedVolume(const SurfaceMesh& m) {
-  double v = 0;
-  for (const auto& t : m.triangles) {
-    const auto& a = m.points[t[0]];
-    const auto& b = m.points[t[1]];
-    const auto& c = m.points[t[2]];
-    v += (double(a[0]) * (double(b[1]) * c[2] - double(b[2]) * c[1]) -
-          double(a[1]) * (double(b[0]) * c[2] - double(b[2]) * c[0]) +
-          double(a[2]) * (double(b[0]) * c[1] - double(b[1]) * c[0])) / 6.0;
-  }
-  return v;
-}
-
 // One case measured: the best of the repeats, and its files.
 struct Measured {
   double ms = 1e30, us = 0, volume = 0;  // volume: the mesh's, over the particles' N (2r)³ (3D)

@@ -2,12 +2,13 @@
 // table, the owner of every cell and grid edge, and the mesh.
 #include "surface/block_mesher.h"
 
+#include "core/parallel_failure.h"
+
 #include <omp.h>
 
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <exception>
 #include <vector>
 
 namespace fc {
@@ -150,12 +151,7 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
   std::vector<std::vector<std::array<float, 6>>> vertices(nb);  // position (voxels), velocity
   const int unit[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
 
-  // An exception may not leave an OpenMP region: kept, rethrown after it.
-  std::exception_ptr failure;
-  const auto keep = [&failure] {
-#pragma omp critical(block_mesher_failure)
-    if (!failure) failure = std::current_exception();
-  };
+  ParallelFailure failure;  // an exception in the OpenMP regions, rethrown after them
 
   // The crossing edges each block owns, and their vertices.
 #pragma omp parallel for schedule(dynamic, 16)
@@ -194,9 +190,9 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
             verts.push_back(v);
           }
   } catch (...) {
-    keep();
+    failure.keep();
   }
-  if (failure) std::rethrow_exception(failure);
+  failure.rethrow();
   std::vector<size_t> first(nb + 1, 0);
   for (size_t n = 0; n < nb; ++n) first[n + 1] = first[n] + vertices[n].size();
   mesh.points.resize(first[nb]);
@@ -272,9 +268,9 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
           }
         }
   } catch (...) {
-    keep();
+    failure.keep();
   }
-  if (failure) std::rethrow_exception(failure);
+  failure.rethrow();
   std::vector<size_t> firstTriangle(nb + 1, 0);
   for (size_t n = 0; n < nb; ++n) firstTriangle[n + 1] = firstTriangle[n] + triangles[n].size();
   mesh.triangles.resize(firstTriangle[nb]);

@@ -15,6 +15,7 @@
 #include "surface/surface.h"
 
 #include "core/key_map.h"
+#include "core/parallel_failure.h"
 #include "surface/block_mesher.h"
 #include "surface/volumes.h"
 
@@ -201,10 +202,16 @@ struct Gathered {
   }
 };
 
+// [ZB05]'s kernel k(s) = max(0, 1 - s²)³ at s² = d² · inv (inv = 1 / R²).
+inline float kernelWeight(float d2, float inv) {
+  float t = 1.0f - d2 * inv;
+  t = t > 0.0f ? t : 0.0f;
+  return t * t * t;
+}
+
 // [ZB05] Sec. 6: phi(x) = |x - x̄| - r̄, x̄ the mean of the particles within
-// R weighted by k(s) = max(0, 1 - s²)³, s = |x - x_i| / R. At one point
-// (u in voxels from the block's first voxel); +inf where no particle is
-// within R.
+// R weighted by k(s), s = |x - x_i| / R. At one point (u in voxels from the
+// block's first voxel); +inf where no particle is within R.
 float phiAt(const Gathered& g, const float u[3], float rv, float rs, bool planar) {
   const float inv = 1.0f / (rv * rv);
   float sum[2][4] = {};  // w, w dx, w dy, w dz: of the particles, of the trails
@@ -213,9 +220,7 @@ float phiAt(const Gathered& g, const float u[3], float rv, float rs, bool planar
     float* a = sum[which];
     for (size_t n = 0; n < points.size(); ++n) {
       const float dx = points.x[n] - u[0], dy = points.y[n] - u[1], dz = planar ? 0.0f : points.z[n] - u[2];
-      float t = 1.0f - (dx * dx + dy * dy + dz * dz) * inv;
-      t = t > 0.0f ? t : 0.0f;
-      const float k = t * t * t;
+      const float k = kernelWeight(dx * dx + dy * dy + dz * dz, inv);
       a[0] += k, a[1] += k * dx, a[2] += k * dy, a[3] += k * dz;
     }
   }
@@ -266,9 +271,7 @@ void sumBlock(const Points& g, float rv, Sums& s) {
 #pragma omp simd
         for (int k = 0; k < kBlock; ++k) {
           const float dz = float(k) - uz;
-          float t = 1.0f - (dxy2 + dz * dz) * inv;
-          t = t > 0.0f ? t : 0.0f;
-          const float c = t * t * t;
+          const float c = kernelWeight(dxy2 + dz * dz, inv);
           w[k] += c, x[k] += c * ux, y[k] += c * uy, z[k] += c * uz;
           vx[k] += c * ax, vy[k] += c * ay, vz[k] += c * az;
         }
@@ -296,9 +299,7 @@ void sumColumns(const Points& g, float rv, Sums& s) {
 #pragma omp simd
       for (int j = 0; j < kBlock; ++j) {
         const float dy = float(j) - uy;
-        float t = 1.0f - (dx2 + dy * dy) * inv;
-        t = t > 0.0f ? t : 0.0f;
-        const float c = t * t * t;
+        const float c = kernelWeight(dx2 + dy * dy, inv);
         w[j] += c, x[j] += c * ux, y[j] += c * uy, vx[j] += c * ax, vy[j] += c * ay;
       }
     }
@@ -477,12 +478,7 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   std::vector<std::unique_ptr<VLeafT>> velocityLeaves(candidates.size());
   const float halfDiagonal = float(0.5 * std::sqrt(3.0) * (kBlock - 1));  // voxels
   const float rsv = float(rs / voxel), bandv = float(band / voxel);
-  // An exception may not leave an OpenMP region: kept, rethrown after it.
-  std::exception_ptr failure;
-  const auto keep = [&failure] {
-#pragma omp critical(surface_failure)
-    if (!failure) failure = std::current_exception();
-  };
+  ParallelFailure failure;  // an exception in the OpenMP regions, rethrown after them
 #pragma omp parallel
   {
     Gathered g;
@@ -492,7 +488,7 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
       sums = std::make_unique<Sums>();
       if (s.trail > 0) trailSums = std::make_unique<Sums>();
     } catch (...) {
-      keep();
+      failure.keep();
     }
 #pragma omp for schedule(dynamic, 8)
     for (size_t c = 0; c < candidates.size(); ++c) try {
@@ -536,10 +532,10 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
       openvdb::Vec3s* v = velocityLeaves[c]->buffer().data();
       for (int n = 0; n < kVoxels; ++n) v[n] = openvdb::Vec3s(vel[3 * n], vel[3 * n + 1], vel[3 * n + 2]);
     } catch (...) {
-      keep();
+      failure.keep();
     }
   }
-  if (failure) std::rethrow_exception(failure);
+  failure.rethrow();
   out.fillMs = msSince(tFill);
 
   // The box filter over the crossed blocks; a tile reads -band, the outside

@@ -41,6 +41,21 @@ struct SurfaceMesh {
   std::vector<std::array<uint32_t, 3>> triangles;
 };
 
+// The volume a closed mesh encloses (m³): positive when its triangles face
+// outwards (the divergence theorem over its triangles).
+inline double enclosedVolume(const SurfaceMesh& m) {
+  double v = 0;
+  for (const auto& t : m.triangles) {
+    const auto& a = m.points[t[0]];
+    const auto& b = m.points[t[1]];
+    const auto& c = m.points[t[2]];
+    v += (double(a[0]) * (double(b[1]) * c[2] - double(b[2]) * c[1]) -
+          double(a[1]) * (double(b[0]) * c[2] - double(b[2]) * c[0]) +
+          double(a[2]) * (double(b[0]) * c[1] - double(b[1]) * c[0])) / 6.0;
+  }
+  return v;
+}
+
 struct SurfaceVolumes;  // the level set and velocity grids (surface/volumes.h)
 
 struct Surface {

@@ -32,20 +32,6 @@ ParticleFrame lattice(int nx, int ny, int nz, double r, std::array<double, 3> or
   return f;
 }
 
-// Signed volume enclosed by the mesh (positive when it faces outwards).
-double enclosedVolume(const SurfaceMesh& m) {
-  double v = 0;
-  for (const auto& t : m.triangles) {
-    const auto& a = m.points[t[0]];
-    const auto& b = m.points[t[1]];
-    const auto& c = m.points[t[2]];
-    v += (double(a[0]) * (double(b[1]) * c[2] - double(b[2]) * c[1]) -
-          double(a[1]) * (double(b[0]) * c[2] - double(b[2]) * c[0]) +
-          double(a[2]) * (double(b[0]) * c[1] - double(b[1]) * c[0])) / 6.0;
-  }
-  return v;
-}
-
 // Every edge of a closed, consistently oriented mesh is used once in each direction.
 bool closedAndOriented(const SurfaceMesh& m) {
   std::map<std::pair<uint32_t, uint32_t>, int> edges;
