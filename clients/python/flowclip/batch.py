@@ -16,7 +16,9 @@ A job spec (JSON or YAML, docs/batch.md):
     threads: 1                         # OpenMP threads per task
 
 `--cluster FILE` starts the workers as jobs of a batch system instead (dask-jobqueue: Slurm, PBS,
-SGE, LSF, HTCondor, OAR, Moab): `kind`, `jobs`, and the jobqueue class's own arguments.
+SGE, LSF, HTCondor, OAR, Moab): `kind`, `jobs`, and the jobqueue class's own arguments; or as pods of
+a Kubernetes cluster (`kind: kubernetes`, dask-kubernetes' operator).
+`out` may be a URL (s3://, gs://, file://...) that fsspec opens: flowclip.storage.
 
 A key path names a scene key: `a.b`, `list[NAME]` (the element whose "name" is NAME) or `list[3]`.
 Every task's scene is checked by `flowclip run --frames 0` before anything is submitted, so an
@@ -30,6 +32,7 @@ from __future__ import annotations
 import argparse
 import copy
 import hashlib
+import inspect
 import itertools
 import json
 import os
@@ -42,6 +45,8 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from flowclip import storage
 
 SPEC_KEYS = {"scene", "templates", "frames", "seconds", "grid", "list", "outputs", "out", "threads", "name"}
 OUTPUT_KEYS = {"stats", "frames", "surface"}
@@ -179,7 +184,8 @@ def plan(spec: dict, binary=None) -> list[Task]:
     if surface:
         args += ["--formats", ",".join(surface)]
     templates = str((base / spec.get("templates", "templates")).resolve())
-    out = (base / spec.get("out", "batch")).resolve()
+    out = spec.get("out", "batch")
+    out = storage.output(out) if storage.is_url(out) else (base / out).resolve()
     exe = _binary(binary)
     version = subprocess.run([exe, "--version"], capture_output=True, text=True, timeout=60).stdout.strip()
     tasks = []
@@ -236,7 +242,9 @@ def _report(progress: dict) -> None:
 
 def run_task(task: Task, binary: str) -> dict:
     """One task on a worker: skipped when its folder exists, else run in a hidden folder that is
-    renamed into place whole."""
+    renamed into place whole. A URL's task runs in a local temporary folder, then is uploaded."""
+    if storage.is_url(task.folder):
+        return storage.run_task(task, binary, run_task)
     done = task.folder / "task.json"
     if done.exists():
         return {**json.loads(done.read_text()), "skipped": True}
@@ -301,14 +309,56 @@ def load_cluster_config(path) -> dict:
     return config
 
 
+def kubernetes_arguments(config: dict, threads: int = 1) -> tuple:
+    """dask-kubernetes' KubeCluster and its arguments for a `kind: kubernetes` config: the config's
+    own keys (name, namespace, image, n_workers or jobs, resources, env...), and workers that offer
+    `cores` (default: the spec's threads) as the resource a task takes `threads` of."""
+    try:
+        from dask_kubernetes.operator import KubeCluster
+    except ImportError:
+        raise SpecError('kind: kubernetes needs dask-kubernetes (pip install "flowclip[batch,kubernetes]")') from None
+    args = {k: v for k, v in config.items() if k != "kind"}
+    jobs = args.pop("jobs", None)
+    if jobs is not None:
+        args.setdefault("n_workers", jobs)
+    cores = args.pop("cores", threads)
+    if not isinstance(cores, int) or isinstance(cores, bool) or cores < threads:
+        raise SpecError(f"cores: the cores of a worker, an integer of at least the spec's threads ({threads})")
+    if not args.get("image"):
+        raise SpecError("image: the workers' image (docker build --target worker), in a registry the cluster pulls from")
+    known = {name for name, p in inspect.signature(KubeCluster.__init__).parameters.items()
+             if p.kind is p.KEYWORD_ONLY} - {"loop", "asynchronous"}
+    for key in sorted(args):
+        if key not in known:
+            raise SpecError(f"{key}: not an argument of dask-kubernetes' KubeCluster ({', '.join(sorted(known))})")
+    command = args.get("worker_command") or ["dask", "worker"]
+    command = command.split() if isinstance(command, str) else list(command)
+    args["worker_command"] = command + ["--nthreads", str(cores), "--resources", f"cores={cores}"]
+    args.setdefault("name", "flowclip-batch")
+    args.setdefault("n_workers", 1)
+    return KubeCluster, args
+
+
+def check_cluster(config: dict, threads: int = 1) -> None:
+    """SpecError naming the key of a config that cannot start; starts nothing on Kubernetes."""
+    if config.get("kind") == "kubernetes":
+        kubernetes_arguments(config, threads)
+    else:
+        make_cluster(config, threads).close()
+
+
 def make_cluster(config: dict, threads: int = 1):
     """The cluster a config describes, not yet scaled: a dask-jobqueue cluster whose workers each
-    offer `cores` (the config's cores over its processes) as the resource a task takes `threads` of."""
+    offer `cores` (the config's cores over its processes) as the resource a task takes `threads` of;
+    for `kind: kubernetes`, a KubeCluster started with its n_workers."""
+    if config.get("kind") == "kubernetes":
+        cls, args = kubernetes_arguments(config, threads)
+        return cls(**args)
     config = dict(config)
     kind = config.pop("kind", None)
     config.pop("jobs", None)
     if kind not in JOBQUEUE:
-        raise SpecError(f"kind: {kind!r} is not one of {', '.join(sorted(JOBQUEUE))}")
+        raise SpecError(f"kind: {kind!r} is not one of {', '.join(sorted([*JOBQUEUE, 'kubernetes']))}")
     try:
         import dask_jobqueue
     except ImportError:
@@ -333,8 +383,14 @@ def run_batch(spec: dict, *, local=None, scheduler=None, cluster_config=None, bi
     tasks = plan(spec, binary)
     exe = _binary(binary)
     out = tasks[0].folder.parent
-    out.mkdir(parents=True, exist_ok=True)
+    remote = storage.is_url(out)
+    if remote:
+        storage.prepare(out)
+    else:
+        out.mkdir(parents=True, exist_ok=True)
     def remove_leftovers():  # a killed worker's hidden folders: never complete
+        if remote:
+            return storage.remove_stages(out)
         for left in out.glob(".*.stage-*"):
             shutil.rmtree(left, ignore_errors=True)
 
@@ -345,7 +401,8 @@ def run_batch(spec: dict, *, local=None, scheduler=None, cluster_config=None, bi
     if cluster_config is not None:  # a batch system's jobs, each task taking `threads` of a worker's cores
         threads = spec.get("threads", 1)
         cluster = make_cluster(cluster_config, threads)
-        cluster.scale(jobs=cluster_config.get("jobs", 1))
+        if cluster_config.get("kind") != "kubernetes":  # a KubeCluster starts its n_workers itself
+            cluster.scale(jobs=cluster_config.get("jobs", 1))
         resources = {"cores": threads}
     elif scheduler is None:
         cluster = LocalCluster(n_workers=local, threads_per_worker=1, processes=True, dashboard_address=None)
@@ -375,6 +432,9 @@ def run_batch(spec: dict, *, local=None, scheduler=None, cluster_config=None, bi
             cluster.close()
     remove_leftovers()  # every task is over: what is hidden is a dead attempt's
     table = {"spec": {k: v for k, v in spec.items() if not k.startswith("_")}, "tasks": results}
+    if remote:  # written once every task's task.json is in place
+        storage.write_table(out, [t.folder for t in tasks], table)
+        return results
     staged = out / f".batch.json.{os.getpid()}"
     staged.write_text(json.dumps(table, indent=1))
     staged.replace(out / "batch.json")
@@ -507,7 +567,7 @@ def main(argv=None) -> int:
             return 0
         config = load_cluster_config(a.cluster) if a.cluster else None
         if config is not None:
-            make_cluster(config, spec.get("threads", 1)).close()  # checked before anything is submitted
+            check_cluster(config, spec.get("threads", 1))  # checked before anything is submitted
         results = run_batch(spec, local=a.local or os.cpu_count(), scheduler=a.scheduler, cluster_config=config,
                             binary=a.binary)
     except SpecError as e:
