@@ -14,6 +14,8 @@ import json
 import os
 import shutil
 import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -77,10 +79,18 @@ def recipe_dir(tmp_path_factory):
 STREAM_TIMEOUT = 120.0
 
 
+# flowclip-batch of the test venv: the server's render jobs run through it (one local worker).
+BATCH_COMMAND = Path(sys.executable).parent / "flowclip-batch"
+
+
+def job_args(workers=1):
+    return ["--batch-command", str(BATCH_COMMAND), "--job-workers", str(workers)]
+
+
 @pytest.fixture(scope="module")
 def server(template_dir, scene_dir, recipe_dir, tmp_path_factory):
     with FlowClipServer(template_dir, scene_dir, tmp_path_factory.mktemp("exports"),
-                        max_body_mb=MAX_BODY_MB, recipes=recipe_dir) as s:
+                        max_body_mb=MAX_BODY_MB, recipes=recipe_dir, extra_args=job_args()) as s:
         plain = s.stream
         s.stream = lambda sid, **kw: plain(sid, **{"timeout": STREAM_TIMEOUT, **kw})
         yield s

@@ -227,6 +227,20 @@ def test_tour_of_every_endpoint(server, client, openapi):
     assert client.download("tour_mesh.0001.ply", export="tour_mesh")[:3] == b"ply"
     assert refused(409, lambda: client.cancel_export_job(job["id"])).code == "conflict"
 
+    # A render job of the session's scene, its result, and no cancelling a finished one.
+    assert client.jobs()["available"] is True
+    job = client.submit_job(sid, name="tour_job", frames=2, formats=["ply"])
+    assert job["state"] == "queued" and len(job["tasks"]) == 1
+    job = client.wait_job(job["id"])
+    assert job["state"] == "done", job
+    task = job["tasks"][0]
+    assert "surface/scene.0002.ply" in task["files"]
+    assert client.job_file(job["id"], task["id"], "surface/scene.0002.ply")[:3] == b"ply"
+    assert client.job_file(job["id"], task["id"], "stats.json")["summary"]["frames"] == 2
+    assert [j["id"] for j in client.jobs()["jobs"]] == [job["id"]]
+    assert refused(409, lambda: client.cancel_job(job["id"])).code == "conflict"
+    assert refused(404, lambda: client.job_file(job["id"], task["id"], "../spec.json")).code == "not_found"
+
     # The stream (not a REST response: noted by hand).
     with server.stream(sid) as stream:
         assert stream.recv()["type"] == "state"

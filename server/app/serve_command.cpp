@@ -2,6 +2,8 @@
 // files) on one port. See service/http_server.h and docs/api.md.
 #include "app/commands.h"
 #include "io/staged_files.h"
+#include "cli/process.h"
+#include "service/child_process.h"
 #include "service/http_server.h"
 #include "service/rest_api.h"
 
@@ -10,7 +12,10 @@
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <thread>
 #include <vector>
+
+#include <unistd.h>
 
 namespace fc::app {
 
@@ -40,7 +45,22 @@ struct ServeOptions {
   double streamStall = 20, streamIdle = 60;
   double editWait = 3;
   int ioThreads = 2;
+  std::string jobs;  // "": EXPORTS/jobs
+  std::string batchCommand;  // "": $FLOWCLIP_BATCH, flowclip-batch beside the executable, then on PATH
+  std::string scheduler;
+  int jobWorkers = 0;  // 0: half the CPUs, at least 1
 };
+
+// flowclip-batch for render jobs, "" when none is found.
+std::string findBatchCommand(const std::string& given) {
+  if (given == "none") return {};
+  if (!given.empty()) return fs::absolute(given).string();
+  if (const char* env = std::getenv("FLOWCLIP_BATCH"); env && *env) return fs::absolute(env).string();
+  const fs::path beside = fs::path(selfExecutable()).parent_path() / "flowclip-batch";
+  std::error_code ec;
+  if (fs::is_regular_file(beside, ec)) return beside.string();
+  return service::findOnPath("flowclip-batch");
+}
 
 int serve(const ServeOptions& o, bool presetsGiven) {
   if (!service::isLoopbackHost(o.host) && o.token.empty()) {
@@ -73,7 +93,18 @@ int serve(const ServeOptions& o, bool presetsGiven) {
   so.streamWriteStall = std::chrono::milliseconds(int64_t(o.streamStall * 1000));
   so.streamIdleTimeout = std::chrono::milliseconds(int64_t(o.streamIdle * 1000));
   so.editWait = std::chrono::milliseconds(int64_t(o.editWait * 1000));
-  service::ServerOptions net;
+  so.jobsDir = o.jobs.empty() ? (fs::path(o.exports) / "jobs").string() : o.jobs;
+  so.batchCommand = findBatchCommand(o.batchCommand);
+  so.batchBinary = selfExecutable();
+  so.scheduler = o.scheduler;
+  so.jobWorkers = o.jobWorkers > 0 ? o.jobWorkers : std::max(1, int(std::thread::hardware_concurrency()) / 2);
+  if (!o.batchCommand.empty() && o.batchCommand != "none" && ::access(so.batchCommand.c_str(), X_OK) != 0) {
+    std::fprintf(stderr, "error: --batch-command %s: not an executable file\n", o.batchCommand.c_str());
+    return BadInput;
+  }
+  if (so.batchCommand.empty())
+    std::fprintf(stderr, "flowclip serve: no flowclip-batch found (pip install \"flowclip[batch]\" from clients/python, "
+                         "or --batch-command PATH): render jobs are off\n");  service::ServerOptions net;
   net.host = o.host;
   net.port = uint16_t(o.port);
   net.webDir = o.web;
@@ -148,6 +179,13 @@ void addServeCommand(CLI::App& app) {
                   "answers 202 (pending) with the edit's id to poll (default 3)")
       ->check(CLI::Range(0.0, 600.0));
   cmd->add_option("--io-threads", o->ioThreads, "network threads (default 2)")->check(CLI::Range(1, 64));
+  cmd->add_option("--jobs", o->jobs, "directory of render jobs' results (default: EXPORTS/jobs)");
+  cmd->add_option("--scheduler", o->scheduler,
+                  "render jobs run on this Dask scheduler, tcp://HOST:8786 (default: a LocalCluster of --job-workers)");
+  cmd->add_option("--job-workers", o->jobWorkers, "worker processes of the local cluster (default: half the CPUs)")
+      ->check(CLI::Range(1, 1024));
+  cmd->add_option("--batch-command", o->batchCommand,
+                  "flowclip-batch, which runs render jobs (default: $FLOWCLIP_BATCH, beside flowclip, or on PATH; none: no jobs)");
   cmd->callback([o, presetsOption] { throw ExitCode(serve(*o, presetsOption->count() > 0)); });
 }
 

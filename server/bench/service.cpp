@@ -150,6 +150,7 @@ class PumpSession final : public Session {
   json sceneJson() const override { return json::object(); }
   json state() const override { return {{"id", id_}, {"status", "playing"}, {"frame", latestFrame()->frame}}; }
   void setExportState(json) override {}
+  void setJobState(json) override {}
   SessionStatus status() const override { return SessionStatus::Playing; }
   int currentFrame() const override { return latestFrame()->frame; }
   uint64_t subscribe(SessionListener l) override {

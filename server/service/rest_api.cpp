@@ -4,16 +4,18 @@
 // in one file per resource: rest_server_info.cpp (health, parameters,
 // presets), rest_templates.cpp, rest_scenes.cpp, rest_sessions.cpp (sessions,
 // instances and edits, transport), rest_frames.cpp (frames and stats),
-// rest_exports.cpp, rest_recipes.cpp; what they share is rest_support.h.
+// rest_exports.cpp, rest_recipes.cpp, rest_jobs.cpp; what they share is rest_support.h.
 #include "core/text.h"
 #include "io/json_text.h"
 #include "io/scene.h"
 #include "io/template_file.h"
 #include "service/recipe_jobs.h"
+#include "service/render_jobs.h"
 #include "service/surface_jobs.h"
 #include "service/rest_support.h"
 
 #include <algorithm>
+#include <filesystem>
 #include <thread>
 
 namespace fc::service {
@@ -86,6 +88,10 @@ ServiceHub::ServiceHub(ServiceOptions options)
   surfaceJobs_ = std::make_unique<SurfaceJobs>(options_.recordThreads);
   recipeJobs_ = std::make_unique<RecipeJobs>(
       RecipeJobsOptions{options_.recipesDir, options_.templatesDir, options_.recordThreads});
+  if (options_.jobsDir.empty()) options_.jobsDir = (std::filesystem::path(options_.exportsDir) / "jobs").string();
+  renderJobs_ = std::make_unique<RenderJobs>(RenderJobsOptions{options_.jobsDir, options_.batchCommand,
+                                                               options_.batchBinary, options_.templatesDir,
+                                                               options_.scheduler, std::max(1, options_.jobWorkers)});
 }
 
 ServiceHub::~ServiceHub() {
@@ -134,6 +140,11 @@ const std::vector<ServiceHub::Route>& ServiceHub::routes() {
       {"POST", "/api/recipes/{name}/record", &ServiceHub::startRecipeJob},
       {"GET", "/api/recipes/jobs/{id}", &ServiceHub::getRecipeJob},
       {"DELETE", "/api/recipes/jobs/{id}", &ServiceHub::cancelRecipeJob},
+      {"GET", "/api/jobs", &ServiceHub::listJobs},
+      {"POST", "/api/jobs", &ServiceHub::submitJob},
+      {"GET", "/api/jobs/{id}", &ServiceHub::getJob},
+      {"DELETE", "/api/jobs/{id}", &ServiceHub::cancelJob},
+      {"GET", "/api/jobs/{id}/files/{task}/{file}", &ServiceHub::getJobFile},
   };
   return table;
 }

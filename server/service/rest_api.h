@@ -28,6 +28,7 @@
 namespace fc::service {
 
 class RecipeJobs;
+class RenderJobs;
 class SurfaceJobs;
 
 struct HttpRequest {
@@ -71,6 +72,15 @@ struct ServiceOptions {
   // The accuracy presets (draft, preview, final) that `flowclip bench
   // accuracy` chose from its Pareto front, with their measured figures.
   std::string presetsFile = "bench/accuracy/presets.json";
+  // Render jobs (service/render_jobs.h): their directory, flowclip-batch
+  // ("": none, POST /api/jobs answers 503), the flowclip executable the
+  // tasks run, and where: a Dask scheduler's address or, when "", a
+  // LocalCluster of jobWorkers processes.
+  std::string jobsDir;  // "": exportsDir/jobs
+  std::string batchCommand;
+  std::string batchBinary;
+  std::string scheduler;
+  int jobWorkers = 1;
   int maxSessions = 8;
   size_t historyCapBytes = size_t(256) << 20;  // per session; a create request may ask for less, never more
   int maxThreads = 0;                          // per session's step; a request may ask for fewer (0: the CPUs)
@@ -159,6 +169,12 @@ class ServiceHub {
   HttpResponse getSurfaceFile(const HttpRequest&, const Params&);
   HttpResponse getSurfaceJob(const HttpRequest&, const Params&);
   HttpResponse cancelSurfaceJob(const HttpRequest&, const Params&);
+  // rest_jobs.cpp
+  HttpResponse submitJob(const HttpRequest&, const Params&);
+  HttpResponse listJobs(const HttpRequest&, const Params&);
+  HttpResponse getJob(const HttpRequest&, const Params&);
+  HttpResponse cancelJob(const HttpRequest&, const Params&);
+  HttpResponse getJobFile(const HttpRequest&, const Params&);
   // rest_recipes.cpp
   HttpResponse listRecipes(const HttpRequest&, const Params&);
   HttpResponse startRecipeJob(const HttpRequest&, const Params&);
@@ -196,6 +212,7 @@ class ServiceHub {
   std::map<std::string, PreviewSource> previews_;
   std::unique_ptr<SurfaceJobs> surfaceJobs_;  // meshes exports into exportsDir
   std::unique_ptr<RecipeJobs> recipeJobs_;  // its worker records into database_'s directory
+  std::unique_ptr<RenderJobs> renderJobs_;  // batches of sessions' scenes, on a Dask cluster
 };
 
 // JSON from a client, nested at most kMaxJsonDepth levels (deeper values

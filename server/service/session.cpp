@@ -357,6 +357,19 @@ class SessionImpl final : public Session {
     notifyState();
   }
 
+  void setJobState(json job) override {
+    {
+      std::lock_guard lk(mutex_);
+      const auto number = [](const json& j) -> long long {
+        const std::string id = j.is_object() && j.contains("id") && j["id"].is_string() ? j["id"].get<std::string>() : "";
+        return id.size() > 1 ? std::atoll(id.c_str() + 1) : 0;
+      };
+      jobStates_[number(job)] = std::move(job);
+      while (jobStates_.size() > kShownJobs) jobStates_.erase(jobStates_.begin());
+    }
+    notifyState();
+  }
+
   // ---- listeners ----
 
   uint64_t subscribe(SessionListener listener) override { return listeners_.subscribe(std::move(listener)); }
@@ -1169,6 +1182,10 @@ class SessionImpl final : public Session {
     j["end_frame"] = endFrame_;
     j["play_until"] = playUntil_;
     if (!exportState_.is_null()) j["export"] = exportState_;
+    if (!jobStates_.empty()) {
+      j["jobs"] = json::array();
+      for (const auto& [n, job] : jobStates_) j["jobs"].push_back(job);
+    }
     j["replaying"] = replayPlaying_;
     j["memory"]["checkpoint_bytes"] = checkpointFigures_.bytes;
     j["memory"]["total_bytes"] = historyBytes + simBytes_ + checkpointFigures_.bytes;
@@ -1274,6 +1291,8 @@ class SessionImpl final : public Session {
   json sceneShared_;
   RecordedScene info_;
   std::string errorMessage_;
+  static constexpr size_t kShownJobs = 8;
+  std::map<long long, json> jobStates_;  // the newest render jobs (setJobState), by number
   json exportState_;  // the newest surface export job (setExportState), null before one
   int errorFrame_ = -1;
   size_t liquid_ = 0, temporary_ = 0, boundary_ = 0, instances_ = 0, simBytes_ = 0;

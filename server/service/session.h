@@ -242,6 +242,10 @@ class Session {
   // (service/surface_jobs.h), shown as state "export" and sent to the
   // stream's clients with every change.
   virtual void setExportState(nlohmann::json job) = 0;
+  // A render job of this session's scene (service/render_jobs.h): the
+  // newest few are shown as state "jobs" (oldest first) and sent to the
+  // stream's clients with every change.
+  virtual void setJobState(nlohmann::json job) = 0;
   virtual SessionStatus status() const = 0;
   // The simulation's frame number (not the shown one; during a
   // re-simulation the frame it has reached, state "cache.reached" the newest).

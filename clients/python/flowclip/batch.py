@@ -260,6 +260,10 @@ def run_task(task: Task, binary: str) -> dict:
         tail, reported = [], -1.0
         for line in proc.stderr:
             tail = (tail + [line.rstrip()])[-20:]
+            if not task.folder.parent.is_dir():  # the batch's output was removed: cancelled
+                proc.kill()
+                proc.wait()
+                raise RuntimeError(f"task {task.id}: its output folder {task.folder.parent} was removed")
             m = _FRAME.match(line)
             if m:
                 done, total = int(m.group(1)), int(m.group(2))
@@ -378,9 +382,13 @@ def make_cluster(config: dict, threads: int = 1):
 
 
 def run_batch(spec: dict, *, local=None, scheduler=None, cluster_config=None, binary=None, retries=2,
-              log=print) -> list[dict]:
-    """Plans the spec, then runs its tasks on the cluster; the summaries in the spec's order."""
+              log=print, event=None) -> list[dict]:
+    """Plans the spec, then runs its tasks on the cluster; the summaries in the spec's order.
+    `event(dict)` receives the batch's progress as data: plan, task (frames), done."""
+    event = event or (lambda e: None)
     tasks = plan(spec, binary)
+    event({"event": "plan", "out": str(tasks[0].folder.parent),
+           "tasks": [{"id": t.id, "overrides": t.overrides} for t in tasks]})
     exe = _binary(binary)
     out = tasks[0].folder.parent
     remote = storage.is_url(out)
@@ -412,10 +420,11 @@ def run_batch(spec: dict, *, local=None, scheduler=None, cluster_config=None, bi
         with Client(cluster if cluster is not None else scheduler) as client:
             ids = {t.id for t in tasks}
 
-            def progress(event):
-                message = event[1] if isinstance(event, tuple) else event
+            def progress(logged):
+                message = logged[1] if isinstance(logged, tuple) else logged
                 if isinstance(message, dict) and message.get("id") in ids:
                     log(f"task {message['id']}: frame {message['frame']}/{message['frames']}")
+                    event({"event": "task", **message})
 
             client.subscribe_topic(PROGRESS_TOPIC, progress)
             futures = [client.submit(run_task, t, exe, key=f"flowclip-task-{t.id}", pure=False, retries=retries,
@@ -427,6 +436,7 @@ def run_batch(spec: dict, *, local=None, scheduler=None, cluster_config=None, bi
                 results[index[future.key]] = result
                 state = "skipped (complete)" if result["skipped"] else f"{result['wall_s']:.1f} s"
                 log(f"batch: {done}/{len(tasks)} {result['id']} {json.dumps(result['overrides'])} {state}")
+                event({"event": "done", **result})
     finally:
         if cluster is not None:
             cluster.close()
@@ -533,6 +543,9 @@ def main(argv=None) -> int:
                                          "through dask-jobqueue (docs/batch.md)")
     run.add_argument("--binary", help="the flowclip executable (default: $FLOWCLIP_BIN or flowclip on PATH)")
     run.add_argument("--dry-run", action="store_true", help="check the spec and list its tasks; run nothing")
+    run.add_argument("--progress", choices=["text", "json"], default="text",
+                     help="json: one JSON object per line on stdout (plan, task, done, end, error) for a program "
+                          "that follows the batch (the server's jobs); text lines go to stderr")
     exp = sub.add_parser("export", help="surfaces of a particle export, frame ranges across a Dask cluster")
     exp.add_argument("frames", help="a particle export (.h5) of `flowclip run --export` or a session")
     exp.add_argument("--out", required=True)
@@ -559,6 +572,12 @@ def main(argv=None) -> int:
             return 2
         print(f"flowclip-batch: {len(m['frames'])} frames exported into {a.out}")
         return 0
+    as_json = a.progress == "json"
+
+    def emit(e):
+        if as_json:
+            print(json.dumps(e), flush=True)
+
     try:
         spec = load_spec(a.spec)
         if a.dry_run:
@@ -568,12 +587,18 @@ def main(argv=None) -> int:
         config = load_cluster_config(a.cluster) if a.cluster else None
         if config is not None:
             check_cluster(config, spec.get("threads", 1))  # checked before anything is submitted
+        log = (lambda line: print(line, file=sys.stderr, flush=True)) if as_json else print
         results = run_batch(spec, local=a.local or os.cpu_count(), scheduler=a.scheduler, cluster_config=config,
-                            binary=a.binary)
+                            binary=a.binary, log=log, event=emit)
     except SpecError as e:
+        emit({"event": "error", "message": str(e)})
         print(f"flowclip-batch: {e}", file=sys.stderr)
         return 2
+    except Exception as e:  # a task that failed on every attempt
+        emit({"event": "error", "message": str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__})
+        raise
     ran = sum(not r["skipped"] for r in results)
+    emit({"event": "end", "tasks": len(results), "ran": ran})
     print(f"flowclip-batch: {len(results)} tasks, {ran} run, {len(results) - ran} already complete")
     return 0
 

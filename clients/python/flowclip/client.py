@@ -282,3 +282,34 @@ class Client:
                         timeout=600.0, poll=0.05):
         """Polls the surface export job until `until(job)` holds (default: it finished); returns the job."""
         return _wait_job(self.export_job, "export job", job_id, until, timeout, poll)
+
+    def submit_job(self, sid, *, name=None, particle_radius=None, frames=None, seconds=None, formats=None,
+                   frames_export=None, overrides=None, wedge=None, threads=None):
+        """Runs the session's current scene again as a render job on the server's Dask cluster: at
+        `particle_radius`, with `overrides` ({key path: value}) and a `wedge` ({"key": path, "values": [...]},
+        one task per value); returns the job (wait_job follows it)."""
+        body = {"session": sid}
+        body.update({k: v for k, v in (("name", name), ("particle_radius", particle_radius), ("frames", frames),
+                                       ("seconds", seconds), ("formats", formats), ("frames_export", frames_export),
+                                       ("overrides", overrides), ("wedge", wedge), ("threads", threads))
+                     if v is not None})
+        return self.op("submitJob", body)
+
+    def jobs(self):
+        """{"jobs": [...], "available", "where"}: the server's render jobs and where they run."""
+        return self.op("listJobs")
+
+    def job(self, job_id):
+        return self.op("getJob", id=job_id)
+
+    def cancel_job(self, job_id):
+        return self.op("cancelJob", id=job_id)
+
+    def wait_job(self, job_id, until=lambda job: job["state"] in ("done", "failed", "cancelled"), timeout=1200.0,
+                 poll=0.1):
+        """Polls the render job until `until(job)` holds (default: it finished); returns the job."""
+        return _wait_job(self.job, "render job", job_id, until, timeout, poll)
+
+    def job_file(self, job_id, task, file):
+        """A file of a done render job's task (`file` as the job lists it, e.g. "surface/scene.0003.ply")."""
+        return self.op("getJobFile", id=job_id, task=task, file=file)

@@ -1,0 +1,313 @@
+#include "service/render_jobs.h"
+
+#include "service/child_process.h"
+
+#include <signal.h>
+
+#include <algorithm>
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+namespace fc::service {
+
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+
+json renderJobJson(const RenderJobInfo& j) {
+  json out = jobProgressJson(j);
+  json tasks = json::array();
+  int done = 0;
+  for (const RenderTaskInfo& t : j.tasks) {
+    json task = {{"id", t.id}, {"overrides", t.overrides}, {"state", t.state},
+                 {"frame", t.frame}, {"frames", t.frames}, {"wall_s", t.wallSeconds}};
+    if (t.state == "done") ++done;
+    if (j.state == JobState::Done) task["files"] = t.files;
+    tasks.push_back(std::move(task));
+  }
+  out.update({{"id", j.id}, {"name", j.name}, {"session", j.session}, {"request", j.request},
+              {"tasks", tasks}, {"tasks_done", done}});
+  if (j.state == JobState::Done) out["directory"] = j.id + "/";
+  return out;
+}
+
+bool RenderJobs::isJobId(const std::string& id) { return isNumberedJobId(id, 'j'); }
+
+RenderJobs::RenderJobs(RenderJobsOptions options) : options_(std::move(options)) {
+  std::error_code ec;
+  // Numbered after the jobs already in the directory; a dead server's staged jobs are never complete.
+  for (const auto& entry : fs::directory_iterator(options_.jobsDir, ec)) {
+    const std::string name = entry.path().filename().string();
+    if (isJobId(name)) next_ = std::max<uint64_t>(next_, std::stoull(name.substr(1)) + 1);
+    const size_t stage = name.rfind(".stage");
+    if (name.size() > 7 && name[0] == '.' && stage != std::string::npos && stage + 6 == name.size() &&
+        isJobId(name.substr(1, stage - 1))) {
+      next_ = std::max<uint64_t>(next_, std::stoull(name.substr(2, stage - 2)) + 1);
+      fs::remove_all(entry.path(), ec);
+    }
+  }
+  worker_ = std::thread([this] { run(); });
+}
+
+RenderJobs::~RenderJobs() {
+  {
+    std::lock_guard lk(mutex_);
+    stopping_ = true;
+    for (auto& [n, j] : jobs_) {
+      j->info.cancelRequested = true;
+      if (j->process) j->process->signalGroup(SIGKILL);
+    }
+  }
+  wake_.notify_all();
+  worker_.join();
+}
+
+std::string RenderJobs::where() const {
+  if (!options_.scheduler.empty()) return options_.scheduler;
+  return "local (" + std::to_string(options_.localWorkers) + " worker" + (options_.localWorkers == 1 ? "" : "s") + ")";
+}
+
+RenderJobInfo RenderJobs::start(RenderJobRequest request) {
+  std::unique_lock lk(mutex_);
+  auto job = std::make_shared<Job>();
+  job->info.id = "j" + std::to_string(next_);
+  job->info.name = request.name;
+  job->info.session = request.session;
+  job->info.request = request.request;
+  for (const json& v : request.variants) {
+    RenderTaskInfo t;
+    t.overrides = v;
+    job->info.tasks.push_back(std::move(t));
+  }
+  job->request = std::move(request);
+  jobs_[next_++] = job;
+  size_t finished = 0;
+  for (const auto& [n, j] : jobs_) finished += j->info.finished();
+  for (auto it = jobs_.begin(); it != jobs_.end() && finished > kMaxFinishedJobs;) {
+    if (it->second->info.finished()) {
+      it = jobs_.erase(it);
+      --finished;
+    } else {
+      ++it;
+    }
+  }
+  // Reported as queued before the job thread can take it, so that no later state is overwritten.
+  changed(*job, lk);
+  queue_.push_back(job);
+  const RenderJobInfo info = job->info;
+  wake_.notify_all();
+  return info;
+}
+
+std::shared_ptr<RenderJobs::Job> RenderJobs::find(const std::string& id) const {
+  if (!isJobId(id)) throw RecipeJobError(400, "\"" + id.substr(0, 40) + "\" is not a render job id (j1, j2, ...)", "id");
+  auto it = jobs_.find(std::stoull(id.substr(1)));
+  if (it == jobs_.end()) throw RecipeJobError(404, "no render job " + id + " (finished jobs are kept for a while)", "id");
+  return it->second;
+}
+
+RenderJobInfo RenderJobs::job(const std::string& id) const {
+  std::lock_guard lk(mutex_);
+  return find(id)->info;
+}
+
+std::vector<RenderJobInfo> RenderJobs::jobs() const {
+  std::lock_guard lk(mutex_);
+  std::vector<RenderJobInfo> out;
+  for (const auto& [n, j] : jobs_) out.push_back(j->info);
+  return out;
+}
+
+std::string RenderJobs::directory(const std::string& id) const {
+  std::lock_guard lk(mutex_);
+  const auto job = find(id);
+  return job->info.state == JobState::Done ? (fs::path(options_.jobsDir) / id).string() : std::string();
+}
+
+RenderJobInfo RenderJobs::cancel(const std::string& id) {
+  std::unique_lock lk(mutex_);
+  auto job = find(id);
+  if (job->info.state == JobState::Done || job->info.state == JobState::Failed)
+    throw RecipeJobError(409, "render job " + id + " has already " +
+                                  (job->info.state == JobState::Done ? "finished" : "failed"),
+                         "id");
+  job->info.cancelRequested = true;
+  if (job->info.state == JobState::Queued) {
+    job->info.state = JobState::Cancelled;
+    queue_.erase(std::remove(queue_.begin(), queue_.end(), job), queue_.end());
+  } else if (job->process) {
+    job->process->signalGroup(SIGKILL);  // the batch, its LocalCluster and their flowclip runs
+  }
+  changed(*job, lk);
+  return job->info;
+}
+
+void RenderJobs::changed(Job& job, std::unique_lock<std::mutex>& lk) {
+  const RenderJobInfo info = job.info;
+  const auto progress = job.request.progress;
+  lk.unlock();
+  if (progress) {
+    try {
+      progress(info);
+    } catch (...) {
+      // The job goes on whatever a listener does.
+    }
+  }
+  lk.lock();
+}
+
+void RenderJobs::run() {
+  std::unique_lock lk(mutex_);
+  for (;;) {
+    wake_.wait(lk, [&] { return stopping_ || !queue_.empty(); });
+    if (stopping_) return;
+    auto job = queue_.front();
+    queue_.pop_front();
+    job->info.state = JobState::Running;
+    changed(*job, lk);
+    lk.unlock();
+    runJob(*job);
+    lk.lock();
+  }
+}
+
+void RenderJobs::follow(Job& job, const json& e) {
+  RenderJobInfo& info = job.info;
+  const std::string kind = e.value("event", "");
+  const auto task = [&](const json& id) -> RenderTaskInfo* {
+    for (RenderTaskInfo& t : info.tasks)
+      if (id.is_string() && t.id == id.get<std::string>()) return &t;
+    return nullptr;
+  };
+  if (kind == "plan" && e.contains("tasks") && e["tasks"].is_array()) {
+    // The batch's tasks come in the spec's order: the ids of ours.
+    for (size_t i = 0; i < e["tasks"].size() && i < info.tasks.size(); ++i)
+      if (e["tasks"][i].is_object() && e["tasks"][i].contains("id") && e["tasks"][i]["id"].is_string())
+        info.tasks[i].id = e["tasks"][i]["id"].get<std::string>();
+  } else if (kind == "task") {
+    if (RenderTaskInfo* t = task(e.value("id", json())); t && t->state != "done") {
+      t->state = "running";
+      t->frame = e.value("frame", t->frame);
+      t->frames = e.value("frames", t->frames);
+    }
+  } else if (kind == "done") {
+    if (RenderTaskInfo* t = task(e.value("id", json()))) {
+      t->state = "done";
+      t->frame = t->frames;
+      t->wallSeconds = e.value("wall_s", 0.0);
+    }
+  } else if (kind == "error") {
+    info.error = e.value("message", std::string("the batch failed"));
+  }
+  // Frames in all: a task not yet started counts as many as one that has.
+  int known = 0;
+  for (const RenderTaskInfo& t : info.tasks) known = std::max(known, t.frames);
+  info.frames = info.framesDone = 0;
+  for (const RenderTaskInfo& t : info.tasks) {
+    const int frames = t.frames > 0 ? t.frames : known;
+    info.frames += frames;
+    info.framesDone += t.state == "done" ? frames : std::min(t.frame, frames);
+  }
+}
+
+namespace {
+
+std::string tail(const fs::path& file, size_t lines) {
+  std::ifstream in(file);
+  std::deque<std::string> kept;
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind("task ", 0) == 0 || line.rfind("batch: ", 0) == 0) continue;  // progress, not the cause
+    kept.push_back(line);
+    if (kept.size() > lines) kept.pop_front();
+  }
+  std::string out;
+  for (const std::string& l : kept) out += (out.empty() ? "" : "\n") + l;
+  return out;
+}
+
+}  // namespace
+
+void RenderJobs::runJob(Job& job) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto elapsed = [&] { return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(); };
+  const fs::path out = fs::path(options_.jobsDir) / job.info.id;
+  const fs::path staging = fs::path(options_.jobsDir) / ("." + job.info.id + ".stage");
+  std::error_code ec;
+  JobState end = JobState::Done;
+  std::string error;
+  try {
+    fs::create_directories(options_.jobsDir);
+    fs::remove_all(staging, ec);
+    fs::create_directory(staging);
+    json spec = job.request.spec;
+    spec["name"] = job.info.name;
+    spec["scene"] = "scene.json";
+    spec["templates"] = fs::absolute(options_.templatesDir).lexically_normal().string();
+    spec["out"] = ".";
+    spec["list"] = job.request.variants;
+    std::ofstream(staging / "scene.json") << job.request.scene.dump(1) << "\n";
+    std::ofstream(staging / "spec.json") << spec.dump(1) << "\n";
+    std::vector<std::string> argv = {options_.batchCommand, "run", "spec.json", "--progress", "json",
+                                     "--binary", options_.binary};
+    if (!options_.scheduler.empty()) argv.insert(argv.end(), {"--scheduler", options_.scheduler});
+    else argv.insert(argv.end(), {"--local", std::to_string(options_.localWorkers)});
+    ChildProcess child(argv, staging.string(), (staging / "batch.log").string());
+    {
+      std::lock_guard lk(mutex_);
+      job.process = &child;
+      if (job.info.cancelRequested) child.signalGroup(SIGKILL);
+    }
+    std::string line;
+    while (child.readLine(line)) {
+      json e;
+      try {
+        e = json::parse(line);
+      } catch (const json::exception&) {
+        continue;  // a stray print: not ours
+      }
+      if (!e.is_object()) continue;
+      std::unique_lock lk(mutex_);
+      follow(job, e);
+      job.info.elapsedSeconds = elapsed();
+      changed(job, lk);
+    }
+    {
+      std::lock_guard lk(mutex_);
+      job.process = nullptr;  // before it is reaped: its group id is never signalled once free
+    }
+    const int status = child.wait();
+    {
+      std::lock_guard lk(mutex_);
+      if (job.info.cancelRequested) end = JobState::Cancelled;
+      else if (status != 0) {
+        end = JobState::Failed;
+        error = !job.info.error.empty() ? job.info.error : tail(staging / "batch.log", 8);
+        if (error.empty()) error = "flowclip-batch exited with status " + std::to_string(status);
+      }
+    }
+    if (end == JobState::Done) {
+      fs::rename(staging, out);
+      std::lock_guard lk(mutex_);
+      for (RenderTaskInfo& t : job.info.tasks) {
+        t.files.clear();
+        for (const auto& f : fs::recursive_directory_iterator(out / t.id, ec))
+          if (f.is_regular_file()) t.files.push_back(fs::relative(f.path(), out / t.id).string());
+        std::sort(t.files.begin(), t.files.end());
+      }
+    }
+  } catch (const std::exception& ex) {
+    end = JobState::Failed;
+    error = ex.what();
+  }
+  if (end != JobState::Done) fs::remove_all(staging, ec);
+  std::unique_lock lk(mutex_);
+  job.process = nullptr;
+  job.info.state = end;
+  job.info.error = end == JobState::Failed ? error : std::string();
+  job.info.elapsedSeconds = elapsed();
+  changed(job, lk);
+}
+
+}  // namespace fc::service
