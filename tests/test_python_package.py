@@ -29,7 +29,8 @@ from repo_paths import ROOT
 
 PACKAGE = ROOT / "clients" / "python"
 PROTO = ROOT / "proto"
-MODULES = {"__init__.py", "batch.py", "client.py", "codec.py", "operations.py", "server.py", "storage.py", "stream.py"}
+MODULES = {"__init__.py", "batch.py", "client.py", "codec.py", "commands.py", "operations.py", "server.py", "storage.py",
+           "stream.py"}
 BUILD_TIMEOUT = 300
 
 

@@ -14,7 +14,9 @@
 //   - the template scenes' control fidelity (IoU), averaged over the frames
 //     where an instance plays.
 // Writes accuracy.csv, accuracy.md, surge_fronts.csv, presets.json and the
-// plots (tools/plot_accuracy.py).
+// plots (tools/plot_accuracy.py). With --local N or --scheduler ADDR the
+// children run as tasks of a Dask cluster (`flowclip-batch commands`, the
+// Python package's) instead of one after the other; the figures are read the same way.
 // One file: the sweep's points, their runs and the report are one benchmark.
 #include "bench/accuracy_metrics.h"
 #include "bench/commands.h"
@@ -36,8 +38,10 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <optional>
 #include <sstream>
@@ -338,6 +342,30 @@ json pointScene(const Context& ctx, const Point& p) {
   return scene;
 }
 
+// One run of a point's child: what its figures are made of.
+struct Run {
+  int code = -1;        // exit status (-1: it did not exit normally)
+  json stats;           // its --stats file (null where it wrote none)
+  double cpuS = 0;      // its CPU seconds, all threads, setup and export included
+  double load = 0;      // the load average around it
+  std::string message;  // the last line it printed on stderr, where it was captured
+};
+
+// The child command of a point: `flowclip run` of the scene into the stats and
+// export paths (threads: OpenMP threads, 0 for all).
+std::vector<std::string> pointArgs(const Context& ctx, const Point& p, const std::string& scene,
+                                   const std::string& stats, const std::string& exportPath,
+                                   const std::string& templates, int threads) {
+  std::vector<std::string> args{p.real == "double" ? ctx.doubleBinary : ctx.floatBinary,
+                                "run",         scene,     "--seconds", std::to_string(p.seconds),
+                                "--stats",     stats,     "--export",  exportPath,
+                                "--templates", templates, "--quiet"};
+  if (threads > 0) args.insert(args.end(), {"--threads", std::to_string(threads)});
+  return args;
+}
+
+void measurePoint(const Context& ctx, Result& r, const std::function<Run(int)>& runK, const fs::path& exportPath);
+
 void runPoint(const Context& ctx, Result& r) {
   const Point& p = r.point;
   r.scene = pointScene(ctx, p);
@@ -346,31 +374,45 @@ void runPoint(const Context& ctx, Result& r) {
   std::ofstream(scenePath) << r.scene.dump(1) << '\n';
   fs::remove(statsPath);
   fs::remove(exportPath);
-  std::vector<std::string> args{p.real == "double" ? ctx.doubleBinary : ctx.floatBinary,
-                                "run",         scenePath.string(),  "--seconds", std::to_string(p.seconds),
-                                "--stats",     statsPath.string(),  "--export",  exportPath.string(),
-                                "--templates", ctx.templates,       "--quiet"};
-  if (ctx.threads > 0) args.insert(args.end(), {"--threads", std::to_string(ctx.threads)});
+  const std::vector<std::string> args =
+      pointArgs(ctx, p, scenePath.string(), statsPath.string(), exportPath.string(), ctx.templates, ctx.threads);
+  measurePoint(ctx, r, [&](int) {
+    Run run;
+    const double load0 = loadAverage(), cpu0 = childCpuSeconds();
+    run.code = runChild(args);
+    run.cpuS = childCpuSeconds() - cpu0;
+    run.load = 0.5 * (load0 + loadAverage());
+    if (run.code == Interrupted) return run;
+    if (std::ifstream in(statsPath); in) run.stats = json::parse(in, nullptr, false);
+    return run;
+  }, exportPath);
+}
+
+// A point's figures from its runs (`runK(k)`: the k-th of ctx.repeat, made
+// here or read from a cluster's task) and the particle export they wrote.
+void measurePoint(const Context& ctx, Result& r, const std::function<Run(int)>& runK, const fs::path& exportPath) {
+  const Point& p = r.point;
   // Repeats give the cost of the fastest run (the one least disturbed by
   // whatever else the machine runs); the simulation itself must not change.
   json stats;
   double cpuS = 0, fastestMs = 0, load = 0;
   std::string signature;
   for (int k = 0; k < ctx.repeat; ++k) {
-    const double load0 = loadAverage(), cpu0 = childCpuSeconds();
-    const int code = runChild(args);
-    const double cpu = childCpuSeconds() - cpu0;
-    load += 0.5 * (load0 + loadAverage()) / ctx.repeat;
+    Run one = runK(k);
+    const int code = one.code;
+    const double cpu = one.cpuS;
+    load += one.load / ctx.repeat;
     if (code == Interrupted) {
       r.status = "interrupted";
       return;
     }
-    json run;
-    if (std::ifstream in(statsPath); in) run = json::parse(in, nullptr, false);
+    json run = std::move(one.stats);
     if (code != 0 || !run.is_object() || !run.contains("summary")) {
       r.error = "flowclip run exited with " + std::to_string(code);
       if (run.is_object() && run.contains("summary") && run["summary"].contains("error"))
         r.error += ": " + run["summary"]["error"].get<std::string>();
+      else if (!one.message.empty())
+        r.error += ": " + one.message;
       return;
     }
     double ms = 0;
@@ -662,6 +704,10 @@ struct Options {
   int threads = 0;
   int repeat = 1;
   bool plots = true;
+  int local = 0;             // > 0: the points as tasks of a Dask LocalCluster of that many workers
+  std::string scheduler;     // or of the running scheduler at this address
+  std::string batchCommand;  // flowclip-batch (default: $FLOWCLIP_BATCH, build/venv/bin, PATH)
+  bool cluster() const { return local > 0 || !scheduler.empty(); }
 };
 
 void writeMarkdown(const fs::path& path, const Options& opt, const std::vector<Result>& results,
@@ -673,7 +719,13 @@ void writeMarkdown(const fs::path& path, const Options& opt, const std::vector<R
      << (opt.threads > 0 ? std::to_string(opt.threads) : std::string("all")) << " OpenMP thread"
      << (opt.threads == 1 ? "" : "s") << " per run"
      << (opt.repeat > 1 ? ", cost of the fastest of " + std::to_string(opt.repeat) + " runs" : std::string())
-     << "); "
+     << ")"
+     << (opt.local > 0 ? ", run as tasks of a Dask LocalCluster of " + std::to_string(opt.local) +
+                             " worker processes (`flowclip-batch commands`)"
+         : !opt.scheduler.empty() ? ", run as tasks of the Dask cluster at " + opt.scheduler +
+                                        " (`flowclip-batch commands`)"
+                                  : std::string())
+     << "; "
      << "load average " << fmt(meanLoad, "%.2f") << " over the points (figures made under load are inflated). Real = "
      << (opt.doubleBinary.empty() ? "float only (no `--double-binary` given: a double build was not measured)"
                                   : "float and double (`--double-binary " + opt.doubleBinary + "`)")
@@ -737,14 +789,154 @@ void writeMarkdown(const fs::path& path, const Options& opt, const std::vector<R
   }
 }
 
+// ---------------------------------------------------------------------------
+// The points as tasks of a Dask cluster (--local N, --scheduler ADDR).
+
+bool isExecutable(const fs::path& f) { return fs::is_regular_file(f) && access(f.c_str(), X_OK) == 0; }
+
+// flowclip-batch: --batch-command, else $FLOWCLIP_BATCH, else the one beside
+// the python of build/venv (make setup installs it there), else on PATH.
+std::string findBatchCommand(const Options& opt, const std::string& self) {
+  const auto given = [](const std::string& path, const std::string& from) {
+    if (!isExecutable(path)) throw SceneError(from, "'" + path + "' is not an executable file");
+    return fs::absolute(path).string();
+  };
+  if (!opt.batchCommand.empty()) return given(opt.batchCommand, "--batch-command");
+  if (const char* env = std::getenv("FLOWCLIP_BATCH"); env && *env) return given(env, "FLOWCLIP_BATCH");
+  const fs::path venv = fs::path(self).parent_path() / "venv" / "bin" / "flowclip-batch";
+  if (isExecutable(venv)) return venv.string();
+  if (const char* path = std::getenv("PATH")) {
+    std::stringstream dirs(path);
+    for (std::string dir; std::getline(dirs, dir, ':');)
+      if (!dir.empty() && isExecutable(fs::path(dir) / "flowclip-batch"))
+        return fs::absolute(fs::path(dir) / "flowclip-batch").string();
+  }
+  throw SceneError(opt.local > 0 ? "--local" : "--scheduler",
+                   "runs the points through flowclip-batch, which was not found: install FlowClip's Python package "
+                   "with Dask (pip install \"clients/python[batch]\"; make setup puts it in build/venv), or name it "
+                   "with --batch-command PATH or FLOWCLIP_BATCH");
+}
+
+// Every point's runs (ctx.repeat each) as the commands of one `flowclip-batch
+// commands` list, run on the cluster; then each point's figures are read from
+// its tasks' folders as runPoint reads its own child's. Returns false when
+// interrupted (the points without every run stay "interrupted").
+bool runOnCluster(const Context& ctx, const Options& opt, const std::string& batch, std::vector<Result>& results) {
+  const fs::path tasks = ctx.work / "tasks", scenes = ctx.work / "scenes";
+  fs::create_directories(tasks);
+  fs::create_directories(scenes);
+  const std::string templates = fs::absolute(ctx.templates).string();
+  const auto taskId = [](size_t i, int k) { return "p" + std::to_string(i) + "-r" + std::to_string(k); };
+  json commands = json::array();
+  for (size_t i = 0; i < results.size(); ++i) {
+    Result& r = results[i];
+    try {
+      r.scene = pointScene(ctx, r.point);
+    } catch (const std::exception& ex) {
+      r.error = ex.what();
+      continue;
+    }
+    const fs::path scene = scenes / ("p" + std::to_string(i) + ".json");
+    std::ofstream(scene) << r.scene.dump(1) << '\n';
+    for (int k = 0; k < ctx.repeat; ++k)
+      commands.push_back({{"id", taskId(i, k)},
+                          {"argv", pointArgs(ctx, r.point, scene.string(), "stats.json", "frames.h5", templates,
+                                             ctx.threads)},
+                          {"cwd", (tasks / taskId(i, k)).string()},
+                          {"outputs", {"stats.json", "frames.h5"}},
+                          {"threads", ctx.threads}});
+  }
+  const fs::path list = ctx.work / "commands.json", resultsFile = ctx.work / "results.json";
+  writeJsonAtomically(list.string(), json({{"commands", commands}}));
+  std::vector<std::string> args{batch, "commands", list.string(), "--results", resultsFile.string()};
+  if (opt.local > 0) args.insert(args.end(), {"--local", std::to_string(opt.local)});
+  else args.insert(args.end(), {"--scheduler", opt.scheduler});
+  std::fprintf(stderr, "bench accuracy: %zu points, %zu runs as tasks of %s (%s)\n", results.size(),
+               commands.size(),
+               opt.local > 0 ? ("a LocalCluster of " + std::to_string(opt.local) + " workers").c_str()
+                             : opt.scheduler.c_str(),
+               batch.c_str());
+  const int code = runChild(args);
+  // 0: every command succeeded; 1: some failed (their results say why); 130: interrupted.
+  if (code != 0 && code != 1 && code != Interrupted) {
+    const std::string what = "flowclip-batch commands (" + batch + ") " +
+                             (code == 127 || code < 0 ? "could not run" : "exited with " + std::to_string(code)) +
+                             " before running the points; its message is above";
+    if (code == BadInput) throw SceneError(opt.local > 0 ? "--local" : "--scheduler", what);
+    throw std::runtime_error(what);
+  }
+  std::map<std::string, json> done;
+  if (std::ifstream in(resultsFile); in) {
+    const json all = json::parse(in, nullptr, false);
+    if (all.is_object() && all.contains("commands"))
+      for (const json& c : all["commands"])
+        if (c.is_object()) done[c["id"].get<std::string>()] = c;
+  }
+  if (done.empty() && code != Interrupted && !commands.empty())
+    throw std::runtime_error("flowclip-batch commands wrote no results into " + resultsFile.string());
+
+  bool complete = true;
+  for (size_t i = 0; i < results.size(); ++i) {
+    Result& r = results[i];
+    double wall = 0;
+    if (!r.scene.is_null()) {
+      try {
+        measurePoint(ctx, r, [&](int k) {
+          Run run;
+          const auto it = done.find(taskId(i, k));
+          if (it == done.end()) {  // not finished: the batch was interrupted
+            run.code = Interrupted;
+            return run;
+          }
+          const json& c = it->second;
+          const int status = c["status"].is_number_integer() ? c["status"].get<int>() : -1;
+          run.code = status < 0 ? -1 : status;  // killed by a signal: as runChild says it
+          run.cpuS = c.value("cpu_s", 0.0);
+          run.load = c.value("load", 0.0);
+          wall += c.value("wall_s", 0.0);
+          const std::string tail = c.value("stderr_tail", std::string());
+          const size_t nl = tail.find_last_of('\n');
+          run.message = nl == std::string::npos ? tail : tail.substr(nl + 1);
+          if (c.value("ok", false)) {
+            if (std::ifstream in(tasks / taskId(i, k) / "stats.json"); in) run.stats = json::parse(in, nullptr, false);
+          } else if (run.code == 0) {
+            run.message = "its outputs are missing";
+          }
+          return run;
+        }, tasks / taskId(i, 0) / "frames.h5");
+      } catch (const std::exception& ex) {
+        r.status = "failed";
+        r.error = ex.what();
+      }
+    }
+    if (r.status == "interrupted") {
+      complete = false;
+      continue;
+    }
+    if (r.ok())
+      std::fprintf(stderr,
+                   "[%zu/%zu] %s: %.1f s wall, %.2f wall s/sim s, %.3f us/p-step, density err %.4f%% (max %.3f%%), "
+                   "volume %+.4f%%%s%s%s, load %.1f\n",
+                   i + 1, results.size(), describe(r).c_str(), wall, r.wallPerSimS, r.usPerParticleStep, r.avgErr,
+                   r.maxErr, r.volumeDrift, r.surgeRms ? (", surge RMS " + fmt(*r.surgeRms, "%.3f")).c_str() : "",
+                   r.fidelity ? (", fidelity " + fmt(*r.fidelity, "%.3f")).c_str() : "",
+                   r.unconverged ? (", " + std::to_string(r.unconverged) + " frames unconverged").c_str() : "", r.load);
+    else
+      std::fprintf(stderr, "[%zu/%zu] %s: FAILED: %s\n", i + 1, results.size(), describe(r).c_str(), r.error.c_str());
+  }
+  return complete && code != Interrupted;
+}
+
 int benchAccuracy(const Options& opt) {
   registerBuiltinSolversAndEffects();  // the knobs' declared defaults
-  const Report report("accuracy", opt.threads > 0 ? opt.threads : omp_get_max_threads());
+  // On a cluster the points run side by side: one OpenMP thread each unless --threads says otherwise.
+  const int threads = opt.threads > 0 ? opt.threads : opt.cluster() ? 1 : 0;
+  const Report report("accuracy", threads > 0 ? threads : omp_get_max_threads());
   Context ctx;
   ctx.source = sourceDir();
   ctx.floatBinary = selfExecutable();
   ctx.templates = opt.templates;
-  ctx.threads = opt.threads;
+  ctx.threads = threads;
   ctx.repeat = opt.repeat;
   ctx.martinMoyce = readSurgeCurve((ctx.source / "bench" / "data" / "martin_moyce_1952.csv").string());
   if (!opt.doubleBinary.empty()) {
@@ -770,9 +962,13 @@ int benchAccuracy(const Options& opt) {
   if (!fs::is_regular_file(fs::path(opt.templates) / "drop2d.h5"))
     throw SceneError("--templates", "'" + opt.templates +
                                         "' has no drop2d.h5, which the control sweep plays (make templates records it)");
+  const std::string batch = opt.cluster() ? findBatchCommand(opt, ctx.floatBinary) : std::string();
   const fs::path out = opt.out;
   fs::create_directories(out);
-  ctx.work = fs::temp_directory_path() / ("flowclip-bench-accuracy-" + std::to_string(getpid()));
+  // A cluster's workers write the runs' outputs: under --out, which they see where
+  // the machine's temporary folder may be their own.
+  ctx.work = opt.cluster() ? fs::absolute(out) / (".accuracy-work-" + std::to_string(getpid()))
+                           : fs::temp_directory_path() / ("flowclip-bench-accuracy-" + std::to_string(getpid()));
   fs::create_directories(ctx.work);
 
   const Sweep sweep = sweepFor(opt.quick);
@@ -801,7 +997,21 @@ int benchAccuracy(const Options& opt) {
   std::optional<InterruptGuard> interrupt(std::in_place);
   const auto t0 = std::chrono::steady_clock::now();
   size_t done = 0;
-  for (size_t i = 0; i < results.size() && !InterruptGuard::requested(); ++i) {
+  bool clusterInterrupted = false;
+  if (opt.cluster()) {
+    try {
+      clusterInterrupted = !runOnCluster(ctx, opt, batch, results);
+    } catch (...) {
+      fs::remove_all(ctx.work);
+      throw;
+    }
+    // The points every run of which finished, in the sweep's order.
+    std::erase_if(results, [](const Result& r) { return r.status == "interrupted"; });
+    done = results.size();
+    for (const Result& r : results)
+      if (!r.ok()) status = Failure;
+  }
+  for (size_t i = 0; !opt.cluster() && i < results.size() && !InterruptGuard::requested(); ++i) {
     Result& r = results[i];
     const auto tp = std::chrono::steady_clock::now();
     try {
@@ -825,7 +1035,7 @@ int benchAccuracy(const Options& opt) {
       std::fprintf(stderr, "[%zu/%zu] %s: FAILED: %s\n", i + 1, results.size(), describe(r).c_str(), r.error.c_str());
     if (!r.ok()) status = Failure;
   }
-  const bool interrupted = InterruptGuard::requested() || done < results.size();
+  const bool interrupted = InterruptGuard::requested() || done < results.size() || clusterInterrupted;
   interrupt.reset();
   results.resize(done);
   fs::remove_all(ctx.work);
@@ -858,9 +1068,13 @@ int benchAccuracy(const Options& opt) {
   if (!opt.doubleBinary.empty()) command += " --double-binary " + opt.doubleBinary;
   if (opt.threads > 0) command += " --threads " + std::to_string(opt.threads);
   if (opt.repeat > 1) command += " --repeat " + std::to_string(opt.repeat);
+  if (opt.local > 0) command += " --local " + std::to_string(opt.local);
+  if (!opt.scheduler.empty()) command += " --scheduler " + opt.scheduler;
   const std::string source = command + " (" + (opt.quick ? "quick run" : "full sweep") + ", " + utcTimestamp() +
                              ", load avg " + fmt(meanLoad, "%.1f") + ")";
-  writeMarkdown(out / "accuracy.md", opt, results, report, meanLoad, pick);
+  Options shown = opt;
+  shown.threads = threads;
+  writeMarkdown(out / "accuracy.md", shown, results, report, meanLoad, pick);
   {
     json presets = json::array();
     const std::map<std::string, std::string> descriptions = {
@@ -909,6 +1123,15 @@ void addBenchAccuracyCommand(CLI::App& bench) {
   acc->add_option("--repeat", opt->repeat, "runs per point; the cost is the fastest run's (default: 1)")
       ->check(CLI::PositiveNumber);
   acc->add_flag("!--no-plots", opt->plots, "skip the plots (tools/plot_accuracy.py)");
+  auto* local = acc->add_option("--local", opt->local,
+                                "run the points as tasks of a Dask LocalCluster of N worker processes "
+                                "(flowclip-batch; one OpenMP thread per point unless --threads)")
+                    ->check(CLI::PositiveNumber);
+  acc->add_option("--scheduler", opt->scheduler,
+                  "run the points as tasks of a running Dask scheduler, tcp://HOST:8786 (workers see the same paths)")
+      ->excludes(local);
+  acc->add_option("--batch-command", opt->batchCommand,
+                  "flowclip-batch for --local/--scheduler (default: $FLOWCLIP_BATCH, build/venv/bin, PATH)");
   acc->callback([opt] {
     int code = Ok;
     try {

@@ -558,10 +558,15 @@ def main(argv=None) -> int:
     where.add_argument("--local", type=int, default=None, help="a LocalCluster of N worker processes (default)")
     where.add_argument("--scheduler", help="a running scheduler's address, tcp://HOST:8786")
     exp.add_argument("--binary", help="the flowclip executable (default: $FLOWCLIP_BIN or flowclip on PATH)")
+    from . import commands  # the generic runner of independent commands (commands.py)
+
+    commands.add_parser(sub)
     a = ap.parse_args(argv)
     import logging
 
     logging.getLogger("distributed").setLevel(logging.WARNING)  # the progress lines are ours
+    if a.command == "commands":
+        return commands.main(a)
     if a.command == "export":
         try:
             m = export_frames(a.frames, a.out, [f for f in a.formats.split(",") if f], name=a.name,
