@@ -9,7 +9,7 @@ PORT ?= 8080
 ABS_BUILD_DIR = $(abspath $(BUILD_DIR))
 
 .PHONY: all setup build web templates run run-headless docs gallery portable bench-portable test test-parts test-ctest test-pytest test-web test-web-only bench bench-accuracy bench-web clean \
-  fuzz fuzz-build fuzz-regress test-fuzz asan-build test-asan bench-soak bench-cache bench-suite bench-spheric2
+  fuzz fuzz-build fuzz-regress test-fuzz asan-build test-asan bench-soak bench-cache bench-suite bench-spheric2 bench-batch
 
 # 2D templates are recorded when missing (seconds); larger ones on demand:
 # build/flowclip record templates/recipes/letters3d.json
@@ -166,6 +166,13 @@ bench-suite: build templates web
 
 bench-cache: build templates
 	$(BUILD_DIR)/venv/bin/python tools/bench_cache.py --out bench/cache $(BENCH_CACHE_ARGS)
+
+# Batch runs on a Dask cluster (docs/batch.md): the quick accuracy sweep one
+# point after the other against --local 2, and a 3D export's frames meshed by
+# `flowclip export --threads 1|2` against `flowclip-batch export --local 2`;
+# report in bench/batch/ (a few minutes on 2 cores).
+bench-batch: build templates
+	$(BUILD_DIR)/venv/bin/python tools/bench_batch.py --out bench/batch $(BENCH_BATCH_ARGS)
 
 # SPHERIC Test 2 (docs/benchmarks/accuracy.md): the 3D dam break against a
 # box at the scene's resolution, the water height at the experiment's four

@@ -175,6 +175,8 @@ def run_commands(commands: list[dict], *, local=None, scheduler=None, retries=2,
         try:
             client = Client(cluster if cluster is not None else scheduler, timeout=connect_timeout)
         except (OSError, ValueError) as e:
+            if scheduler is None:
+                raise
             raise CommandsError(f"--scheduler {scheduler}: cannot reach the scheduler: {e}") from None
         with client:
             futures = [client.submit(run_command, c, key=f"flowclip-command-{c['id']}-{secrets.token_hex(4)}",
@@ -242,10 +244,10 @@ def main(a) -> int:
         return fail(str(e), 2)
     except KeyboardInterrupt as e:
         partial = getattr(e, "results", None)
-        if partial is not None:
-            write_results(results_path, partial)
-        return fail(f"interrupted: {sum(r is not None for r in partial or [])} commands finished, in {results_path}",
-                    130)
+        if partial is None:
+            return fail("interrupted before any command finished", 130)
+        write_results(results_path, partial)
+        return fail(f"interrupted: {sum(r is not None for r in partial)} commands finished, in {results_path}", 130)
     write_results(results_path, results)
     failed = [r["id"] for r in results if not r["ok"]]
     emit({"event": "end", "commands": len(results), "failed": failed})
