@@ -21,6 +21,8 @@ import { SetInstanceValuesCommand } from './commands/SetInstanceValuesCommand';
 import { AddInstanceCommand } from './commands/AddInstanceCommand';
 import * as track from './core/TransformTrack';
 import { ExportDialog } from './ui/ExportDialog';
+import { RenderDialog } from './ui/RenderDialog';
+import { JobsPanel } from './ui/JobsPanel';
 
 const DEFAULT_SCENE = 'drop2d';
 
@@ -31,7 +33,7 @@ const viewportDom = el('main', { className: 'viewport', testid: 'viewport' });
 const messages = new Messages(editor);
 const statusBar = new StatusBar(editor);
 // Layout (styles.css #app grid): toolbar on top; the template library, the
-// layer toggles and the simulation stats on the left; the viewport; the outliner and inspector on the right; the timeline
+// layer toggles, the simulation stats and the render jobs on the left; the viewport; the outliner and inspector on the right; the timeline
 // under the viewport; the status bar at the bottom.
 const leftPanel = el('aside', { className: 'sidebar left', testid: 'left-panel' });
 const rightPanel = el('aside', { className: 'sidebar right', testid: 'right-panel' });
@@ -40,8 +42,8 @@ toolbar.dom.classList.add('area-toolbar');
 statusBar.dom.classList.add('area-status');
 app.append(toolbar.dom, leftPanel, viewportDom, rightPanel, timelineDom, statusBar.dom);
 viewportDom.append(messages.dom);
-app.append(new ExportDialog(editor).dom);
-leftPanel.append(new TemplateLibrary(editor).dom, new LayerPanel(editor).dom, new StatsOverlay(editor).dom);
+app.append(new ExportDialog(editor).dom, new RenderDialog(editor).dom);
+leftPanel.append(new TemplateLibrary(editor).dom, new LayerPanel(editor).dom, new StatsOverlay(editor).dom, new JobsPanel(editor).dom);
 rightPanel.append(new Outliner(editor).dom, new Inspector(editor).dom);
 timelineDom.append(new Timeline(editor).dom);
 const viewport = new Viewport(viewportDom, editor);
@@ -72,6 +74,7 @@ async function start() {
   void editor.loadTemplates();
   void editor.recipes.load();
   void editor.loadPresets();
+  void editor.loadRenderAvailability();
   const scenes = await editor.loadScenes();
   const session = params.get('session');
   if (session) {

@@ -3,6 +3,7 @@
 // expect exactly those: not the 3D ones `make gallery` adds), with web/dist as the editor, and
 // hands its URL to the tests in FLOWCLIP_URL. Returns the teardown.
 //   FLOWCLIP_BIN        the executable (default $FLOWCLIP_BUILD_DIR/flowclip, ../build/flowclip)
+//   FLOWCLIP_BATCH      flowclip-batch, which runs render jobs (default: the build's venv, $FLOWCLIP_BUILD_DIR/venv/bin)
 //   FLOWCLIP_URL        a server already running: used as is, nothing started
 import { spawn, type ChildProcess } from 'node:child_process';
 import { cpSync, mkdtempSync, rmSync, existsSync, createWriteStream, readFileSync } from 'node:fs';
@@ -21,6 +22,10 @@ export default async function globalSetup(): Promise<(() => Promise<void>) | voi
   if (!existsSync(bin)) throw new Error(`${bin} is missing: make build`);
   if (!existsSync(join(dist, 'index.html'))) throw new Error(`${dist} is missing: make web (npm run build)`);
 
+  // Render jobs on (render.spec.ts), on two local workers: a wedge's two tasks run side by side.
+  const batch = process.env.FLOWCLIP_BATCH ?? join(buildDir, 'venv', 'bin', 'flowclip-batch');
+  if (!existsSync(batch)) throw new Error(`${batch} is missing: make setup (the Python venv) or set FLOWCLIP_BATCH`);
+
   const tmp = mkdtempSync(join(tmpdir(), 'flowclip-e2e-'));
   for (const name of ['drop2d', 'column2d', 'jet2d']) {
     const file = join(repoDir, 'templates', `${name}.h5`);
@@ -34,7 +39,8 @@ export default async function globalSetup(): Promise<(() => Promise<void>) | voi
     bin,
     ['serve', '--port', '0', '--web', dist, '--templates', join(tmp, 'templates'),
       '--scenes', join(tmp, 'scenes'), '--exports', join(tmp, 'exports'),
-      '--presets', join(repoDir, 'bench', 'accuracy', 'presets.json')],
+      '--presets', join(repoDir, 'bench', 'accuracy', 'presets.json'),
+      '--batch-command', batch, '--job-workers', '2'],
     { stdio: ['ignore', 'pipe', 'pipe'] },
   );
   server.stderr!.pipe(log);

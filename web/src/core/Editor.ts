@@ -9,7 +9,8 @@ import { FrameDecoder, type FrameInfo } from '../net/FrameDecoder';
 import { Stream, type ConnectionStatus, type StreamState } from '../net/Stream';
 import { Layer } from '@wire';
 import type {
-  EditJson, EditPendingJson, InstanceEditResponse, InstanceJson, ParametersJson, PresetsJson, RecipeInfo, RecipeJob, SceneJson, SceneSummary, SessionState, SurfaceJob,
+  EditJson, EditPendingJson, InstanceEditResponse, InstanceJson, ParametersJson, PresetsJson, RecipeInfo, RecipeJob, RenderJob, RenderJobRequest, SceneJson,
+  SceneSummary, SessionState, SurfaceJob,
   SessionStatusName, SettingsPatch, TemplateInfo, TransportArgs, TransportName,
 } from '../net/types';
 import { AddInstanceCommand } from '../commands/AddInstanceCommand';
@@ -74,6 +75,20 @@ export interface LayerToggles {
   speed: boolean;
 }
 
+/** Whether the server runs render jobs (GET /api/jobs), and where. */
+export interface RenderAvailability {
+  /** The server has answered (until then nothing is offered). */
+  known: boolean;
+  available: boolean;
+  /** "local (2 workers)" or the Dask scheduler's address. */
+  where: string;
+  /** Why jobs cannot be submitted (empty when they can). */
+  reason: string;
+}
+
+/** A render job submitted, or why the server refused it (`path`: the request's key it names). */
+export type RenderSubmitResult = { job: RenderJob } | { error: string; path: string | null };
+
 export type MessageLevel = 'error' | 'warning' | 'info';
 
 export interface UserMessage {
@@ -95,6 +110,10 @@ export class Editor {
     recipeJobChanged: new Signal<RecipeJob>(),
     /** The session's newest surface export job changed (state "export", on the stream). */
     exportJobChanged: new Signal<SurfaceJob | null>(),
+    /** The session's render jobs changed (state "jobs", on the stream), oldest first. */
+    renderJobsChanged: new Signal<readonly RenderJob[]>(),
+    /** GET /api/jobs answered: whether the server runs render jobs, and where. */
+    renderAvailabilityChanged: new Signal<RenderAvailability>(),
     /** The parameter declarations for the session's dimension arrived (GET /api/parameters). */
     parametersChanged: new Signal<ParametersJson | null>(),
     /** The accuracy presets arrived (GET /api/presets). */
@@ -133,6 +152,8 @@ export class Editor {
     saveRequested: new Signal<void>(),
     /** The Export dialog was asked for (toolbar). */
     exportRequested: new Signal<void>(),
+    /** The Render final dialog was asked for (toolbar). */
+    renderRequested: new Signal<void>(),
     /** F: the viewport frames the selection. */
     frameSelectionRequested: new Signal<void>(),
   };
@@ -304,6 +325,8 @@ export class Editor {
     this.history.clear();
     this.view = emptyView();
     this.resetPlayback();
+    this.renderJobsInState = new Set();
+    this.setRenderJobs([]);
     this.signals.sessionChanged.dispatch(null);
     if (s.owned) {
       try {
@@ -1012,6 +1035,7 @@ export class Editor {
       this.exportJob = job;
       this.signals.exportJobChanged.dispatch(job);
     }
+    this.mergeRenderJobs(s.jobs ?? []);
     this.afterState(before);
   }
 
@@ -1045,6 +1069,107 @@ export class Editor {
       await this.api.cancelExportJob(job.id);
     } catch (e) {
       this.reportError(e, `cancel export ${job.name}`);
+    }
+  }
+
+  /** The session's render jobs, oldest first, as its states reported them (mergeRenderJobs). */
+  renderJobs: readonly RenderJob[] = [];
+  private renderJobsKey = '[]';
+  renderAvailability: RenderAvailability = { known: false, available: false, where: '', reason: 'asking the server whether it runs render jobs' };
+
+  /** The ids the last state listed. */
+  private renderJobsInState = new Set<string>();
+
+  /**
+   * The state's jobs merged into the ones seen in this session, by id: the
+   * state lists only the newest, and a job that leaves it keeps its last
+   * known state (an unfinished one is read once more). An older report (a
+   * REST answer behind the stream) never moves a job back.
+   */
+  private mergeRenderJobs(fromState: readonly RenderJob[]) {
+    const known = new Map(this.renderJobs.map((j) => [j.id, j]));
+    for (const job of fromState) {
+      const had = known.get(job.id);
+      if (!had || !isBehind(job, had)) known.set(job.id, job);
+    }
+    const listed = new Set(fromState.map((j) => j.id));
+    for (const id of this.renderJobsInState) {
+      const job = known.get(id);
+      if (!listed.has(id) && job && (job.state === 'queued' || job.state === 'running')) void this.refreshRenderJob(id);
+    }
+    this.renderJobsInState = listed;
+    this.setRenderJobs([...known.values()].sort((a, b) => jobNumber(a) - jobNumber(b)));
+  }
+
+  private async refreshRenderJob(id: string) {
+    const s = this.session;
+    try {
+      const job = await this.api.job(id);
+      if (this.session !== s) return;
+      const had = this.renderJobs.find((j) => j.id === id);
+      if (had && !isBehind(job, had)) this.setRenderJobs(this.renderJobs.map((j) => (j.id === id ? job : j)));
+    } catch {
+      // Gone from the server (only the newest finished jobs are kept): its last known state stays.
+    }
+  }
+
+  private setRenderJobs(jobs: readonly RenderJob[]) {
+    const key = JSON.stringify(jobs);
+    if (key === this.renderJobsKey) return;
+    this.renderJobsKey = key;
+    this.renderJobs = jobs;
+    this.signals.renderJobsChanged.dispatch(jobs);
+  }
+
+  /** Asks the server once whether it runs render jobs (flowclip-batch) and where. */
+  async loadRenderAvailability(): Promise<RenderAvailability> {
+    try {
+      const r = await this.api.listJobs();
+      this.renderAvailability = {
+        known: true, available: r.available, where: r.where,
+        reason: r.available ? '' : 'this server runs no render jobs: it found no flowclip-batch (flowclip serve --batch-command)',
+      };
+    } catch (e) {
+      this.renderAvailability = {
+        known: true, available: false, where: '',
+        reason: `render jobs are unavailable: ${e instanceof ApiError ? e.describe() : String(e)}`,
+      };
+    }
+    this.signals.renderAvailabilityChanged.dispatch(this.renderAvailability);
+    return this.renderAvailability;
+  }
+
+  /** Runs the session's current scene again as a render job; its progress arrives as renderJobsChanged. */
+  async submitRender(request: Omit<RenderJobRequest, 'session'>): Promise<RenderSubmitResult> {
+    const s = this.session;
+    if (!s) return { error: 'open a scene first', path: null };
+    try {
+      const job = await this.api.submitJob({ ...request, session: s.id });
+      // Shown at once; the stream's state brings the same job on.
+      if (this.session === s && !this.renderJobs.some((j) => j.id === job.id)) this.setRenderJobs([...this.renderJobs, job]);
+      return { job };
+    } catch (e) {
+      if (e instanceof ApiError) return { error: e.describe(), path: e.path ?? null };
+      return { error: e instanceof Error ? e.message : String(e), path: null };
+    }
+  }
+
+  /** A file of a done render job's task (null: refused, reported). */
+  async renderJobFile(id: string, task: string, file: string): Promise<Blob | null> {
+    try {
+      return await this.api.jobFile(id, task, file);
+    } catch (e) {
+      this.reportError(e, `download ${file}`);
+      return null;
+    }
+  }
+
+  async cancelRender(id: string): Promise<void> {
+    try {
+      await this.api.cancelJob(id);
+    } catch (e) {
+      // 409: it ended meanwhile (the state says how).
+      if (!(e instanceof ApiError && e.status === 409)) this.reportError(e, `cancel render job ${id}`);
     }
   }
 
@@ -1089,6 +1214,20 @@ export class Editor {
     if (s.status === 'error' && !wasError) this.message('error', `simulation stopped: ${s.message}`);
     this.afterState(before);
   }
+}
+
+/** "j12" → 12: jobs in the order they were submitted. */
+function jobNumber(j: RenderJob): number {
+  return Number(j.id.slice(1)) || 0;
+}
+
+/** `a` is an older report of job `b` (not finished while `b` is, or fewer frames done). */
+function isBehind(a: RenderJob, b: RenderJob): boolean {
+  const ended = (j: RenderJob) => j.state === 'done' || j.state === 'failed' || j.state === 'cancelled';
+  if (ended(b)) return !ended(a);
+  if (ended(a)) return false;
+  if (a.state === 'queued' && b.state === 'running') return true;
+  return a.frames_done < b.frames_done;
 }
 
 function emptyView(): SessionView {

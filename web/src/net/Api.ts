@@ -5,7 +5,7 @@
 // server's Error object (status, code, message, path), or status 0 when the
 // server could not be reached.
 import type { paths } from '@openapi';
-import type { ExportRequest, InstanceInputJson, InstanceJson, SceneJson, SettingsPatch, TransportArgs, TransportName } from './types';
+import type { ExportRequest, InstanceInputJson, RenderJobRequest, InstanceJson, SceneJson, SettingsPatch, TransportArgs, TransportName } from './types';
 
 export class ApiError extends Error {
   constructor(
@@ -150,6 +150,28 @@ export class Api {
   /** A file of a finished surface export, as a Blob (with the token, which a plain link would not send). */
   async exportFile(name: string, file: string): Promise<Blob> {
     const path = url('/api/exports/{name}/{file}', { name, file });
+    const headers: Record<string, string> = this.token ? { Authorization: `Bearer ${this.token}` } : {};
+    const res = await fetch(this.base + path, { headers });
+    if (!res.ok) throw new ApiError(res.status, 'http_error', `GET ${path}: HTTP ${res.status}`);
+    return res.blob();
+  }
+  /** Render jobs of the server, whether it runs them (flowclip-batch found) and where (a scheduler or local workers). */
+  listJobs() {
+    return this.call('get', '/api/jobs');
+  }
+  /** Runs the session's current scene again as a batch (answer 202, the queued job). */
+  submitJob(body: RenderJobRequest) {
+    return this.call('post', '/api/jobs', { body });
+  }
+  job(id: string) {
+    return this.call('get', '/api/jobs/{id}', { path: { id } });
+  }
+  cancelJob(id: string) {
+    return this.call('delete', '/api/jobs/{id}', { path: { id } });
+  }
+  /** A file of a done render job's task (`file` may hold a slash: percent-encoded), as a Blob. */
+  async jobFile(id: string, task: string, file: string): Promise<Blob> {
+    const path = url('/api/jobs/{id}/files/{task}/{file}', { id, task, file });
     const headers: Record<string, string> = this.token ? { Authorization: `Bearer ${this.token}` } : {};
     const res = await fetch(this.base + path, { headers });
     if (!res.ok) throw new ApiError(res.status, 'http_error', `GET ${path}: HTTP ${res.status}`);

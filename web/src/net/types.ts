@@ -2,7 +2,7 @@
 // schema of proto/openapi.yaml: `@openapi` is generated from it at build time
 // (scripts/wire.mjs, openapi-typescript), so that a field renamed or removed
 // in the contract fails the editor's type check.
-import type { components } from '@openapi';
+import type { components, paths } from '@openapi';
 
 type Schemas = components['schemas'];
 
@@ -18,6 +18,15 @@ export type RecipeJobState = RecipeJob['state'];
 /** A surface export job (POST /api/sessions/{id}/export with formats, GET/DELETE /api/exports/jobs/{id}). */
 export type SurfaceJob = Schemas['SurfaceJob'];
 export type ExportRequest = Schemas['ExportRequest'];
+
+/** A render job (POST /api/jobs, GET/DELETE /api/jobs/{id}; the session's state `jobs`). */
+export type RenderJob = Schemas['RenderJob'];
+export type RenderJobState = RenderJob['state'];
+export type RenderTask = RenderJob['tasks'][number];
+/** POST /api/jobs's body: the session's scene again at a final resolution, with a wedge and surfaces. */
+export type RenderJobRequest = paths['/api/jobs']['post']['requestBody']['content']['application/json'];
+/** GET /api/jobs: every render job of the server, whether it runs them (`available`) and where. */
+export type RenderJobList = paths['/api/jobs']['get']['responses'][200]['content']['application/json'];
 
 export type SessionState = Schemas['State'];
 export type SessionStatusName = SessionState['status'];

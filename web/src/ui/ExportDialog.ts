@@ -6,15 +6,15 @@
 import type { Editor } from '../core/Editor';
 import type { SurfaceJob } from '../net/types';
 import { el } from './dom';
+import { FormatChecks } from './FormatChecks';
 
-const FALLBACK_FORMATS = ['vdb', 'ply', 'points', 'obj', 'usd'];
 const DEFAULT_FORMATS = new Set(['vdb', 'ply']);
 
 export class ExportDialog {
   readonly dom: HTMLDialogElement;
   private readonly name: HTMLInputElement;
   private readonly voxel: HTMLInputElement;
-  private readonly formats: HTMLElement;
+  private readonly formats: FormatChecks;
   private readonly start: HTMLButtonElement;
   private readonly cancel: HTMLButtonElement;
   private readonly bar: HTMLProgressElement;
@@ -24,7 +24,7 @@ export class ExportDialog {
   constructor(private readonly editor: Editor) {
     this.name = el('input', { testid: 'export-name', title: 'Export name: NAME.h5 and the directory NAME/ on the server', attrs: { type: 'text', size: '16', spellcheck: 'false' } });
     this.voxel = el('input', { testid: 'export-voxel', title: 'Surface voxel in particle radii (smaller: finer, slower)', attrs: { type: 'number', min: '0.1', max: '2', step: '0.05', value: '0.5' } });
-    this.formats = el('div', { className: 'export-formats', testid: 'export-formats' });
+    this.formats = new FormatChecks(editor, 'export', DEFAULT_FORMATS);
     this.start = el('button', { testid: 'export-start', text: 'Export', title: 'Write the history and mesh it into the formats checked', attrs: { type: 'button' } });
     this.cancel = el('button', { testid: 'export-cancel', text: 'Cancel export', title: 'Stop the export: nothing of it is kept', attrs: { type: 'button' } });
     const close = el('button', { testid: 'export-close', text: 'Close', attrs: { type: 'button' } });
@@ -35,7 +35,7 @@ export class ExportDialog {
       el('h3', { text: 'Export surfaces' }),
       el('p', { className: 'hint', text: 'The recorded frames of this session, meshed for Houdini and Blender (OpenVDB, PLY, OBJ, USD).' }),
       el('label', { text: 'Name ' }, [this.name]),
-      this.formats,
+      this.formats.dom,
       el('label', { text: 'Voxel (particle radii) ' }, [this.voxel]),
       el('div', { className: 'export-buttons' }, [this.start, this.cancel, close]),
       el('div', { className: 'export-progress' }, [this.bar, this.status]),
@@ -44,36 +44,17 @@ export class ExportDialog {
     this.start.addEventListener('click', () => void this.submit());
     this.cancel.addEventListener('click', () => void editor.cancelExport());
     close.addEventListener('click', () => this.dom.close());
-    editor.signals.parametersChanged.add(() => this.renderFormats());
     editor.signals.sessionChanged.add((s) => {
       this.name.value = s ? `${s.scene}_shot` : '';
       this.show(editor.exportJob);
     });
     editor.signals.exportJobChanged.add((job) => this.show(job));
     editor.signals.exportRequested.add(() => this.open());
-    this.renderFormats();
     this.show(null);
   }
 
   open() {
     if (!this.dom.open) this.dom.showModal();
-  }
-
-  private renderFormats() {
-    const exporters = this.editor.parameters?.exporters;
-    const names = exporters ? Object.keys(exporters) : FALLBACK_FORMATS;
-    const checked = new Set(this.checkedFormats());
-    this.formats.replaceChildren(
-      ...names.map((n) => {
-        const box = el('input', { testid: `export-format-${n}`, attrs: { type: 'checkbox', value: n } });
-        box.checked = checked.size ? checked.has(n) : DEFAULT_FORMATS.has(n);
-        return el('label', { title: exporters?.[n]?.help ?? n }, [box, ` ${n}`]);
-      }),
-    );
-  }
-
-  private checkedFormats(): string[] {
-    return [...this.formats.querySelectorAll<HTMLInputElement>('input[type=checkbox]')].filter((b) => b.checked).map((b) => b.value);
   }
 
   private async submit() {
@@ -82,7 +63,7 @@ export class ExportDialog {
       this.editor.message('error', `export: "${name}" is not a name (letters, digits, _ and -, at most 64)`);
       return;
     }
-    const formats = this.checkedFormats();
+    const formats = this.formats.checked();
     if (!formats.length) {
       this.editor.message('error', 'export: check at least one format');
       return;

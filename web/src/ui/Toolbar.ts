@@ -1,5 +1,5 @@
 // Top bar: scene picker, save (on the server) and download of the current
-// scene, the Export dialog, transport (play, pause, step, reset, back to live), undo/redo.
+// scene, the Export and Render final dialogs, transport (play, pause, step, reset, back to live), undo/redo.
 // Listens to the editor's signals; acts only through the editor.
 import type { Editor } from '../core/Editor';
 import { el } from './dom';
@@ -7,7 +7,7 @@ import { el } from './dom';
 export class Toolbar {
   readonly dom: HTMLElement;
   private readonly picker: HTMLSelectElement;
-  private readonly buttons: Record<'play' | 'pause' | 'step' | 'reset' | 'live' | 'undo' | 'redo' | 'save' | 'download' | 'export', HTMLButtonElement>;
+  private readonly buttons: Record<'play' | 'pause' | 'step' | 'reset' | 'live' | 'undo' | 'redo' | 'save' | 'download' | 'export' | 'render', HTMLButtonElement>;
   private readonly saveName: HTMLInputElement;
 
   constructor(private readonly editor: Editor) {
@@ -34,6 +34,7 @@ export class Toolbar {
       download: button('download-scene', 'Download', 'Download the current scene as JSON', () => void this.download()),
       export: button('export-open', 'Export…', 'Mesh the recorded frames into OpenVDB, PLY, OBJ or USD files for Houdini and Blender', () =>
         editor.signals.exportRequested.dispatch()),
+      render: button('render-open', 'Render final…', '', () => editor.signals.renderRequested.dispatch()),
       undo: button('undo', '↶', 'Undo (Ctrl+Z)', () => void editor.undo()),
       redo: button('redo', '↷', 'Redo (Ctrl+Shift+Z)', () => void editor.redo()),
     };
@@ -45,7 +46,7 @@ export class Toolbar {
     this.dom = el('header', { className: 'toolbar', testid: 'toolbar' }, [
       el('span', { className: 'brand', text: 'FlowClip' }),
       this.picker,
-      el('span', { className: 'group' }, [this.saveName, b.save, b.download, b.export]),
+      el('span', { className: 'group' }, [this.saveName, b.save, b.download, b.export, b.render]),
       el('span', { className: 'group' }, [b.play, b.pause, b.step, b.reset, b.live]),
       el('span', { className: 'group' }, [b.undo, b.redo]),
     ]);
@@ -81,6 +82,7 @@ export class Toolbar {
     editor.signals.historyChanged.add(() => this.update());
     editor.signals.playbackChanged.add(() => this.update());
     editor.signals.playheadChanged.add(() => this.update()); // Live also leaves a frame nothing is recorded at
+    editor.signals.renderAvailabilityChanged.add(() => this.update());
     editor.signals.saveRequested.add(() => void this.save());
     this.update();
   }
@@ -96,6 +98,15 @@ export class Toolbar {
     this.buttons.save.disabled = !open;
     this.buttons.download.disabled = !open;
     this.buttons.export.disabled = !open;
+    // Render final: a session, and a server that runs render jobs (GET /api/jobs); the tooltip says which is missing.
+    const jobs = e.renderAvailability;
+    this.buttons.render.disabled = !open || !jobs.available;
+    const renderTitle = !open
+      ? 'Render final: open a scene first'
+      : !jobs.available
+        ? `Render final: ${jobs.reason}`
+        : `Run this scene again at a final resolution (a wedge, surfaces, particles) on the render workers: ${jobs.where}`;
+    if (this.buttons.render.title !== renderTitle) this.buttons.render.title = renderTitle;
     this.buttons.undo.disabled = !e.history.canUndo;
     this.buttons.redo.disabled = !e.history.canRedo;
     // The buttons name what they undo and redo.
