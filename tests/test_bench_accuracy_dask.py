@@ -2,7 +2,7 @@
 points as tasks of a real LocalCluster of 2 worker processes give the figures of the sequential
 sweep, point by point (the solver is bit-deterministic at a given thread count: both run one OpenMP
 thread per point); a scheduler that cannot be reached or a missing flowclip-batch stops the sweep
-with a message naming the option, and no traceback. The generic runner: a command that fails or
+with a message naming the option, and no traceback; Ctrl-C keeps the points measured. The generic runner: a command that fails or
 leaves an output missing is a result (no folder), a complete one is skipped on a re-run.
 """
 
@@ -11,15 +11,18 @@ from __future__ import annotations
 import csv
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
 
 from flowclip.commands import load_commands, run_commands
 from repo_paths import FLOWCLIP_BIN, ROOT
+from service_helpers import wait_until
 
 # flowclip-batch of the Python running the tests: the package under test, whatever FLOWCLIP_BIN is.
 BATCH = Path(sys.executable).parent / "flowclip-batch"
@@ -135,3 +138,35 @@ def test_a_command_list_that_cannot_run_is_refused_naming_the_entry(tmp_path, en
     r = subprocess.run([str(BATCH), "commands", str(listing), "--local", "1"], capture_output=True, text=True,
                        timeout=300)
     assert r.returncode == 2 and names in r.stderr and "Traceback" not in r.stderr
+
+
+def test_ctrl_c_stops_the_cluster_and_keeps_the_points_measured(template_dir, tmp_path):
+    """Ctrl-C reaches the whole process group (the sweep, the runner, its workers and their runs): the
+    sweep writes the points whose runs finished and exits 130, and nothing of the batch is left."""
+    out = tmp_path / "out"
+    cmd = [str(FLOWCLIP_BIN), "bench", "accuracy", "--quick", "--no-plots", "--out", str(out), "--templates",
+           str(template_dir), "--local", "2"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+                            env={**os.environ, "FLOWCLIP_BATCH": str(BATCH)}, start_new_session=True)
+    lines = []
+    reader = threading.Thread(target=lambda: lines.extend(proc.stderr), daemon=True)
+    reader.start()
+    try:
+        # Once the runner has two results, the batch is under way.
+        wait_until(lambda: any(line.startswith("commands: 2/") for line in lines), timeout=600,
+                   what="two finished tasks")
+        os.killpg(proc.pid, signal.SIGINT)
+        proc.wait(timeout=600)
+        reader.join(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    stderr = "".join(lines)
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr
+    measured = rows(out)
+    assert len(measured) >= 2 and all(r["status"] == "ok" for r in measured), stderr
+    # The last tasks may have finished before Ctrl-C reached the runner: then nothing was cut short.
+    assert f"interrupted after {len(measured)} points" in stderr or len(measured) == 18, stderr
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]

@@ -25,6 +25,7 @@ import json
 import os
 import secrets
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -168,9 +169,14 @@ def run_commands(commands: list[dict], *, local=None, scheduler=None, retries=2,
         return results
     cluster = None
     if scheduler is None:
-        # ":0": the scheduler's HTTP server on a free port (None still takes 8787, warning when it is busy).
-        cluster = LocalCluster(n_workers=local or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                               dashboard_address=":0")
+        # Its workers start with Ctrl-C ignored: it reaches this client, which closes them (and so their commands).
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        try:
+            # ":0": the scheduler's HTTP server on a free port (None still takes 8787, warning when it is busy).
+            cluster = LocalCluster(n_workers=local or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                                   dashboard_address=":0")
+        finally:
+            signal.signal(signal.SIGINT, previous)
     try:
         try:
             client = Client(cluster if cluster is not None else scheduler, timeout=connect_timeout)
