@@ -2,8 +2,9 @@
 points as tasks of a real LocalCluster of 2 worker processes give the figures of the sequential
 sweep, point by point (the solver is bit-deterministic at a given thread count: both run one OpenMP
 thread per point); a scheduler that cannot be reached or a missing flowclip-batch stops the sweep
-with a message naming the option, and no traceback; Ctrl-C keeps the points measured. The generic runner: a command that fails or
-leaves an output missing is a result (no folder), a complete one is skipped on a re-run.
+with a message naming the option, and no traceback; Ctrl-C keeps the points measured. The generic
+runner: a command that fails or leaves an output missing is a result (no folder), a complete one is
+skipped on a re-run.
 """
 
 from __future__ import annotations

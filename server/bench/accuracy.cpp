@@ -1119,7 +1119,8 @@ void addBenchAccuracyCommand(CLI::App& bench) {
   acc->add_option("--double-binary", opt->doubleBinary,
                   "a flowclip built with -DFLOWCLIP_DOUBLE=ON: adds Real = double points");
   acc->add_option("--templates", opt->templates, "template database (default: templates; needs drop2d.h5)");
-  acc->add_option("--threads", opt->threads, "OpenMP threads per run (default: all cores)")->check(CLI::PositiveNumber);
+  acc->add_option("--threads", opt->threads, "OpenMP threads per run (default: all cores; 1 with --local/--scheduler)")
+      ->check(CLI::PositiveNumber);
   acc->add_option("--repeat", opt->repeat, "runs per point; the cost is the fastest run's (default: 1)")
       ->check(CLI::PositiveNumber);
   acc->add_flag("!--no-plots", opt->plots, "skip the plots (tools/plot_accuracy.py)");

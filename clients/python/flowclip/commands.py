@@ -192,9 +192,9 @@ def run_commands(commands: list[dict], *, local=None, scheduler=None, retries=2,
                 for done, future in enumerate(as_completed(futures), 1):
                     result = future.result()
                     results[index[future.key]] = result
+                    missing = f", missing {', '.join(result['missing'])}" if result["missing"] else ""
                     state = ("skipped (complete)" if result["skipped"] else
-                             f"exit {result['status']}{'' if result['ok'] or not result['missing'] else ', missing ' + ', '.join(result['missing'])}, "
-                             f"{result['wall_s']:.1f} s")
+                             f"exit {result['status']}{missing}, {result['wall_s']:.1f} s")
                     log(f"commands: {done}/{len(commands)} {result['id']} {state}")
                     event({"event": "done", **{k: v for k, v in result.items() if k != "argv"}})
             except KeyboardInterrupt as e:
