@@ -110,6 +110,11 @@ def test_cancel_kills_the_job_and_leaves_nothing(server, client):
     wait_until(lambda: not _processes_in(jobs), timeout=120, what="the job's processes ended")
     assert client.cancel_job(job["id"])["state"] == "cancelled"  # again: as it is
     assert client.session(sid)["jobs"][-1]["state"] == "cancelled"
+    # The session's state keeps its newest jobs, oldest first.
+    again = client.submit_job(sid, name="after", frames=1, frames_export=False)
+    assert client.wait_job(again["id"])["state"] == "done"
+    wait_until(lambda: [(j["id"], j["state"]) for j in client.session(sid)["jobs"]]
+               == [(job["id"], "cancelled"), (again["id"], "done")], timeout=60, what="both jobs in the state")
 
 
 @pytest.mark.parametrize("body, status, path", [

@@ -364,7 +364,8 @@ class SessionImpl final : public Session {
         const std::string id = j.is_object() && j.contains("id") && j["id"].is_string() ? j["id"].get<std::string>() : "";
         return id.size() > 1 ? std::atoll(id.c_str() + 1) : 0;
       };
-      jobStates_[number(job)] = std::move(job);
+      const long long n = number(job);  // before the move: the assignment's right side is evaluated first
+      jobStates_[n] = std::move(job);
       while (jobStates_.size() > kShownJobs) jobStates_.erase(jobStates_.begin());
     }
     notifyState();
