@@ -53,7 +53,7 @@ def test_a_wedge_on_a_local_cluster_equals_plain_runs_and_resumes(tmp_path):
     progress = [line for line in lines if line.startswith("task ")]
     assert progress and all(line.split(": frame ")[1].split("/")[1] == str(FRAMES) for line in progress)
     assert any(line.endswith(f": frame {FRAMES}/{FRAMES}") for line in progress)
-    assert len(progress) <= 6 * 11  # at most ten reports a task, and its last
+    assert len(progress) <= 6 * FRAMES  # at most one report per frame line of each task
     table = json.loads((tmp_path / "out" / "batch.json").read_text())
     assert [t["id"] for t in table["tasks"]] == [r["id"] for r in results]
     speeds = set()
@@ -150,6 +150,8 @@ def test_a_worker_killed_mid_task_is_retried_and_leaves_nothing_partial(tmp_path
     ({"list": [{"instances[drop].template": "nope"}]}, "instances[0].template: no template 'nope'"),
     ({"grid": {"domain.min[7]": [0]}}, "domain.min has 2 elements"),
     ({"frames": -3}, "frames: a number >= 0"),
+    ({"grid": {}, "list": [{"instances[drop].speed": 1}, {"instances[drop].speed": 1}]},
+     'the same task as {"instances[drop].speed": 1} (a value given twice)'),
 ])
 def test_a_spec_that_cannot_run_is_refused_before_anything_runs(tmp_path, change, names):
     spec = load_spec(write_spec(tmp_path, **change)) if "color" not in change else None
@@ -173,6 +175,40 @@ def test_the_command_line_checks_and_lists_the_tasks(tmp_path):
     r = subprocess.run([sys.executable, "-m", "flowclip.batch", "run", str(bad), "--binary", str(FLOWCLIP_BIN)],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 2 and "particle_radius: -1 m must be > 0" in r.stderr
+
+
+def test_a_batch_whose_starter_dies_stops_with_everything_it_started(tmp_path):
+    """--watch-stdin: when the program that started the batch (the server) dies, its stdin closes and
+    the batch, its LocalCluster's workers and their flowclip runs all stop; nothing is left running."""
+    path = write_spec(tmp_path, grid={"instances[drop].speed": [1.0, 2.0]}, frames=100000)
+    proc = subprocess.Popen([sys.executable, "-m", "flowclip.batch", "run", str(path), "--local", "2", "--binary",
+                             str(FLOWCLIP_BIN), "--progress", "json", "--watch-stdin"], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, start_new_session=True)
+    events = []
+    try:
+        for line in proc.stdout:  # until a task reports a frame: the flowclip runs are going
+            events.append(json.loads(line))
+            if events[-1]["event"] == "task":
+                break
+        assert [e["event"] for e in events][0] == "plan" and events[-1]["event"] == "task", events
+        group = proc.pid  # its own session: the batch's processes are this group's
+        members = lambda: [p for p in os.listdir("/proc") if p.isdigit() and _group_of(p) == group]
+        assert len(members()) >= 4  # the batch, two workers (and their nanny), a flowclip run
+        proc.stdin.close()  # as if the server had died
+        assert proc.wait(timeout=120) != 0
+        wait_until(lambda: not members(), timeout=120, what="every process of the batch gone")
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+
+
+def _group_of(pid):
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return int(fields[2]) if fields[0] != "Z" else None
+    except (OSError, IndexError, ValueError):
+        return None
 
 
 def test_key_paths():

@@ -66,13 +66,13 @@ def test_a_wedge_job_runs_each_task_as_a_plain_run_and_reports_on_the_stream(ser
             seen.append(m["state"]["jobs"][-1])
     assert seen[-1]["state"] == "done", seen[-1]
     done = [s["frames_done"] for s in seen]
-    assert done == sorted(done) and len(set(done)) > 2, done  # frame by frame, never backwards
+    assert done == sorted(done), done  # never backwards (the stream may merge reports)
     job = client.wait_job(job["id"])
     assert job["progress"] == 1 and job["tasks_done"] == 2 and job["frames_done"] == job["frames"] == 20
     assert job["directory"] == job["id"] + "/"
     folder = server.exports / "jobs" / job["id"]
     assert (folder / "batch.json").exists()
-    assert not [p.name for p in (server.exports / "jobs").iterdir() if p.name.startswith(".")]
+    assert not [p.name for p in (server.exports / "jobs").iterdir() if p.name.startswith(".") and p.name != ".lock"]
     for task, start in zip(job["tasks"], starts):
         assert task["state"] == "done" and task["frame"] == task["frames"] == 10
         assert {"frames.h5", "stats.json", "scene.json", "task.json", "surface/scene.0010.ply"} <= set(task["files"])
@@ -112,7 +112,8 @@ def test_cancel_kills_the_job_and_leaves_nothing(server, client):
     assert client.session(sid)["jobs"][-1]["state"] == "cancelled"
     # The session's state keeps its newest jobs, oldest first.
     again = client.submit_job(sid, name="after", frames=1, frames_export=False)
-    assert client.wait_job(again["id"])["state"] == "done"
+    after = client.wait_job(again["id"])
+    assert after["state"] == "done", after
     wait_until(lambda: [(j["id"], j["state"]) for j in client.session(sid)["jobs"]]
                == [(job["id"], "cancelled"), (again["id"], "done")], timeout=60, what="both jobs in the state")
 
@@ -121,6 +122,8 @@ def test_cancel_kills_the_job_and_leaves_nothing(server, client):
     ({"wedge": {"key": "instances[nope].speed", "values": [1]}}, 422, "wedge.key"),
     ({"wedge": {"key": "instances[drop].speed", "values": [1, -3]}}, 422, "wedge.values[1]"),
     ({"wedge": {"key": "instances[drop].speed", "values": []}}, 422, "wedge.values"),
+    ({"wedge": {"key": "instances[drop].speed", "values": [1, 1.0]}}, 422, "wedge.values[1]"),
+    ({"wedge": {"key": "instances[drop].speed", "values": [1], "step": 2}}, 422, "wedge.step"),
     ({"overrides": {"instances[drop].template": "no_such_template"}}, 422, "overrides"),
     ({"overrides": {"settings.frame_rate": 1e9}}, 422, "overrides"),
     ({"particle_radius": -0.01}, 422, "particle_radius"),
@@ -151,8 +154,8 @@ def test_without_flowclip_batch_jobs_are_off(template_dir, scene_dir, tmp_path, 
     with FlowClipServer(template_dir, scene_dir, tmp_path, extra_args=["--batch-command", "none"]) as s:
         c = s.client()
         c.observers.append(openapi.observe)
-        assert c.jobs() == {"jobs": [], "available": False, "where": "local (1 worker)"} or \
-            c.jobs()["available"] is False
+        listed = c.jobs()
+        assert listed["available"] is False and listed["jobs"] == []
         sid = c.create_session(scene="drop2d")["id"]
         with pytest.raises(ApiError) as e:
             c.submit_job(sid, frames=1)

@@ -152,6 +152,7 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
 
   nlohmann::json framesJson = nlohmann::json::array();
   const auto t0 = std::chrono::steady_clock::now();
+  auto lastLine = t0;  // the last progress line
   double particleSteps = 0;
   size_t substeps = 0, unconverged = 0, unconvergedSubsteps = 0, escaped = 0, contacts = 0;
   double controlMs = 0;
@@ -184,7 +185,10 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
     framesJson.push_back(frameStatsToJson(s, instances > 0));
     if (exporter) exporter->writeFrame(s.frame, s.time, sim.fluid);
     if (surfaces) surfaces->writeFrame(particleFrame(sim.fluid, s.frame, s.time));
-    if (!opt.quiet && (tty || f + 1 == frames || (f + 1) % std::max(1, frames / 20) == 0)) {
+    // Not on a terminal (a log, a batch task): every 5 % of the frames, and at least every 2 s.
+    const bool due = std::chrono::steady_clock::now() - lastLine > std::chrono::seconds(2);
+    if (!opt.quiet && (tty || f + 1 == frames || (f + 1) % std::max(1, frames / 20) == 0 || due)) {
+      lastLine = std::chrono::steady_clock::now();
       const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
       const double eta = wall / (f + 1) * (frames - f - 1);
       const std::string ctrl =

@@ -98,13 +98,15 @@ int serve(const ServeOptions& o, bool presetsGiven) {
   so.batchBinary = selfExecutable();
   so.scheduler = o.scheduler;
   so.jobWorkers = o.jobWorkers > 0 ? o.jobWorkers : std::max(1, int(std::thread::hardware_concurrency()) / 2);
-  if (!o.batchCommand.empty() && o.batchCommand != "none" && ::access(so.batchCommand.c_str(), X_OK) != 0) {
-    std::fprintf(stderr, "error: --batch-command %s: not an executable file\n", o.batchCommand.c_str());
+  if (!so.batchCommand.empty() && ::access(so.batchCommand.c_str(), X_OK) != 0) {
+    std::fprintf(stderr, "error: %s %s: not an executable file\n",
+                 o.batchCommand.empty() ? "FLOWCLIP_BATCH" : "--batch-command", so.batchCommand.c_str());
     return BadInput;
   }
   if (so.batchCommand.empty())
     std::fprintf(stderr, "flowclip serve: no flowclip-batch found (pip install \"flowclip[batch]\" from clients/python, "
-                         "or --batch-command PATH): render jobs are off\n");  service::ServerOptions net;
+                         "or --batch-command PATH): render jobs are off\n");
+  service::ServerOptions net;
   net.host = o.host;
   net.port = uint16_t(o.port);
   net.webDir = o.web;

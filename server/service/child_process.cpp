@@ -16,15 +16,21 @@ extern char** environ;
 namespace fc::service {
 
 ChildProcess::ChildProcess(const std::vector<std::string>& argv, const std::string& cwd, const std::string& stderrFile) {
-  int pipeFds[2];
+  int pipeFds[2], inFds[2];
   if (::pipe2(pipeFds, O_CLOEXEC) != 0) throw std::system_error(errno, std::generic_category(), "pipe");
+  if (::pipe2(inFds, O_CLOEXEC) != 0) {
+    const int e = errno;
+    ::close(pipeFds[0]);
+    ::close(pipeFds[1]);
+    throw std::system_error(e, std::generic_category(), "pipe");
+  }
   posix_spawn_file_actions_t actions;
   posix_spawnattr_t attr;
   posix_spawn_file_actions_init(&actions);
   posix_spawnattr_init(&attr);
   posix_spawn_file_actions_adddup2(&actions, pipeFds[1], STDOUT_FILENO);
   posix_spawn_file_actions_addopen(&actions, STDERR_FILENO, stderrFile.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-  posix_spawn_file_actions_addopen(&actions, STDIN_FILENO, "/dev/null", O_RDONLY, 0);
+  posix_spawn_file_actions_adddup2(&actions, inFds[0], STDIN_FILENO);
   if (!cwd.empty()) posix_spawn_file_actions_addchdir_np(&actions, cwd.c_str());
   // Its own group (killed as one); default signal dispositions and mask.
   posix_spawnattr_setpgroup(&attr, 0);
@@ -41,11 +47,14 @@ ChildProcess::ChildProcess(const std::vector<std::string>& argv, const std::stri
   posix_spawn_file_actions_destroy(&actions);
   posix_spawnattr_destroy(&attr);
   ::close(pipeFds[1]);
+  ::close(inFds[0]);
   if (rc != 0) {
     ::close(pipeFds[0]);
+    ::close(inFds[1]);
     throw std::system_error(rc, std::generic_category(), "cannot start " + argv[0]);
   }
   out_ = pipeFds[0];
+  in_ = inFds[1];
 }
 
 ChildProcess::~ChildProcess() {
@@ -54,6 +63,7 @@ ChildProcess::~ChildProcess() {
     wait();
   }
   if (out_ >= 0) ::close(out_);
+  if (in_ >= 0) ::close(in_);
 }
 
 bool ChildProcess::readLine(std::string& line) {
@@ -80,12 +90,16 @@ bool ChildProcess::readLine(std::string& line) {
 }
 
 void ChildProcess::signalGroup(int signal) {
-  // The group outlives a reaped leader only while members remain; -pid names it either way.
-  if (pid_ > 0) ::kill(-pid_, signal);
+  if (pid_ > 0 && !reaped_) ::kill(-pid_, signal);
 }
 
 int ChildProcess::wait() {
   if (reaped_) return status_;
+  // Exited but not reaped: its id, and so its group's, cannot be reused yet.
+  siginfo_t info{};
+  while (::waitid(P_PID, id_t(pid_), &info, WEXITED | WNOWAIT) < 0 && errno == EINTR) {
+  }
+  ::kill(-pid_, SIGKILL);  // whatever it started and left behind
   int status = 0;
   while (::waitpid(pid_, &status, 0) < 0 && errno == EINTR) {
   }

@@ -2,7 +2,10 @@
 
 #include "service/child_process.h"
 
+#include <fcntl.h>
 #include <signal.h>
+#include <sys/file.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
@@ -36,6 +39,10 @@ bool RenderJobs::isJobId(const std::string& id) { return isNumberedJobId(id, 'j'
 
 RenderJobs::RenderJobs(RenderJobsOptions options) : options_(std::move(options)) {
   std::error_code ec;
+  fs::create_directories(options_.jobsDir, ec);
+  // Staged jobs are a dead server's only when no live server holds the directory's lock.
+  lock_ = ::open((fs::path(options_.jobsDir) / ".lock").c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  const bool owner = lock_ >= 0 && ::flock(lock_, LOCK_EX | LOCK_NB) == 0;
   // Numbered after the jobs already in the directory; a dead server's staged jobs are never complete.
   for (const auto& entry : fs::directory_iterator(options_.jobsDir, ec)) {
     const std::string name = entry.path().filename().string();
@@ -44,7 +51,7 @@ RenderJobs::RenderJobs(RenderJobsOptions options) : options_(std::move(options))
     if (name.size() > 7 && name[0] == '.' && stage != std::string::npos && stage + 6 == name.size() &&
         isJobId(name.substr(1, stage - 1))) {
       next_ = std::max<uint64_t>(next_, std::stoull(name.substr(2, stage - 2)) + 1);
-      fs::remove_all(entry.path(), ec);
+      if (owner) fs::remove_all(entry.path(), ec);
     }
   }
   worker_ = std::thread([this] { run(); });
@@ -61,6 +68,7 @@ RenderJobs::~RenderJobs() {
   }
   wake_.notify_all();
   worker_.join();
+  if (lock_ >= 0) ::close(lock_);
 }
 
 std::string RenderJobs::where() const {
@@ -70,6 +78,11 @@ std::string RenderJobs::where() const {
 
 RenderJobInfo RenderJobs::start(RenderJobRequest request) {
   std::unique_lock lk(mutex_);
+  // Past any id another server sharing the directory has taken since.
+  std::error_code ec;
+  while (fs::exists(fs::path(options_.jobsDir) / ("j" + std::to_string(next_)), ec) ||
+         fs::exists(fs::path(options_.jobsDir) / (".j" + std::to_string(next_) + ".stage"), ec))
+    ++next_;
   auto job = std::make_shared<Job>();
   job->info.id = "j" + std::to_string(next_);
   job->info.name = request.name;
@@ -146,6 +159,7 @@ RenderJobInfo RenderJobs::cancel(const std::string& id) {
 void RenderJobs::changed(Job& job, std::unique_lock<std::mutex>& lk) {
   const RenderJobInfo info = job.info;
   const auto progress = job.request.progress;
+  std::unique_lock reporting(job.reporting);  // before mutex_ is released: reports keep their order
   lk.unlock();
   if (progress) {
     try {
@@ -154,6 +168,7 @@ void RenderJobs::changed(Job& job, std::unique_lock<std::mutex>& lk) {
       // The job goes on whatever a listener does.
     }
   }
+  reporting.unlock();
   lk.lock();
 }
 
@@ -164,6 +179,7 @@ void RenderJobs::run() {
     if (stopping_) return;
     auto job = queue_.front();
     queue_.pop_front();
+    if (job->info.state != JobState::Queued) continue;  // cancelled while it was being queued
     job->info.state = JobState::Running;
     changed(*job, lk);
     lk.unlock();
@@ -172,12 +188,43 @@ void RenderJobs::run() {
   }
 }
 
+namespace {
+
+// A field of a progress line, or `fallback` when absent or of another type.
+int intField(const json& e, const char* key, int fallback) {
+  const auto it = e.find(key);
+  return it != e.end() && it->is_number() ? int(std::clamp(it->get<double>(), 0.0, 1e7)) : fallback;
+}
+double numberField(const json& e, const char* key) {
+  const auto it = e.find(key);
+  return it != e.end() && it->is_number() ? it->get<double>() : 0.0;
+}
+std::string stringField(const json& e, const char* key) {
+  const auto it = e.find(key);
+  return it != e.end() && it->is_string() ? it->get<std::string>() : std::string();
+}
+
+// Frames in all: a task not yet started counts as many as one that has.
+void countFrames(RenderJobInfo& info) {
+  int known = 0;
+  for (const RenderTaskInfo& t : info.tasks) known = std::max(known, t.frames);
+  info.frames = info.framesDone = 0;
+  // In the int range: a task's frames are at most 1e7, a job's tasks at most 64.
+  for (const RenderTaskInfo& t : info.tasks) {
+    const int frames = t.frames > 0 ? t.frames : known;
+    info.frames += frames;
+    info.framesDone += t.state == "done" ? frames : std::min(t.frame, frames);
+  }
+}
+
+}  // namespace
+
 void RenderJobs::follow(Job& job, const json& e) {
   RenderJobInfo& info = job.info;
-  const std::string kind = e.value("event", "");
-  const auto task = [&](const json& id) -> RenderTaskInfo* {
+  const std::string kind = stringField(e, "event");
+  const auto task = [&](const std::string& id) -> RenderTaskInfo* {
     for (RenderTaskInfo& t : info.tasks)
-      if (id.is_string() && t.id == id.get<std::string>()) return &t;
+      if (!id.empty() && t.id == id) return &t;
     return nullptr;
   };
   if (kind == "plan" && e.contains("tasks") && e["tasks"].is_array()) {
@@ -186,29 +233,22 @@ void RenderJobs::follow(Job& job, const json& e) {
       if (e["tasks"][i].is_object() && e["tasks"][i].contains("id") && e["tasks"][i]["id"].is_string())
         info.tasks[i].id = e["tasks"][i]["id"].get<std::string>();
   } else if (kind == "task") {
-    if (RenderTaskInfo* t = task(e.value("id", json())); t && t->state != "done") {
+    if (RenderTaskInfo* t = task(stringField(e, "id")); t && t->state != "done") {
       t->state = "running";
-      t->frame = e.value("frame", t->frame);
-      t->frames = e.value("frames", t->frames);
+      t->frames = intField(e, "frames", t->frames);
+      t->frame = std::min(intField(e, "frame", t->frame), t->frames);
     }
   } else if (kind == "done") {
-    if (RenderTaskInfo* t = task(e.value("id", json()))) {
+    if (RenderTaskInfo* t = task(stringField(e, "id"))) {
       t->state = "done";
       t->frame = t->frames;
-      t->wallSeconds = e.value("wall_s", 0.0);
+      t->wallSeconds = numberField(e, "wall_s");
     }
   } else if (kind == "error") {
-    info.error = e.value("message", std::string("the batch failed"));
+    info.error = stringField(e, "message");
+    if (info.error.empty()) info.error = "the batch failed";
   }
-  // Frames in all: a task not yet started counts as many as one that has.
-  int known = 0;
-  for (const RenderTaskInfo& t : info.tasks) known = std::max(known, t.frames);
-  info.frames = info.framesDone = 0;
-  for (const RenderTaskInfo& t : info.tasks) {
-    const int frames = t.frames > 0 ? t.frames : known;
-    info.frames += frames;
-    info.framesDone += t.state == "done" ? frames : std::min(t.frame, frames);
-  }
+  countFrames(info);
 }
 
 namespace {
@@ -237,10 +277,13 @@ void RenderJobs::runJob(Job& job) {
   std::error_code ec;
   JobState end = JobState::Done;
   std::string error;
+  bool keepStaging = false;  // finished results the rename could not publish
+  bool ownStaging = false;
   try {
     fs::create_directories(options_.jobsDir);
-    fs::remove_all(staging, ec);
-    fs::create_directory(staging);
+    if (!fs::create_directory(staging))
+      throw std::runtime_error(staging.string() + " exists: another server is using " + options_.jobsDir);
+    ownStaging = true;
     json spec = job.request.spec;
     spec["name"] = job.info.name;
     spec["scene"] = "scene.json";
@@ -253,7 +296,17 @@ void RenderJobs::runJob(Job& job) {
                                      "--binary", options_.binary};
     if (!options_.scheduler.empty()) argv.insert(argv.end(), {"--scheduler", options_.scheduler});
     else argv.insert(argv.end(), {"--local", std::to_string(options_.localWorkers)});
+    argv.push_back("--watch-stdin");  // it stops with this server
     ChildProcess child(argv, staging.string(), (staging / "batch.log").string());
+    // Whichever way this block ends, no one signals the child once it is gone.
+    struct Unpublish {
+      RenderJobs& jobs;
+      Job& job;
+      ~Unpublish() {
+        std::lock_guard lk(jobs.mutex_);
+        job.process = nullptr;
+      }
+    } unpublish{*this, job};
     {
       std::lock_guard lk(mutex_);
       job.process = &child;
@@ -288,20 +341,30 @@ void RenderJobs::runJob(Job& job) {
       }
     }
     if (end == JobState::Done) {
-      fs::rename(staging, out);
+      fs::rename(staging, out, ec);
+      if (ec) {
+        keepStaging = true;
+        throw std::runtime_error("the results are complete in " + staging.string() + " but could not become " +
+                                 out.string() + ": " + ec.message());
+      }
       std::lock_guard lk(mutex_);
       for (RenderTaskInfo& t : job.info.tasks) {
+        // Its exit status says every task is complete, whatever progress lines were missed.
+        t.state = "done";
+        t.frame = t.frames;
         t.files.clear();
         for (const auto& f : fs::recursive_directory_iterator(out / t.id, ec))
-          if (f.is_regular_file()) t.files.push_back(fs::relative(f.path(), out / t.id).string());
+          if (f.symlink_status().type() == fs::file_type::regular)
+            t.files.push_back(fs::relative(f.path(), out / t.id).string());
         std::sort(t.files.begin(), t.files.end());
       }
+      countFrames(job.info);
     }
   } catch (const std::exception& ex) {
     end = JobState::Failed;
     error = ex.what();
   }
-  if (end != JobState::Done) fs::remove_all(staging, ec);
+  if (end != JobState::Done && ownStaging && !keepStaging) fs::remove_all(staging, ec);
   std::unique_lock lk(mutex_);
   job.process = nullptr;
   job.info.state = end;

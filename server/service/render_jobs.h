@@ -102,6 +102,7 @@ class RenderJobs {
     RenderJobInfo info;
     RenderJobRequest request;
     ChildProcess* process = nullptr;  // while it runs, under mutex_
+    std::mutex reporting;  // taken under mutex_ before it is released: reports leave in the order they were made
   };
   void run();
   void runJob(Job& job);
@@ -116,6 +117,7 @@ class RenderJobs {
   std::deque<std::shared_ptr<Job>> queue_;
   uint64_t next_ = 1;
   bool stopping_ = false;
+  int lock_ = -1;  // flock of JOBS/.lock: this server owns the directory's staged jobs
   std::thread worker_;
 };
 

@@ -106,8 +106,11 @@ HttpResponse ServiceHub::submitJob(const HttpRequest& req, const Params&) {
     if (!it->is_object() || !it->contains("key") || !(*it)["key"].is_string() || !it->contains("values") ||
         !(*it)["values"].is_array())
       throw ApiError(422, "wedge: expected {\"key\": a scene key path, \"values\": [...]}", "wedge");
+    for (const auto& [k, v] : it->items())
+      if (k != "key" && k != "values") throw ApiError(422, "wedge." + k + ": not a key of a wedge (key, values)", "wedge." + k);
     const std::string key = (*it)["key"];
     const json& values = (*it)["values"];
+    std::vector<json> scenes;
     if (values.empty() || values.size() > kMaxWedgeValues)
       throw ApiError(422, "wedge.values: from 1 to " + std::to_string(kMaxWedgeValues) + " values", "wedge.values");
     for (size_t i = 0; i < values.size(); ++i) {
@@ -118,8 +121,13 @@ HttpResponse ServiceHub::submitJob(const HttpRequest& req, const Params&) {
       } catch (const KeyPathError& e) {
         throw ApiError(422, std::string("wedge.key: ") + e.what(), "wedge.key");
       }
+      // One task per scene: a value given twice (1 and 1.0 alike) would be one folder for two tasks.
+      for (size_t k = 0; k < scenes.size(); ++k)
+        if (scenes[k] == variant)
+          throw ApiError(422, where + ": the same as wedge.values[" + std::to_string(k) + "]", where);
       checkTaskScene(variant, database_, where);
       variants.push_back({{key, values[i]}});
+      scenes.push_back(std::move(variant));
     }
     wedge = *it;
   } else {

@@ -121,6 +121,14 @@ struct FakeBatch {
   }
 };
 
+// What a jobs directory holds besides the servers' lock.
+std::vector<std::string> leftovers(const fs::path& jobs) {
+  std::vector<std::string> out;
+  for (const auto& e : fs::directory_iterator(jobs))
+    if (e.path().filename() != ".lock") out.push_back(e.path().filename().string());
+  return out;
+}
+
 service::RenderJobRequest request(std::vector<json> variants) {
   service::RenderJobRequest r;
   r.session = "s1";
@@ -176,12 +184,13 @@ echo '{"event":"end","tasks":2,"ran":2}'
   EXPECT_FALSE(fs::exists(fake.dir / "jobs/.j1.stage"));
   EXPECT_EQ(jobs.directory("j1"), (fake.dir / "jobs/j1").string());
   {
-  std::lock_guard lk(m);
-  ASSERT_GE(seen.size(), 4u);
-  EXPECT_EQ(seen.front().state, service::JobState::Queued);
-  // After "task aaa frame 1 of 2": one frame of four (the other task counted as long).
-  const bool halfway = std::any_of(seen.begin(), seen.end(), [](const auto& j) { return j.framesDone == 1 && j.frames == 4; });
-  EXPECT_TRUE(halfway);
+    std::lock_guard lk(m);
+    ASSERT_GE(seen.size(), 4u);
+    EXPECT_EQ(seen.front().state, service::JobState::Queued);
+    // After "task aaa frame 1 of 2": one frame of four (the other task counted as long).
+    const bool halfway =
+        std::any_of(seen.begin(), seen.end(), [](const auto& j) { return j.framesDone == 1 && j.frames == 4; });
+    EXPECT_TRUE(halfway);
   }
   // A new hub over the same directory numbers after it.
   hub.reset();
@@ -198,12 +207,13 @@ exit 2
   const auto end = waitFinished(jobs, "j1");
   EXPECT_EQ(end.state, service::JobState::Failed);
   EXPECT_EQ(end.error, "wedge.key: no such key");
-  EXPECT_TRUE(fs::is_empty(fake.dir / "jobs"));
+  EXPECT_EQ(leftovers(fake.dir / "jobs"), std::vector<std::string>{});
 }
 
 TEST(RenderJobs, CancelKillsTheBatchAndLeavesNothing) {
   FakeBatch fake(R"(echo '{"event":"plan","tasks":[{"id":"aaa"}]}'
 mkdir aaa && sleep 600 &
+echo $! > ../../sleeper
 echo '{"event":"task","id":"aaa","frame":1,"frames":1000}'
 wait
 )");
@@ -214,7 +224,19 @@ wait
   EXPECT_TRUE(jobs.cancel("j1").cancelRequested);
   const auto end = waitFinished(jobs, "j1");
   EXPECT_EQ(end.state, service::JobState::Cancelled);
-  EXPECT_TRUE(fs::is_empty(fake.dir / "jobs"));
+  EXPECT_EQ(leftovers(fake.dir / "jobs"), std::vector<std::string>{});
+  // What the batch started went with it (its group was killed, then reaped by init).
+  pid_t sleeper = 0;
+  std::ifstream(fake.dir / "sleeper") >> sleeper;
+  ASSERT_GT(sleeper, 0);
+  bool gone = false;
+  for (int i = 0; i < 60000 && !gone; ++i) {
+    std::ifstream stat("/proc/" + std::to_string(sleeper) + "/stat");
+    std::string pid, comm, state;
+    gone = !(stat >> pid >> comm >> state) || state == "Z";
+    if (!gone) usleep(1000);
+  }
+  EXPECT_TRUE(gone) << "the batch's sleep " << sleeper << " survived the cancel";
   EXPECT_EQ(jobs.cancel("j1").state, service::JobState::Cancelled);  // again: as it is
   try {
     jobs.cancel("j9");

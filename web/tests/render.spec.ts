@@ -101,8 +101,6 @@ test('render final: a wedge job fills two task bars to done, its files download,
     expect(values, `task ${i}'s progress never goes back`).toEqual([...values].sort((a, b) => a - b));
     expect(values.at(-1)).toBe(1);
   }
-  // Frame by frame: the bars showed progress between 0 and done.
-  expect(Object.values(seen).flat().some((v) => v > 0 && v < 1), JSON.stringify(seen)).toBeTruthy();
 
   // Each task's files: stats.json downloads and parses, frames.h5 and the surfaces are listed.
   const done = await getJson(page.request, `${serverUrl()}/api/jobs/${job.id}`);

@@ -39,9 +39,11 @@ import os
 import re
 import secrets
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -196,6 +198,9 @@ def plan(spec: dict, binary=None) -> list[Task]:
         key = json.dumps({"scene": task_scene, "args": args, "outputs": outputs, "flowclip": version},
                          sort_keys=True, separators=(",", ":"))
         tid = hashlib.sha256(key.encode()).hexdigest()[:16]
+        twin = next((t for t in tasks if t.id == tid), None)
+        if twin is not None:  # one folder, one result: the same run twice is a mistake in the spec
+            raise SpecError(f"{json.dumps(overrides)}: the same task as {json.dumps(twin.overrides)} (a value given twice)")
         tasks.append(Task(tid, overrides, task_scene, out / tid, list(args)))
     # The executable's own checks: every key, range and template, before anything runs.
     with tempfile.TemporaryDirectory(prefix="flowclip-batch-") as tmp:
@@ -215,15 +220,22 @@ def plan(spec: dict, binary=None) -> list[Task]:
     return tasks
 
 
-def _die_with_parent() -> None:
-    """In the child: killed when the worker that started it dies, so that no orphan keeps writing."""
+def _load_prctl():
     try:
         import ctypes
-        import signal
 
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
+        return ctypes.CDLL("libc.so.6", use_errno=True).prctl
     except OSError:
-        pass
+        return None
+
+
+_PRCTL = _load_prctl()  # resolved here: a forked child of a threaded worker must not dlopen
+
+
+def _die_with_parent() -> None:
+    """In the child: killed when the worker that started it dies, so that no orphan keeps writing."""
+    if _PRCTL is not None:
+        _PRCTL(1, 9)  # PR_SET_PDEATHSIG, SIGKILL
 
 
 _FRAME = re.compile(r"^frame (\d+)/(\d+)")
@@ -248,7 +260,8 @@ def run_task(task: Task, binary: str) -> dict:
     done = task.folder / "task.json"
     if done.exists():
         return {**json.loads(done.read_text()), "skipped": True}
-    task.folder.parent.mkdir(parents=True, exist_ok=True)
+    if not task.folder.parent.is_dir():  # run_batch made it: gone means the batch was cancelled
+        raise RuntimeError(f"task {task.id}: the output folder {task.folder.parent} was removed")
     staging = task.folder.parent / f".{task.id}.stage-{os.getpid()}-{secrets.token_hex(4)}"
     staging.mkdir()
     try:
@@ -257,7 +270,7 @@ def run_task(task: Task, binary: str) -> dict:
         args = [a for a in task.args if a != "--quiet"]  # its per-frame lines are the task's progress
         proc = subprocess.Popen([binary, "run", "scene.json", *args], cwd=staging, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.PIPE, text=True, preexec_fn=_die_with_parent)
-        tail, reported = [], -1.0
+        tail, reported, last = [], -1.0, 0.0
         for line in proc.stderr:
             tail = (tail + [line.rstrip()])[-20:]
             if not task.folder.parent.is_dir():  # the batch's output was removed: cancelled
@@ -267,9 +280,9 @@ def run_task(task: Task, binary: str) -> dict:
             m = _FRAME.match(line)
             if m:
                 done, total = int(m.group(1)), int(m.group(2))
-                # Ten reports per task at most, and the last.
-                if done == total or done / total >= reported + 0.1:
-                    reported = done / total
+                # Every tenth of the task and its last frame, and at least every few seconds.
+                if done == total or done / total >= reported + 0.1 or time.monotonic() - last > 2:
+                    reported, last = done / total, time.monotonic()
                     _report({"id": task.id, "frame": done, "frames": total})
         if proc.wait() != 0:
             message = "\n".join(line for line in tail if not _FRAME.match(line))
@@ -546,6 +559,9 @@ def main(argv=None) -> int:
     run.add_argument("--progress", choices=["text", "json"], default="text",
                      help="json: one JSON object per line on stdout (plan, task, done, end, error) for a program "
                           "that follows the batch (the server's jobs); text lines go to stderr")
+    run.add_argument("--watch-stdin", action="store_true",
+                     help="stop the batch and everything it started when stdin closes (the program that started "
+                          "it, e.g. the server, has died)")
     exp = sub.add_parser("export", help="surfaces of a particle export, frame ranges across a Dask cluster")
     exp.add_argument("frames", help="a particle export (.h5) of `flowclip run --export` or a session")
     exp.add_argument("--out", required=True)
@@ -578,10 +594,21 @@ def main(argv=None) -> int:
         print(f"flowclip-batch: {len(m['frames'])} frames exported into {a.out}")
         return 0
     as_json = a.progress == "json"
+    emitting = threading.Lock()
 
     def emit(e):
-        if as_json:
-            print(json.dumps(e), flush=True)
+        if as_json:  # one write per line: events come from the client's event loop and from this thread
+            with emitting:
+                sys.stdout.write(json.dumps(e) + "\n")
+                sys.stdout.flush()
+
+    if a.watch_stdin:
+        def watch():
+            while os.read(0, 65536):  # the raw descriptor: a buffered stdin would stop the interpreter's exit
+                pass
+            os.killpg(os.getpgrp(), signal.SIGKILL)  # its workers and their flowclip runs too
+
+        threading.Thread(target=watch, daemon=True).start()
 
     try:
         spec = load_spec(a.spec)
@@ -600,13 +627,20 @@ def main(argv=None) -> int:
         print(f"flowclip-batch: {e}", file=sys.stderr)
         return 2
     except Exception as e:  # a task that failed on every attempt
-        emit({"event": "error", "message": str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__})
+        lines = [line for line in str(e).strip().splitlines() if line.strip()]
+        # Which task and how it ended (the first line), and the cause (the last).
+        message = " ... ".join(dict.fromkeys([lines[0], lines[-1]])) if lines else type(e).__name__
+        emit({"event": "error", "message": message[:2000]})
         raise
     ran = sum(not r["skipped"] for r in results)
     emit({"event": "end", "tasks": len(results), "ran": ran})
-    print(f"flowclip-batch: {len(results)} tasks, {ran} run, {len(results) - ran} already complete")
+    print(f"flowclip-batch: {len(results)} tasks, {ran} run, {len(results) - ran} already complete",
+          file=sys.stderr if as_json else sys.stdout)
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # As flowclip.batch, not __main__: the tasks' functions then go to the workers by name.
+    from flowclip.batch import main as _main
+
+    sys.exit(_main())

@@ -203,7 +203,7 @@ def run_commands(commands: list[dict], *, local=None, scheduler=None, retries=2,
     finally:
         if cluster is not None:
             cluster.close()
-    _remove_leftovers(commands)
+        _remove_leftovers(commands)  # interrupted too: what is hidden is a stopped attempt's
     return results
 
 
