@@ -51,8 +51,8 @@ def test_a_wedge_on_a_local_cluster_equals_plain_runs_and_resumes(tmp_path):
     assert len(done) == 6 and done[-1].startswith("batch: 6/6 ")
     # Each task's own progress, from its flowclip's frame lines, reaches the client as it runs.
     progress = [line for line in lines if line.startswith("task ")]
-    assert progress and all(line.split(": frame ")[1].split("/")[1] == str(FRAMES) for line in progress)
-    assert any(line.endswith(f": frame {FRAMES}/{FRAMES}") for line in progress)
+    assert progress and all(line.split(": frame ")[1].split()[0].split("/")[1] == str(FRAMES) for line in progress)
+    assert any(line.endswith(f": frame {FRAMES}/{FRAMES} [{'#' * 20}] 100%") for line in progress)
     assert len(progress) <= 6 * FRAMES  # at most one report per frame line of each task
     table = json.loads((tmp_path / "out" / "batch.json").read_text())
     assert [t["id"] for t in table["tasks"]] == [r["id"] for r in results]
@@ -209,6 +209,19 @@ def _group_of(pid):
         return int(fields[2]) if fields[0] != "Z" else None
     except (OSError, IndexError, ValueError):
         return None
+
+
+def test_the_summary_table_lists_every_task():
+    from flowclip.batch import summary_table
+
+    table = summary_table([
+        {"id": "aaa", "overrides": {"instances[drop].speed": 0.5}, "skipped": False, "wall_s": 3.25,
+         "summary": {"frames": 12, "ms_per_frame": 20.04}},
+        {"id": "bbb", "overrides": {}, "skipped": True, "wall_s": 1.0, "summary": {"frames": 12}},
+    ]).splitlines()
+    assert table[0].split() == ["task", "overrides", "wall", "s", "frames", "ms/frame"]
+    assert table[1].split() == ["aaa", '{"instances[drop].speed":', "0.5}", "run", "3.2", "12", "20.0"]
+    assert table[2].split() == ["bbb", "-", "skipped", "1.0", "12"]
 
 
 def test_key_paths():

@@ -394,6 +394,23 @@ def make_cluster(config: dict, threads: int = 1):
                         f"{str(e).splitlines()[0]}") from None
 
 
+def _bar(fraction: float, width: int = 20) -> str:
+    filled = int(round(max(0.0, min(1.0, fraction)) * width))
+    return "[" + "#" * filled + "." * (width - filled) + f"] {100 * fraction:3.0f}%"
+
+
+def summary_table(results: list[dict]) -> str:
+    """The batch's tasks as a text table: id, overrides, run or skipped, wall s, frames, ms per frame."""
+    rows = [("task", "overrides", "", "wall s", "frames", "ms/frame")]
+    for r in results:
+        s = r.get("summary", {})
+        rows.append((r["id"], json.dumps(r["overrides"]) if r["overrides"] else "-",
+                     "skipped" if r["skipped"] else "run", f"{r.get('wall_s', 0):.1f}",
+                     str(s.get("frames", "")), f"{s['ms_per_frame']:.1f}" if "ms_per_frame" in s else ""))
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
+    return "\n".join("  ".join(c.ljust(w) for c, w in zip(row, widths)).rstrip() for row in rows)
+
+
 def run_batch(spec: dict, *, local=None, scheduler=None, cluster_config=None, binary=None, retries=2,
               log=print, event=None) -> list[dict]:
     """Plans the spec, then runs its tasks on the cluster; the summaries in the spec's order.
@@ -436,7 +453,8 @@ def run_batch(spec: dict, *, local=None, scheduler=None, cluster_config=None, bi
             def progress(logged):
                 message = logged[1] if isinstance(logged, tuple) else logged
                 if isinstance(message, dict) and message.get("id") in ids:
-                    log(f"task {message['id']}: frame {message['frame']}/{message['frames']}")
+                    log(f"task {message['id']}: frame {message['frame']}/{message['frames']} "
+                        f"{_bar(message['frame'] / max(1, message['frames']))}")
                     event({"event": "task", **message})
 
             client.subscribe_topic(PROGRESS_TOPIC, progress)
@@ -448,7 +466,8 @@ def run_batch(spec: dict, *, local=None, scheduler=None, cluster_config=None, bi
                 result = future.result()
                 results[index[future.key]] = result
                 state = "skipped (complete)" if result["skipped"] else f"{result['wall_s']:.1f} s"
-                log(f"batch: {done}/{len(tasks)} {result['id']} {json.dumps(result['overrides'])} {state}")
+                log(f"batch: {done}/{len(tasks)} {_bar(done / len(tasks))} {result['id']} "
+                    f"{json.dumps(result['overrides'])} {state}")
                 event({"event": "done", **result})
     finally:
         if cluster is not None:
@@ -634,8 +653,9 @@ def main(argv=None) -> int:
         raise
     ran = sum(not r["skipped"] for r in results)
     emit({"event": "end", "tasks": len(results), "ran": ran})
-    print(f"flowclip-batch: {len(results)} tasks, {ran} run, {len(results) - ran} already complete",
-          file=sys.stderr if as_json else sys.stdout)
+    out = sys.stderr if as_json else sys.stdout
+    print(summary_table(results), file=out)
+    print(f"flowclip-batch: {len(results)} tasks, {ran} run, {len(results) - ran} already complete", file=out)
     return 0
 
 
