@@ -39,9 +39,10 @@ bool RenderJobs::isJobId(const std::string& id) { return isNumberedJobId(id, 'j'
 
 RenderJobs::RenderJobs(RenderJobsOptions options) : options_(std::move(options)) {
   std::error_code ec;
-  fs::create_directories(options_.jobsDir, ec);
-  // Staged jobs are a dead server's only when no live server holds the directory's lock.
-  lock_ = ::open((fs::path(options_.jobsDir) / ".lock").c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  // Staged jobs are a dead server's only when no live server holds the directory's lock
+  // (made with the directory, by the first job, when there is none yet).
+  if (fs::is_directory(options_.jobsDir, ec))
+    lock_ = ::open((fs::path(options_.jobsDir) / ".lock").c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
   const bool owner = lock_ >= 0 && ::flock(lock_, LOCK_EX | LOCK_NB) == 0;
   // Numbered after the jobs already in the directory; a dead server's staged jobs are never complete.
   for (const auto& entry : fs::directory_iterator(options_.jobsDir, ec)) {
@@ -280,7 +281,13 @@ void RenderJobs::runJob(Job& job) {
   bool keepStaging = false;  // finished results the rename could not publish
   bool ownStaging = false;
   try {
-    fs::create_directories(options_.jobsDir);
+    if (fs::create_directories(options_.jobsDir)) {
+      std::lock_guard lk(mutex_);
+      if (lock_ < 0) {
+        lock_ = ::open((fs::path(options_.jobsDir) / ".lock").c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+        if (lock_ >= 0) ::flock(lock_, LOCK_EX | LOCK_NB);
+      }
+    }
     if (!fs::create_directory(staging))
       throw std::runtime_error(staging.string() + " exists: another server is using " + options_.jobsDir);
     ownStaging = true;
