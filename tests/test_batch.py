@@ -211,6 +211,20 @@ def _group_of(pid):
         return None
 
 
+def test_a_worker_without_the_clients_flowclip_runs_its_own(tmp_path, monkeypatch):
+    """The task names the client's executable; a worker (an image) that lacks that path runs its own
+    flowclip ($FLOWCLIP_BIN), and the task's frames are the same."""
+    from flowclip.batch import run_task
+
+    spec = load_spec(write_spec(tmp_path, grid={"instances[drop].speed": [1.0]}, frames=3))
+    (task,) = plan(spec, FLOWCLIP_BIN)
+    (tmp_path / "out").mkdir()
+    monkeypatch.setenv("FLOWCLIP_BIN", str(FLOWCLIP_BIN))
+    result = run_task(task, str(tmp_path / "not-on-this-worker" / "flowclip"))
+    assert not result["skipped"] and result["summary"]["frames"] == 3
+    assert (tmp_path / "out" / task.id / "frames.h5").exists()
+
+
 def test_the_summary_table_lists_every_task():
     from flowclip.batch import summary_table
 

@@ -252,6 +252,14 @@ def _report(progress: dict) -> None:
         pass
 
 
+def _worker_binary(binary: str) -> str:
+    """The client's flowclip where the worker has it, else the worker's own ($FLOWCLIP_BIN, PATH):
+    a worker image need not share the client's layout."""
+    if os.path.exists(binary):
+        return binary
+    return os.environ.get("FLOWCLIP_BIN") or shutil.which("flowclip") or binary
+
+
 def run_task(task: Task, binary: str) -> dict:
     """One task on a worker: skipped when its folder exists, else run in a hidden folder that is
     renamed into place whole. A URL's task runs in a local temporary folder, then is uploaded."""
@@ -268,7 +276,7 @@ def run_task(task: Task, binary: str) -> dict:
         (staging / "scene.json").write_text(json.dumps(task.scene, indent=1))
         t0 = time.monotonic()
         args = [a for a in task.args if a != "--quiet"]  # its per-frame lines are the task's progress
-        proc = subprocess.Popen([binary, "run", "scene.json", *args], cwd=staging, stdout=subprocess.DEVNULL,
+        proc = subprocess.Popen([_worker_binary(binary), "run", "scene.json", *args], cwd=staging, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.PIPE, text=True, preexec_fn=_die_with_parent)
         tail, reported, last = [], -1.0, 0.0
         for line in proc.stderr:
@@ -487,7 +495,7 @@ def _export_part(binary: str, frames_file: str, stage: str, name: str, first: in
                  formats: list, options: list) -> dict:
     """One part of a frame-parallel export on a worker: `flowclip export` of frames first..last into
     its own hidden folder; returns that part's manifest."""
-    cmd = [binary, "export", frames_file, "--out", stage, "--name", name, "--formats", ",".join(formats),
+    cmd = [_worker_binary(binary), "export", frames_file, "--out", stage, "--name", name, "--formats", ",".join(formats),
            "--threads", "1", "--quiet", *options, "--first", str(first)]
     if last is not None:
         cmd += ["--last", str(last)]
