@@ -360,6 +360,7 @@ void RenderJobs::runJob(Job& job) {
         t.state = "done";
         t.frame = t.frames;
         t.files.clear();
+        if (t.id.empty()) continue;  // never planned: no folder of its own
         for (const auto& f : fs::recursive_directory_iterator(out / t.id, ec))
           if (f.symlink_status().type() == fs::file_type::regular)
             t.files.push_back(fs::relative(f.path(), out / t.id).string());
