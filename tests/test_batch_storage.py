@@ -22,6 +22,7 @@ from fsspec.implementations.local import LocalFileSystem
 from flowclip import batch, storage
 from flowclip.batch import SpecError, check_cluster, load_spec, make_cluster, plan, run_batch
 from repo_paths import FLOWCLIP_BIN, ROOT
+from test_batch import frames_of
 
 FRAMES = 12
 FILES = ["frames.h5", "scene.json", "stats.json", "task.json"]
@@ -34,13 +35,6 @@ def write_spec(tmp_path, out, **extra):
     path = tmp_path / "wedge.json"
     path.write_text(json.dumps(spec))
     return path
-
-
-def arrays(path):
-    with h5py.File(path, "r") as f:
-        out = {}
-        f.visititems(lambda name, obj: out.__setitem__(name, obj[()]) if isinstance(obj, h5py.Dataset) else None)
-        return out
 
 
 def test_a_wedge_into_a_file_url_is_complete_task_by_task_and_resumes(tmp_path):
@@ -66,7 +60,7 @@ def test_a_wedge_into_a_file_url_is_complete_task_by_task_and_resumes(tmp_path):
     subprocess.run([str(FLOWCLIP_BIN.resolve()), "run", "scene.json", "--frames", str(FRAMES), "--threads", "1", "--quiet",
                     "--templates", str(ROOT / "templates"), "--export", "frames.h5"], cwd=plain, check=True,
                    timeout=600)
-    ours, theirs = arrays(first / "frames.h5"), arrays(plain / "frames.h5")
+    ours, theirs = frames_of(first / "frames.h5"), frames_of(plain / "frames.h5")
     assert ours.keys() == theirs.keys() and any(k.endswith("position") for k in ours)
     for name in ours:
         assert np.array_equal(ours[name], theirs[name]), name

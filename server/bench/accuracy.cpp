@@ -816,6 +816,20 @@ std::string findBatchCommand(const Options& opt, const std::string& self) {
                    "with Dask (pip install \"clients/python[batch]\"; make setup puts it in build/venv), or name it "
                    "with --batch-command PATH or FLOWCLIP_BATCH");
 }
+// A point's line of the sweep's progress: its figures, or why it failed.
+void printPoint(size_t i, size_t n, const Result& r, double wall) {
+  if (r.ok())
+    std::fprintf(stderr,
+                 "[%zu/%zu] %s: %.1f s wall, %.2f wall s/sim s, %.3f us/p-step, density err %.4f%% (max %.3f%%), "
+                 "volume %+.4f%%%s%s%s, load %.1f\n",
+                 i + 1, n, describe(r).c_str(), wall, r.wallPerSimS, r.usPerParticleStep, r.avgErr, r.maxErr,
+                 r.volumeDrift, r.surgeRms ? (", surge RMS " + fmt(*r.surgeRms, "%.3f")).c_str() : "",
+                 r.fidelity ? (", fidelity " + fmt(*r.fidelity, "%.3f")).c_str() : "",
+                 r.unconverged ? (", " + std::to_string(r.unconverged) + " frames unconverged").c_str() : "", r.load);
+  else
+    std::fprintf(stderr, "[%zu/%zu] %s: FAILED: %s\n", i + 1, n, describe(r).c_str(), r.error.c_str());
+}
+
 
 // Every point's runs (ctx.repeat each) as the commands of one `flowclip-batch
 // commands` list, run on the cluster; then each point's figures are read from
@@ -913,16 +927,7 @@ bool runOnCluster(const Context& ctx, const Options& opt, const std::string& bat
       complete = false;
       continue;
     }
-    if (r.ok())
-      std::fprintf(stderr,
-                   "[%zu/%zu] %s: %.1f s wall, %.2f wall s/sim s, %.3f us/p-step, density err %.4f%% (max %.3f%%), "
-                   "volume %+.4f%%%s%s%s, load %.1f\n",
-                   i + 1, results.size(), describe(r).c_str(), wall, r.wallPerSimS, r.usPerParticleStep, r.avgErr,
-                   r.maxErr, r.volumeDrift, r.surgeRms ? (", surge RMS " + fmt(*r.surgeRms, "%.3f")).c_str() : "",
-                   r.fidelity ? (", fidelity " + fmt(*r.fidelity, "%.3f")).c_str() : "",
-                   r.unconverged ? (", " + std::to_string(r.unconverged) + " frames unconverged").c_str() : "", r.load);
-    else
-      std::fprintf(stderr, "[%zu/%zu] %s: FAILED: %s\n", i + 1, results.size(), describe(r).c_str(), r.error.c_str());
+    printPoint(i, results.size(), r, wall);
   }
   return complete && code != Interrupted;
 }
@@ -1023,16 +1028,7 @@ int benchAccuracy(const Options& opt) {
     if (r.status == "interrupted") break;
     ++done;
     const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - tp).count();
-    if (r.ok())
-      std::fprintf(stderr,
-                   "[%zu/%zu] %s: %.1f s wall, %.2f wall s/sim s, %.3f us/p-step, density err %.4f%% (max %.3f%%), "
-                   "volume %+.4f%%%s%s%s, load %.1f\n",
-                   i + 1, results.size(), describe(r).c_str(), wall, r.wallPerSimS, r.usPerParticleStep, r.avgErr,
-                   r.maxErr, r.volumeDrift, r.surgeRms ? (", surge RMS " + fmt(*r.surgeRms, "%.3f")).c_str() : "",
-                   r.fidelity ? (", fidelity " + fmt(*r.fidelity, "%.3f")).c_str() : "",
-                   r.unconverged ? (", " + std::to_string(r.unconverged) + " frames unconverged").c_str() : "", r.load);
-    else
-      std::fprintf(stderr, "[%zu/%zu] %s: FAILED: %s\n", i + 1, results.size(), describe(r).c_str(), r.error.c_str());
+    printPoint(i, results.size(), r, wall);
     if (!r.ok()) status = Failure;
   }
   const bool interrupted = InterruptGuard::requested() || done < results.size() || clusterInterrupted;

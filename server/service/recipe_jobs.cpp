@@ -249,18 +249,7 @@ JobInfo RecipeJobs::wait(const std::string& id, std::chrono::milliseconds timeou
   return snapshot(j->info, j->started);
 }
 
-void RecipeJobs::prune() {
-  size_t finished = 0;
-  for (const auto& [n, j] : jobs_) finished += j->info.finished();
-  for (auto it = jobs_.begin(); it != jobs_.end() && finished > kMaxFinishedJobs;) {
-    if (it->second->info.finished()) {
-      it = jobs_.erase(it);
-      --finished;
-    } else {
-      ++it;
-    }
-  }
-}
+void RecipeJobs::prune() { pruneFinishedJobs(jobs_, kMaxFinishedJobs); }
 
 void RecipeJobs::run() {
   if (options_.threads > 0) omp_set_num_threads(options_.threads);

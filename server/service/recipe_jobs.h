@@ -61,6 +61,22 @@ nlohmann::json jobProgressJson(const JobProgress& job);
 // Whether `id` is a job id of this kind: `prefix` then a number from 1 ("r1", "x12").
 bool isNumberedJobId(const std::string& id, char prefix);
 
+// Drops the oldest finished jobs of `jobs` (by number, each with an `info`
+// that is a JobProgress) until at most `keep` finished ones remain.
+template <class Job>
+void pruneFinishedJobs(std::map<uint64_t, std::shared_ptr<Job>>& jobs, size_t keep) {
+  size_t finished = 0;
+  for (const auto& [n, j] : jobs) finished += j->info.finished();
+  for (auto it = jobs.begin(); it != jobs.end() && finished > keep;) {
+    if (it->second->info.finished()) {
+      it = jobs.erase(it);
+      --finished;
+    } else {
+      ++it;
+    }
+  }
+}
+
 // What a client sees of a recording job (a copy, taken under the lock).
 struct JobInfo : JobProgress {
   std::string id;

@@ -96,16 +96,7 @@ RenderJobInfo RenderJobs::start(RenderJobRequest request) {
   }
   job->request = std::move(request);
   jobs_[next_++] = job;
-  size_t finished = 0;
-  for (const auto& [n, j] : jobs_) finished += j->info.finished();
-  for (auto it = jobs_.begin(); it != jobs_.end() && finished > kMaxFinishedJobs;) {
-    if (it->second->info.finished()) {
-      it = jobs_.erase(it);
-      --finished;
-    } else {
-      ++it;
-    }
-  }
+  pruneFinishedJobs(jobs_, kMaxFinishedJobs);
   // Reported as queued before the job thread can take it, so that no later state is overwritten.
   changed(*job, lk);
   queue_.push_back(job);
@@ -131,12 +122,6 @@ std::vector<RenderJobInfo> RenderJobs::jobs() const {
   std::vector<RenderJobInfo> out;
   for (const auto& [n, j] : jobs_) out.push_back(j->info);
   return out;
-}
-
-std::string RenderJobs::directory(const std::string& id) const {
-  std::lock_guard lk(mutex_);
-  const auto job = find(id);
-  return job->info.state == JobState::Done ? (fs::path(options_.jobsDir) / id).string() : std::string();
 }
 
 RenderJobInfo RenderJobs::cancel(const std::string& id) {

@@ -91,8 +91,6 @@ class RenderJobs {
   // A queued job is cancelled at once; a running one's processes are
   // killed and its directory removed. A done or failed job is 409.
   RenderJobInfo cancel(const std::string& id);
-  // The finished job's directory (JOBS/jN), "" before it is done.
-  std::string directory(const std::string& id) const;
 
   static constexpr size_t kMaxFinishedJobs = 64;
   static bool isJobId(const std::string& id);

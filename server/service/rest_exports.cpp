@@ -155,19 +155,11 @@ HttpResponse ServiceHub::exportFrames(const HttpRequest& req, const Params& p) {
 }
 
 HttpResponse ServiceHub::getSurfaceJob(const HttpRequest&, const Params& p) {
-  try {
-    return jsonResponse(surfaceJobJson(surfaceJobs_->job(p[0])));
-  } catch (const RecipeJobError& e) {
-    throw ApiError(e.status, e.what(), e.path);
-  }
+  return jsonResponse(surfaceJobJson(surfaceJobs_->job(p[0])));
 }
 
 HttpResponse ServiceHub::cancelSurfaceJob(const HttpRequest&, const Params& p) {
-  try {
-    return jsonResponse(surfaceJobJson(surfaceJobs_->cancel(p[0])));
-  } catch (const RecipeJobError& e) {
-    throw ApiError(e.status, e.what(), e.path);
-  }
+  return jsonResponse(surfaceJobJson(surfaceJobs_->cancel(p[0])));
 }
 
 HttpResponse ServiceHub::getSurfaceFile(const HttpRequest&, const Params& p) {

@@ -160,31 +160,17 @@ HttpResponse ServiceHub::listJobs(const HttpRequest&, const Params&) {
 }
 
 HttpResponse ServiceHub::getJob(const HttpRequest&, const Params& p) {
-  try {
-    return jsonResponse(renderJobJson(renderJobs_->job(p[0])));
-  } catch (const RecipeJobError& e) {
-    throw ApiError(e.status, e.what(), e.path);
-  }
+  return jsonResponse(renderJobJson(renderJobs_->job(p[0])));
 }
 
 HttpResponse ServiceHub::cancelJob(const HttpRequest&, const Params& p) {
-  try {
-    return jsonResponse(renderJobJson(renderJobs_->cancel(p[0])));
-  } catch (const RecipeJobError& e) {
-    throw ApiError(e.status, e.what(), e.path);
-  }
+  return jsonResponse(renderJobJson(renderJobs_->cancel(p[0])));
 }
 
 HttpResponse ServiceHub::getJobFile(const HttpRequest&, const Params& p) {
-  std::string dir;
-  RenderJobInfo job;
-  try {
-    job = renderJobs_->job(p[0]);
-    dir = renderJobs_->directory(p[0]);
-  } catch (const RecipeJobError& e) {
-    throw ApiError(e.status, e.what(), e.path);
-  }
-  if (dir.empty()) throw ApiError(409, "render job " + p[0] + " is " + jobStateName(job.state) + ": its files come when it is done", "id");
+  // A RecipeJobError (400 bad id, 404 no job) is answered by the dispatch.
+  const RenderJobInfo job = renderJobs_->job(p[0]);
+  if (job.state != JobState::Done) throw ApiError(409, "render job " + p[0] + " is " + jobStateName(job.state) + ": its files come when it is done", "id");
   const std::string& task = p[1];
   const std::string& file = p[2];
   const auto known = std::find_if(job.tasks.begin(), job.tasks.end(), [&](const RenderTaskInfo& t) { return t.id == task; });
@@ -192,7 +178,7 @@ HttpResponse ServiceHub::getJobFile(const HttpRequest&, const Params& p) {
   // One of the files the job listed: nothing else of the disk can be named.
   if (std::find(known->files.begin(), known->files.end(), file) == known->files.end())
     throw ApiError(404, "task " + task + " of render job " + p[0] + " has no file \"" + file.substr(0, 120) + "\"", "file");
-  const fs::path path = fs::path(dir) / task / file;
+  const fs::path path = fs::path(renderJobs_->options().jobsDir) / job.id / task / file;
   std::ifstream in(path, std::ios::binary);
   if (!in) throw ApiError(404, "the file \"" + file + "\" of task " + task + " is gone", "file");
   HttpResponse r;

@@ -53,17 +53,7 @@ SurfaceJobInfo SurfaceJobs::start(SurfaceJobRequest request) {
   job->info.formats = request.formats;
   job->request = std::move(request);
   jobs_[next_++] = job;
-  // Keep the newest finished jobs only.
-  size_t finished = 0;
-  for (auto it = jobs_.rbegin(); it != jobs_.rend(); ++it) finished += it->second->info.finished();
-  for (auto it = jobs_.begin(); it != jobs_.end() && finished > kMaxFinishedJobs;) {
-    if (it->second->info.finished()) {
-      it = jobs_.erase(it);
-      --finished;
-    } else {
-      ++it;
-    }
-  }
+  pruneFinishedJobs(jobs_, kMaxFinishedJobs);  // the newest finished jobs only
   // Reported as queued before the worker can take it, so that no later state is overwritten.
   changed(*job, lk);
   queue_.push_back(job);
