@@ -9,7 +9,8 @@ PORT ?= 8080
 ABS_BUILD_DIR = $(abspath $(BUILD_DIR))
 
 .PHONY: all setup build web templates run run-headless docs gallery portable bench-portable test test-parts test-ctest test-pytest test-web test-web-only bench bench-accuracy bench-web clean \
-  fuzz fuzz-build fuzz-regress test-fuzz asan-build test-asan bench-soak bench-cache bench-suite bench-spheric2 bench-batch
+  fuzz fuzz-build fuzz-regress test-fuzz asan-build test-asan bench-soak bench-cache bench-suite bench-spheric2 bench-batch \
+  templates-paper bench-scenes-paper
 
 # 2D templates are recorded when missing (seconds); larger ones on demand:
 # build/flowclip record templates/recipes/letters3d.json
@@ -30,6 +31,19 @@ templates/%.h5: templates/recipes/%.json | build
 	$(BUILD_DIR)/flowclip record $< --templates templates --force --quiet
 
 templates: $(foreach t,$(TEMPLATES_2D),templates/$(t).h5)
+
+# The paper's scale (docs/benchmarks/paper-scale.md): every recipe the
+# scenes of the paper's Table 1 play, recorded at its "paper" resolution into
+# templates/paper/. A template already there is kept, so a stopped run
+# resumes at the first recipe still missing.
+RECIPES_PAPER = drop2d wave2d blade2d waterjet2d jet2d doubledam2d honey3d blade3d hand3d letters3d
+templates-paper: build
+	@for r in $(RECIPES_PAPER); do $(BUILD_DIR)/flowclip record templates/recipes/$$r.json --scale paper --skip-existing || exit 1; done
+
+# Table 1 at the paper's scale: bench/scenes-paper/scenes.md (+ .json).
+BENCH_SCENES_PAPER_ARGS ?= --frames 60
+bench-scenes-paper: templates-paper
+	$(BUILD_DIR)/flowclip bench scenes --scale paper $(BENCH_SCENES_PAPER_ARGS)
 
 # The editor (web/ -> web/dist). It imports the TypeScript wire code the C++
 # build generates ($(BUILD_DIR)/generated/ts), hence after `build`.

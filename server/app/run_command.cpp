@@ -38,6 +38,7 @@ struct RunOptions {
   std::string statsPath;
   int threads = 0;
   double particleRadius = 0;
+  std::string scale;  // --scale NAME: the scene's named resolution
   std::string solver;
   std::string boundary;
   std::string templates = "templates";
@@ -287,12 +288,18 @@ void addRunCommand(CLI::App& app) {
                   "docs/surfaces.md)");
   run->add_option("--stats", opt->statsPath, "write per-frame statistics and a summary to this JSON file");
   run->add_option("--threads", opt->threads, "OpenMP threads (default: all cores)")->check(CLI::PositiveNumber);
-  run->add_option("--particle-radius", opt->particleRadius, "override the scene's particle radius (resolution), m")
-      ->check(CLI::PositiveNumber);
+  auto* radius = run->add_option("--particle-radius", opt->particleRadius,
+                                 "override the scene's particle radius (resolution), m")
+                     ->check(CLI::PositiveNumber);
+  run->add_option("--scale", opt->scale,
+                  "run at one of the scene's named resolutions (\"scales\", e.g. paper); templates then come from "
+                  "TEMPLATES/NAME")
+      ->excludes(radius);
   run->add_option("--solver", opt->solver, "override the scene's pressure solver (a different one runs with its default parameters)");
   run->add_option("--boundary", opt->boundary,
                   "override the scene's boundary model (a different one runs with its default parameters)");
-  run->add_option("--templates", opt->templates, "template database directory (default: templates)");
+  run->add_option("--templates", opt->templates,
+                  "template database directory (default: templates, or templates/NAME with --scale NAME)");
   run->add_option("--frame-timeout", opt->frameTimeout,
                   "stop with exit status 3 if one frame takes longer than this many wall seconds (default: no limit)")
       ->check(CLI::NonNegativeNumber);
@@ -300,12 +307,17 @@ void addRunCommand(CLI::App& app) {
                   "override a control setting of the scene, KEY=VALUE (e.g. forces_every_substep=1); repeatable");
   run->add_flag("--quiet", opt->quiet, "no progress line or summary");
   addSurfaceOptions(run, opt->surface);
-  run->callback([opt] {
+  run->callback([opt, run] {
     if (opt->threads > 0) omp_set_num_threads(opt->threads);
     int code = Ok;
     try {
-      const nlohmann::json j = loadSceneJson(opt->scene);
-      code = sceneDimension(j) == 2 ? runScene<2>(*opt, j) : runScene<3>(*opt, j);
+      nlohmann::json j = loadSceneJson(opt->scene);
+      RunOptions o = *opt;
+      if (!o.scale.empty()) {
+        j = applySceneScale(j, o.scale);
+        if (!run->count("--templates")) o.templates = scaledTemplatesDir(o.templates, o.scale);
+      }
+      code = sceneDimension(j) == 2 ? runScene<2>(o, j) : runScene<3>(o, j);
     } catch (...) {
       code = reportError(opt->scene, Failure);
     }

@@ -3,6 +3,7 @@
 // list|inspect|remove`: the database.
 #include "app/commands.h"
 #include "io/recipe.h"
+#include "io/scene.h"
 #include "io/template_database.h"
 #include "io/template_file.h"
 
@@ -10,6 +11,7 @@
 #include <unistd.h>
 #include <algorithm>
 #include <chrono>
+#include <filesystem>
 #include <cstdio>
 #include <limits>
 #include <memory>
@@ -24,9 +26,11 @@ struct RecordCliOptions {
   std::string recipe;
   std::string templatesDir = "templates";
   bool force = false;
+  bool skipExisting = false;  // nothing to do when every captured template is there
   bool quiet = false;
   int threads = 0;
   double particleRadius = 0;
+  std::string scale;  // --scale NAME: the recipe's named resolution
 };
 
 struct TemplatesCliOptions {
@@ -45,7 +49,18 @@ std::string vecText(const std::vector<double>& v) {
 }
 
 int record(const RecordCliOptions& opt) {
-  const Recipe recipe = loadRecipe(opt.recipe);
+  Recipe recipe = loadRecipe(opt.recipe);
+  if (!opt.scale.empty()) recipe.scene = applySceneScale(recipe.scene, opt.scale);
+  if (opt.skipExisting) {
+    const TemplateDatabase db(opt.templatesDir);
+    bool all = true;
+    for (const CaptureSpec& c : recipe.captures) all = all && std::filesystem::exists(db.pathFor(c.name));
+    if (all) {
+      if (!opt.quiet) std::fprintf(stderr, "%s: every template it captures is in %s already\n", opt.recipe.c_str(),
+                                   opt.templatesDir.c_str());
+      return Ok;
+    }
+  }
   RecordOptions ro;
   ro.templatesDir = opt.templatesDir;
   ro.force = opt.force;
@@ -170,14 +185,21 @@ void addTemplatesCommands(CLI::App& app) {
   auto ro = std::make_shared<RecordCliOptions>();
   CLI::App* rec = app.add_subcommand("record", "simulate a recipe and store the captured animation template(s)");
   rec->add_option("recipe", ro->recipe, "recipe file (a scene plus a \"capture\" object or array, JSON)")->required();
-  rec->add_option("--templates", ro->templatesDir, "template directory (default: templates)");
+  rec->add_option("--templates", ro->templatesDir,
+                  "template directory (default: templates, or templates/NAME with --scale NAME)");
   rec->add_flag("--force", ro->force, "overwrite an existing template of the same name");
+  rec->add_flag("--skip-existing", ro->skipExisting,
+                "do nothing when every template the recipe captures exists (a stopped batch of recordings resumes)");
   rec->add_option("--threads", ro->threads, "OpenMP threads (default: all cores)")->check(CLI::PositiveNumber);
-  rec->add_option("--particle-radius", ro->particleRadius, "override the recipe's particle radius, m")
-      ->check(CLI::PositiveNumber);
+  auto* radius = rec->add_option("--particle-radius", ro->particleRadius, "override the recipe's particle radius, m")
+                     ->check(CLI::PositiveNumber);
+  rec->add_option("--scale", ro->scale,
+                  "record at one of the recipe's named resolutions (\"scales\", e.g. paper) into TEMPLATES/NAME")
+      ->excludes(radius);
   rec->add_flag("--quiet", ro->quiet, "no progress line");
-  rec->callback([ro] {
+  rec->callback([ro, rec] {
     if (ro->threads > 0) omp_set_num_threads(ro->threads);
+    if (!ro->scale.empty() && !rec->count("--templates")) ro->templatesDir = scaledTemplatesDir(ro->templatesDir, ro->scale);
     int code = Ok;
     try {
       code = record(*ro);

@@ -58,8 +58,9 @@ struct Options {
   std::vector<std::string> scenes;
   int frames = 60;
   std::string templates = "templates";
+  std::string scale;  // a named resolution of every scene ("paper"); empty: as shipped
   int threads = 0;
-  std::string out = "bench/scenes";
+  std::string out;  // default bench/scenes, or bench/scenes-NAME with a scale
 };
 
 std::string count(double v) {
@@ -100,6 +101,23 @@ std::string markdown(const json& rows, const json& failures, int frames) {
                          "simulation ms / frame", "control ms / frame", "control %", "memory GB", "templates MB"},
                         paper);
   }
+  std::vector<std::vector<std::string>> ratios;
+  for (const json& r : rows) {
+    if (!r.contains("paper")) continue;
+    const json& p = r["paper"];
+    auto ratio = [](double a, double b) { return b > 0 ? fmt(a / b, "%.2f") : std::string("-"); };
+    ratios.push_back({r["scene"], ratio(r["liquid"], p["liquid"]),
+                      ratio(r["simulation_ms_per_frame"], p["simulation_ms_per_frame"]),
+                      fmt(r["control_pct"], "%.1f") + " / " + fmt(p["control_pct"], "%.1f"),
+                      ratio(r["peak_rss_mb"].get<double>() / 1024.0, p["memory_gb"]),
+                      ratio(r["template_storage_mb"], p["template_storage_mb"])});
+  }
+  if (!ratios.empty()) {
+    md += "\n## Ours over the paper's\n\nEach figure of this machine divided by the paper's (liquid particles, "
+          "simulation ms per frame on our cores against its 8, peak RSS against its memory, template storage); "
+          "the control share of each, in percent.\n\n";
+    md += markdownTable({"scene", "liquid", "ms / frame", "control % (ours / paper)", "memory", "templates"}, ratios);
+  }
   if (!failures.empty()) {
     md += "\n## Failed runs\n\n";
     for (const json& f : failures)
@@ -109,9 +127,20 @@ std::string markdown(const json& rows, const json& failures, int frames) {
 }
 
 int benchScenes(const Options& opt) {
-  const std::vector<std::string> scenes = opt.scenes.empty() ? sceneFilesIn("scenes") : opt.scenes;
+  std::vector<std::string> scenes = opt.scenes;
+  if (scenes.empty())
+    for (const std::string& f : sceneFilesIn("scenes")) {
+      // With a scale, the shipped scenes that have it.
+      bool has = opt.scale.empty();
+      try {
+        has = has || loadSceneJson(f).value("scales", json::object()).contains(opt.scale);
+      } catch (const std::exception&) {
+      }
+      if (has) scenes.push_back(f);
+    }
   if (scenes.empty()) {
-    std::fprintf(stderr, "error: no scenes found (scenes/*.json)\n");
+    std::fprintf(stderr, "error: no scenes found (scenes/*.json%s)\n",
+                 opt.scale.empty() ? "" : (" with the scale '" + opt.scale + "'").c_str());
     return BadInput;
   }
   const int threads = opt.threads > 0 ? opt.threads : omp_get_max_threads();
@@ -125,9 +154,13 @@ int benchScenes(const Options& opt) {
     const std::string stem = fs::path(scene).stem().string();
     std::fprintf(stderr, "[%zu/%zu] %s: %d frames…\n", k + 1, scenes.size(), stem.c_str(), opt.frames);
     const std::string statsPath = (tmp / (stem + ".json")).string();
-    const std::vector<std::string> args = {self, "run", scene, "--frames", std::to_string(opt.frames), "--stats",
-                                           statsPath, "--templates", opt.templates, "--threads",
-                                           std::to_string(threads), "--quiet"};
+    std::vector<std::string> args = {self, "run", scene, "--frames", std::to_string(opt.frames), "--stats",
+                                     statsPath, "--templates", opt.templates, "--threads",
+                                     std::to_string(threads), "--quiet"};
+    if (!opt.scale.empty()) {
+      args.push_back("--scale");
+      args.push_back(opt.scale);
+    }
     const int rc = runChild(args);
     json stats;
     try {
@@ -215,8 +248,8 @@ int benchScenes(const Options& opt) {
   std::error_code ec;
   fs::remove_all(tmp, ec);
   const json settings = {{"scenes", scenes}, {"frames", opt.frames}, {"templates", opt.templates},
-                         {"threads", threads}};
-  report.write(opt.out, "The paper's scenes", markdown(results, failures, opt.frames),
+                         {"scale", opt.scale.empty() ? json() : json(opt.scale)}, {"threads", threads}};
+  report.write(opt.out, opt.scale.empty() ? "The paper's scenes" : "The paper's scenes at scale '" + opt.scale + "'", markdown(results, failures, opt.frames),
                {{"settings", settings}, {"scenes", results}, {"failures", failures}});
   return failures.empty() ? Ok : SimulationFailed;
 }
@@ -228,13 +261,19 @@ void addBenchScenesCommand(CLI::App& bench) {
   CLI::App* cmd = bench.add_subcommand("scenes", "every shipped scene, with the columns of the paper's Table 1 beside its figures");
   cmd->add_option("scenes", opt->scenes, "scene files (default: every scenes/*.json)");
   cmd->add_option("--frames", opt->frames, "frames per scene (default 60)")->check(CLI::PositiveNumber);
-  cmd->add_option("--templates", opt->templates, "template database directory (default: templates)");
+  cmd->add_option("--templates", opt->templates,
+                  "template database directory (default: templates, or templates/NAME with --scale NAME)");
+  cmd->add_option("--scale", opt->scale,
+                  "run every scene at its named resolution (\"scales\", e.g. paper; a scene without it fails)");
   cmd->add_option("--threads", opt->threads, "OpenMP threads (default: all cores)")->check(CLI::PositiveNumber);
-  cmd->add_option("--out", opt->out, "report folder: scenes.md and scenes.json (default: bench/scenes)");
-  cmd->callback([opt] {
+  cmd->add_option("--out", opt->out, "report folder: scenes.md and scenes.json (default: bench/scenes, or bench/scenes-NAME with --scale NAME)");
+  cmd->callback([opt, cmd] {
     int code = Ok;
     try {
-      code = benchScenes(*opt);
+      Options o = *opt;
+      if (!o.scale.empty() && !cmd->count("--templates")) o.templates = scaledTemplatesDir(o.templates, o.scale);
+      if (o.out.empty()) o.out = o.scale.empty() ? "bench/scenes" : "bench/scenes-" + o.scale;
+      code = benchScenes(o);
     } catch (...) {
       code = reportError("bench scenes", Failure);
     }

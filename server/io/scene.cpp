@@ -1049,6 +1049,26 @@ int sceneDimension(const json& scene) {
   return int(d);
 }
 
+json applySceneScale(const json& scene, const std::string& scale) {
+  if (!scene.is_object()) fail("", std::string("a scene must be a JSON object, got ") + scene.type_name());
+  const json* scales = member(scene, "scales");
+  std::string known;
+  if (scales && scales->is_object())
+    for (const auto& [name, v] : scales->items()) known += (known.empty() ? "" : ", ") + name;
+  if (!scales || !scales->is_object() || !scales->contains(scale))
+    fail("scales." + scale, "the scene has no scale '" + scale + "' (" +
+                                (known.empty() ? std::string("it names none") : "it has: " + known) + ")");
+  const json& sc = (*scales)[scale];
+  json out = scene;
+  if (sc.is_object() && sc.contains("particle_radius")) out["particle_radius"] = sc["particle_radius"];
+  if (sc.is_object() && sc.contains("max_particles")) out["max_particles"] = sc["max_particles"];
+  return out;  // parseScene checks the values like any scene's
+}
+
+std::string scaledTemplatesDir(const std::string& dir, const std::string& scale) {
+  return (std::filesystem::path(dir) / scale).string();
+}
+
 // "camera": {"position": [x, y, z], "target": [x, y, z], "lens_mm": 40}, 3D in every scene.
 static SceneCamera parseCamera(const json& j) {
   expectObject(j, "camera");
@@ -1076,6 +1096,34 @@ static SceneCamera parseCamera(const json& j) {
   return c;
 }
 
+// "scales": {"paper": {"particle_radius": 0.0036, "max_particles": 3000000}}:
+// named resolutions, each a particle radius and optionally a particle cap.
+static std::map<std::string, SceneScale> parseScales(const json& j) {
+  expectObject(j, "scales");
+  std::map<std::string, SceneScale> out;
+  for (const auto& [name, v] : j.items()) {
+    const std::string path = "scales." + name;
+    if (name.empty() || name.size() > 32 ||
+        name.find_first_not_of("abcdefghijklmnopqrstuvwxyz0123456789_-") != std::string::npos)
+      fail(path, "a scale's name is 1-32 characters of a-z, 0-9, '_' and '-'");
+    expectObject(v, path);
+    checkKeys(v, path, {"particle_radius", "max_particles"});
+    SceneScale sc;
+    sc.particleRadius = getNumber(required(v, path, "particle_radius", "the scale's particle radius, m"),
+                                  path + ".particle_radius");
+    if (!(sc.particleRadius > 0) || !std::isfinite(sc.particleRadius))
+      fail(path + ".particle_radius", fmt(sc.particleRadius) + " m must be a finite value > 0");
+    if (const json* m = member(v, "max_particles")) {
+      const double n = getInteger(*m, path + ".max_particles");
+      if (n < 1 || n > kMaxParticlesLimit)
+        fail(path + ".max_particles", fmt(n) + " is outside the allowed range [1, " + fmt(kMaxParticlesLimit) + "]");
+      sc.maxParticles = size_t(n);
+    }
+    out[name] = sc;
+  }
+  return out;
+}
+
 template <int D>
 SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
   registerBuiltinSolversAndEffects();
@@ -1084,7 +1132,7 @@ SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
                           std::to_string(D) + "D");
   checkKeys(root, "", {"name", "dimension", "particle_radius", "domain", "gravity", "duration", "max_particles",
                        "phases", "fluid_blocks", "obstacles", "bodies", "emitters", "solver", "boundary", "settings",
-                       "effects", "camera",
+                       "effects", "camera", "scales",
                        "control", "instances"});
   // "control" and "instances" are read by parseSceneControl.
 
@@ -1144,6 +1192,7 @@ SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
   s.effects = parseEffects<D>(member(root, "effects"));
 
   if (const json* m = member(root, "camera")) s.camera = parseCamera(*m);
+  if (const json* m = member(root, "scales")) s.scales = parseScales(*m);
 
   checkFluidBlocks(s, overridden);
   checkBodies(s);
@@ -1164,6 +1213,14 @@ json sceneToJson(const SimulationSetup<D>& s) {
   j["max_particles"] = s.maxParticles;
   if (s.camera.set)
     j["camera"] = {{"position", s.camera.position}, {"target", s.camera.target}, {"lens_mm", s.camera.lensMm}};
+  if (!s.scales.empty()) {
+    json scales = json::object();
+    for (const auto& [name, sc] : s.scales) {
+      scales[name] = {{"particle_radius", sc.particleRadius}};
+      if (sc.maxParticles) scales[name]["max_particles"] = sc.maxParticles;
+    }
+    j["scales"] = scales;
+  }
 
   json phases = json::array();
   for (const Phase& ph : s.phases) {

@@ -42,6 +42,16 @@ nlohmann::json loadSceneJson(const std::string& file);
 // Anything malformed is left for parseScene to report.
 void resolveSceneFilePaths(nlohmann::json& scene, const std::string& sceneFile);
 
+// The scene at one of its named resolutions ("scales": {"paper": {...}}):
+// a copy with that scale's particle_radius (and max_particles, if it sets
+// one). An unknown name is a SceneError at "scales.NAME" listing the known
+// ones; the values are checked by parseScene.
+nlohmann::json applySceneScale(const nlohmann::json& scene, const std::string& scale);
+
+// Where the templates of a scale live: DIR/NAME (templates recorded at that
+// scale's resolution, `flowclip record --scale NAME`).
+std::string scaledTemplatesDir(const std::string& dir, const std::string& scale);
+
 // The scene's "dimension" (2 or 3), so callers can pick parseScene<2> or <3>.
 int sceneDimension(const nlohmann::json& scene);
 

@@ -8,6 +8,7 @@
 #include "sph/settings.h"
 #include <array>
 #include <limits>
+#include <map>
 #include <memory>
 #include <string>
 #include <vector>
@@ -137,6 +138,13 @@ struct SceneCamera {
   double lensMm = 40;                // focal length of a 36 mm wide sensor
 };
 
+// A named resolution of the scene ("scales": {"paper": {...}}): what
+// `--scale NAME` puts in place of particle_radius and max_particles.
+struct SceneScale {
+  double particleRadius = 0;  // m
+  size_t maxParticles = 0;    // 0: the scene's own
+};
+
 template <int D>
 struct SimulationSetup {
   std::string name = "scene";
@@ -155,6 +163,7 @@ struct SimulationSetup {
   double duration = 2;                  // s, default run length
   size_t maxParticles = 2000000;
   SceneCamera camera;
+  std::map<std::string, SceneScale> scales;  // by name, e.g. "paper"
 };
 
 }  // namespace fc

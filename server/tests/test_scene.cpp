@@ -10,6 +10,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <sstream>
 
 namespace fc {
@@ -799,6 +800,98 @@ TEST(SceneCamera, EveryGalleryScenesCameraLooksAtItsLiquid) {
       EXPECT_LE(double(c["target"][d]), double(j["domain"]["max"][d])) << path;
     }
     if (dim == 2) EXPECT_GT(double(c["position"][2]), 0.0) << path << ": a 2D scene is seen from +z";
+  }
+}
+
+}  // namespace
+}  // namespace fc
+
+namespace fc {
+namespace {
+
+TEST(SceneScale, IsReadCheckedAndSavedBack) {
+  json s = baseScene2D();
+  s["scales"] = {{"paper", {{"particle_radius", 0.004}}}, {"final", {{"particle_radius", 0.002}, {"max_particles", 900000}}}};
+  const SimulationSetup<2> setup = parseScene<2>(s);
+  ASSERT_EQ(setup.scales.size(), 2u);
+  EXPECT_EQ(setup.scales.at("paper").particleRadius, 0.004);
+  EXPECT_EQ(setup.scales.at("paper").maxParticles, 0u);
+  EXPECT_EQ(setup.scales.at("final").maxParticles, 900000u);
+  EXPECT_EQ(sceneToJson(setup)["scales"], s["scales"]);
+  EXPECT_FALSE(sceneToJson(parseScene<2>(baseScene2D())).contains("scales"));
+  // The scene itself runs at its own radius: a scale is only a name until asked for.
+  EXPECT_EQ(setup.particleRadius, Real(baseScene2D()["particle_radius"].get<double>()));
+
+  json bad = s;
+  bad["scales"]["paper"]["particle_radius"] = -1;
+  expectError(bad, "scales.paper.particle_radius", {"> 0"});
+  bad = s;
+  bad["scales"]["paper"].erase("particle_radius");
+  expectError(bad, "scales.paper.particle_radius");
+  bad = s;
+  bad["scales"]["paper"]["frames"] = 3;
+  expectError(bad, "scales.paper.frames");
+  bad = s;
+  bad["scales"]["final"]["max_particles"] = 0;
+  expectError(bad, "scales.final.max_particles", {"[1, "});
+  bad = s;
+  bad["scales"]["Paper Scale"] = {{"particle_radius", 0.004}};
+  expectError(bad, "scales.Paper Scale", {"a-z"});
+  bad = s;
+  bad["scales"] = 3;
+  expectError(bad, "scales");
+}
+
+TEST(SceneScale, ApplyingOneGivesAPlainSceneAtItsResolution) {
+  json s = baseScene2D();
+  s["scales"] = {{"fine", {{"particle_radius", 0.5 * s["particle_radius"].get<double>()}}},
+                 {"huge", {{"particle_radius", 0.0005}, {"max_particles", 3}}}};
+  const SimulationSetup<2> base = parseScene<2>(s);
+  const SimulationSetup<2> fine = parseScene<2>(applySceneScale(s, "fine"));
+  EXPECT_EQ(fine.particleRadius, base.particleRadius / 2);
+  EXPECT_EQ(sceneToJson(parseScene<2>(s, 0.5 * s["particle_radius"].get<double>())), sceneToJson(fine))
+      << "a scale is the same scene as --particle-radius with its value";
+  // Its particle cap is checked like the scene's own.
+  expectError(applySceneScale(s, "huge"), "fluid_blocks", {"max_particles = 3"});
+  try {
+    applySceneScale(s, "paper");
+    FAIL() << "an unknown scale must be refused";
+  } catch (const SceneError& e) {
+    EXPECT_EQ(e.path, "scales.paper");
+    EXPECT_NE(std::string(e.what()).find("fine, huge"), std::string::npos) << e.what();
+  }
+  try {
+    applySceneScale(baseScene2D(), "paper");
+    FAIL() << "a scene without scales has none to apply";
+  } catch (const SceneError& e) {
+    EXPECT_NE(std::string(e.what()).find("names none"), std::string::npos) << e.what();
+  }
+}
+
+// The scenes of the paper's Table 1 carry its resolution as the scale
+// "paper": their fluid blocks then hold the paper's liquid count (every one
+// of them starts with its liquid in blocks).
+TEST(SceneScale, ShippedPaperScalesSeedThePapersLiquid) {
+  const std::map<std::string, double> paperLiquid = {
+      {"drop2d", 6.7e3},     {"wave2d", 6.7e3},     {"blade2d", 2.2e3},   {"waterjet2d", 6.7e3},
+      {"zero_gravity2d", 6.7e3}, {"doubledam2d", 6.7e3}, {"viscous3d", 298.7e3}, {"blade3d", 56.2e3},
+      {"letters3d", 298.7e3}, {"multiphase3d", 106.4e3}, {"boat3d", 2.49e6}, {"composition3d", 298.7e3}};
+  for (const auto& [name, liquid] : paperLiquid) {
+    const json j = loadSceneJson(std::string(FLOWCLIP_SOURCE_DIR) + "/scenes/" + name + ".json");
+    ASSERT_TRUE(j.contains("scales") && j["scales"].contains("paper")) << name << " has no paper scale";
+    const json scaled = applySceneScale(j, "paper");
+    size_t seeded = 0;
+    if (j["dimension"] == 2) {
+      const auto s = parseScene<2>(scaled);
+      for (const auto& b : s.fluidBlocks) seeded += latticeCount(b.box, 2 * s.particleRadius);
+    } else {
+      const auto s = parseScene<3>(scaled);
+      for (const auto& b : s.fluidBlocks) seeded += latticeCount(b.box, 2 * s.particleRadius);
+    }
+    const double ratio = double(seeded) / liquid;
+    std::printf("[ measured ] %s at scale paper: %zu particles in its blocks, %.3f of the paper's liquid\n",
+                name.c_str(), seeded, ratio);
+    EXPECT_NEAR(ratio, 1.0, 0.1) << name;
   }
 }
 
