@@ -10,7 +10,7 @@ ABS_BUILD_DIR = $(abspath $(BUILD_DIR))
 
 .PHONY: all setup build web templates run run-headless docs gallery portable bench-portable test test-parts test-ctest test-pytest test-web test-web-only bench bench-accuracy bench-web clean \
   fuzz fuzz-build fuzz-regress test-fuzz asan-build test-asan bench-soak bench-cache bench-suite bench-spheric2 bench-batch \
-  templates-paper bench-scenes-paper
+  templates-paper bench-scenes-paper bench-scaling
 
 # 2D templates are recorded when missing (seconds); larger ones on demand:
 # build/flowclip record templates/recipes/letters3d.json
@@ -39,6 +39,11 @@ templates: $(foreach t,$(TEMPLATES_2D),templates/$(t).h5)
 RECIPES_PAPER = drop2d wave2d blade2d waterjet2d jet2d doubledam2d honey3d blade3d hand3d letters3d
 templates-paper: build
 	@for r in $(RECIPES_PAPER); do $(BUILD_DIR)/flowclip record templates/recipes/$$r.json --scale paper --skip-existing || exit 1; done
+
+# The 3D dam break from 59k to a million particles: µs per particle-step and
+# bytes per particle (bench/scaling/scaling.md; tools/bench_scaling.py).
+bench-scaling: build
+	$(BUILD_DIR)/venv/bin/python tools/bench_scaling.py
 
 # Table 1 at the paper's scale: bench/scenes-paper/scenes.md (+ .json).
 BENCH_SCENES_PAPER_ARGS ?= --frames 60

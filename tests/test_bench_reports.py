@@ -4,10 +4,13 @@ command, figures that fit the scene, and the same figures in the markdown as in 
 `bench control`'s report: tests/test_bench_control.py."""
 from __future__ import annotations
 
+import json
+import subprocess
+
 import pytest
 
 from bench_report_check import block_particles, lattice_particles, md_row, read_report, run_bench
-from repo_paths import ROOT
+from repo_paths import FLOWCLIP_BIN, ROOT
 
 DAM = ROOT / "scenes" / "bench" / "dambreak2d_r010.json"
 DROP = ROOT / "scenes" / "drop2d.json"
@@ -99,6 +102,46 @@ def test_scenes_report(template_dir, tmp_path):
     assert drop["template_storage_mb"] == pytest.approx((template_dir / "drop2d.h5").stat().st_size / 1e6)
     assert drop["paper"]["name"] == "2D Rectangular drop" and "paper" not in dam
     assert "| drop2d | 2D Rectangular drop | 6700 | 1300 | 88 | 36 | 190.2 | 5.6 | 2.9 | 0.33 | 3.87 |" in md
+
+
+def test_scenes_report_at_the_papers_scale(tmp_path):
+    # The drop's template at its paper scale, where `--scale paper` looks for it.
+    templates = tmp_path / "templates"
+    rec = subprocess.run([str(FLOWCLIP_BIN), "record", str(ROOT / "templates" / "recipes" / "drop2d.json"),
+                          "--scale", "paper", "--templates", str(templates / "paper"), "--quiet"],
+                         capture_output=True, text=True, timeout=600)
+    assert rec.returncode == 0, rec.stderr
+    out = tmp_path / "scenes"
+    frames = 14  # SCENE:FRAMES wins over --frames
+    done = subprocess.run([str(FLOWCLIP_BIN), "bench", "scenes", f"{DROP}:{frames}", str(DAM), "--frames", "2",
+                           "--scale", "paper", "--threads", "1", "--templates", str(templates / "paper"),
+                           "--out", str(out)], capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert done.returncode != 0, "a scene without the scale is a failed run"
+    report, md = read_report(out, "scenes")
+    assert report["settings"]["scale"] == "paper"
+    [drop] = report["scenes"]
+    assert [f["scene"] for f in report["failures"]] == ["dambreak2d_r010"]
+    assert report["failures"][0]["error"].startswith("exit 2")  # refused as bad input: it has no such scale
+    assert drop["frames"] == frames
+    scene = json.loads(DROP.read_text())
+    radius = scene["scales"]["paper"]["particle_radius"]
+    seeded = sum(lattice_particles(b["min"], b["max"], radius) for b in scene["fluid_blocks"])
+    assert drop["liquid"] == pytest.approx(seeded, rel=0.01)
+    assert drop["template_storage_mb"] == pytest.approx((templates / "paper" / "drop2d.h5").stat().st_size / 1e6)
+    # The stages are parts of the frame's time.
+    stages = drop["stages_ms_per_frame"]
+    assert set(stages) == {"neighbor_ms", "density_ms", "divergence_ms", "non_pressure_ms", "pressure_ms"}
+    assert all(v > 0 for v in stages.values())
+    assert sum(stages.values()) <= drop["simulation_ms_per_frame"]
+    assert md_row("drop2d", *(f"{stages[k]:.1f}" for k in ("neighbor_ms", "density_ms", "divergence_ms",
+                                                            "non_pressure_ms", "pressure_ms")),
+                  f"{drop['control_ms_per_frame']:.1f}", f"{drop['simulation_ms_per_frame']:.1f}") in md
+    # Each figure over the paper's.
+    ratio = md_row("drop2d", f"{drop['liquid'] / 6700:.2f}",
+                   f"{drop['simulation_ms_per_frame'] / 190.2:.2f}",
+                   f"{drop['control_pct']:.1f} / {100 * 5.6 / 190.2:.1f}",
+                   f"{drop['peak_rss_mb'] / 1024 / 0.33:.2f}", f"{drop['template_storage_mb'] / 3.87:.2f}")
+    assert ratio in md, md
 
 
 def test_service_report(template_dir, tmp_path):

@@ -88,7 +88,8 @@ std::string markdown(const json& rows, const json& failures, int frames) {
                      fmt(p["control_ms_per_frame"], "%.1f"), fmt(p["control_pct"], "%.1f"), fmt(p["memory_gb"], "%.2f"),
                      fmt(p["template_storage_mb"], "%.2f")});
   }
-  std::string md = "Each scene for " + std::to_string(frames) + " frames in its own `flowclip run`. Particles are per "
+  std::string md = "Each scene for " + std::to_string(frames) + " frames (or the frames its SCENE:FRAMES names) in its own "
+                   "`flowclip run`. Particles are per "
                    "frame, averaged over the frames with an active instance (frames: active / run), as the paper's; "
                    "the ms per frame over every frame; control % is of the simulation ms, as the paper's; templates "
                    "MB: the files of the templates the scene plays.\n\n## This machine\n\n";
@@ -101,6 +102,22 @@ std::string markdown(const json& rows, const json& failures, int frames) {
                          "simulation ms / frame", "control ms / frame", "control %", "memory GB", "templates MB"},
                         paper);
   }
+  std::vector<std::vector<std::string>> stageRows;
+  for (const json& r : rows) {
+    if (!r.contains("stages_ms_per_frame")) continue;
+    const json& st = r["stages_ms_per_frame"];
+    std::vector<std::string> row = {r["scene"]};
+    for (const char* k : {"neighbor_ms", "density_ms", "divergence_ms", "non_pressure_ms", "pressure_ms"})
+      row.push_back(fmt(st.value(k, 0.0), "%.1f"));
+    row.push_back(fmt(r["control_ms_per_frame"], "%.1f"));
+    row.push_back(fmt(r["simulation_ms_per_frame"], "%.1f"));
+    stageRows.push_back(row);
+  }
+  md += "\n## Where the time goes\n\nms per frame in each stage of the step (the frames' `*_ms` fields); the rest "
+        "of the simulation ms is integration, contacts, emitters and bodies.\n\n";
+  md += markdownTable({"scene", "neighbours", "densities", "divergence solve", "viscosity and other accelerations",
+                       "density solve", "control", "simulation"},
+                      stageRows);
   std::vector<std::vector<std::string>> ratios;
   for (const json& r : rows) {
     if (!r.contains("paper")) continue;
@@ -150,11 +167,23 @@ int benchScenes(const Options& opt) {
   fs::create_directories(tmp);
   json results = json::array(), failures = json::array();
   for (size_t k = 0; k < scenes.size(); ++k) {
-    const std::string& scene = scenes[k];
+    // SCENE[:FRAMES]: a scene's own number of frames (the boat at the paper's scale).
+    std::string scene = scenes[k];
+    int sceneFrames = opt.frames;
+    if (const size_t colon = scene.rfind(':'); colon != std::string::npos && !fs::exists(scene)) {
+      const std::string n = scene.substr(colon + 1);
+      if (n.empty() || n.size() > 6 || n.find_first_not_of("0123456789") != std::string::npos || std::stoi(n) < 1) {
+        std::fprintf(stderr, "error: '%s': expected SCENE or SCENE:FRAMES with FRAMES a positive number\n",
+                     scene.c_str());
+        return BadInput;
+      }
+      sceneFrames = std::stoi(n);
+      scene.resize(colon);
+    }
     const std::string stem = fs::path(scene).stem().string();
-    std::fprintf(stderr, "[%zu/%zu] %s: %d frames…\n", k + 1, scenes.size(), stem.c_str(), opt.frames);
+    std::fprintf(stderr, "[%zu/%zu] %s: %d frames…\n", k + 1, scenes.size(), stem.c_str(), sceneFrames);
     const std::string statsPath = (tmp / (stem + ".json")).string();
-    std::vector<std::string> args = {self, "run", scene, "--frames", std::to_string(opt.frames), "--stats",
+    std::vector<std::string> args = {self, "run", scene, "--frames", std::to_string(sceneFrames), "--stats",
                                      statsPath, "--templates", opt.templates, "--threads",
                                      std::to_string(threads), "--quiet"};
     if (!opt.scale.empty()) {
@@ -180,12 +209,17 @@ int benchScenes(const Options& opt) {
     // Averages over the frames where an instance plays (as the paper's),
     // the timings over every frame.
     double liquid = 0, control = 0, repulsion = 0, temporary = 0, simMs = 0, controlMs = 0;
+    // Where the simulation's time goes, the stages of the step (FrameStats' *_ms).
+    static const char* const kStages[] = {"neighbor_ms", "density_ms", "divergence_ms", "non_pressure_ms",
+                                          "pressure_ms"};
+    std::map<std::string, double> stageMs;
     size_t active = 0, frames = 0;
     std::set<std::string> templatesUsed;
     for (const json& f : stats["frames"]) {
       ++frames;
       simMs += f.value("simulation_ms", f.value("wall_ms", 0.0));
       controlMs += f.value("control_ms", 0.0);
+      for (const char* k : kStages) stageMs[k] += f.value(k, 0.0);
       bool anyActive = false;
       for (const json& i : f.value("instances", json::array())) anyActive = anyActive || i.value("active", false);
       const double temp = f.value("temporary_particles", 0.0);
@@ -229,6 +263,9 @@ int benchScenes(const Options& opt) {
                 {"control_pct", pct},
                 {"peak_rss_mb", rss},
                 {"template_storage_mb", storage}};
+    json stages = json::object();
+    for (const char* k : kStages) stages[k] = stageMs[k] / nf;
+    row["stages_ms_per_frame"] = stages;
     const auto it = paperTable().find(stem);
     if (it != paperTable().end()) {
       const PaperRow& p = it->second;
@@ -259,7 +296,7 @@ int benchScenes(const Options& opt) {
 void addBenchScenesCommand(CLI::App& bench) {
   auto opt = std::make_shared<Options>();
   CLI::App* cmd = bench.add_subcommand("scenes", "every shipped scene, with the columns of the paper's Table 1 beside its figures");
-  cmd->add_option("scenes", opt->scenes, "scene files (default: every scenes/*.json)");
+  cmd->add_option("scenes", opt->scenes, "scene files, each SCENE or SCENE:FRAMES (default: every scenes/*.json)");
   cmd->add_option("--frames", opt->frames, "frames per scene (default 60)")->check(CLI::PositiveNumber);
   cmd->add_option("--templates", opt->templates,
                   "template database directory (default: templates, or templates/NAME with --scale NAME)");

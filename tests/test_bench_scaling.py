@@ -1,0 +1,37 @@
+"""tools/bench_scaling.py at its smallest: the 3D dam break at two particle
+counts, each run at the radius that puts n³ particles in its block, and a
+report (scaling.md + scaling.json) whose rows say what the JSON says."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+from bench_report_check import md_row
+from repo_paths import ROOT
+
+
+def test_scaling_report(tmp_path):
+    out = tmp_path / "scaling"
+    cmd = [sys.executable, str(ROOT / "tools" / "bench_scaling.py"), "--counts", "8k,1k", "--seconds", "0.05",
+           "--threads", "1", "--out", str(out)]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert done.returncode == 0, done.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["scaling.json", "scaling.md"]
+    report = json.loads((out / "scaling.json").read_text())
+    md = (out / "scaling.md").read_text()
+    assert report["command"].startswith("tools/bench_scaling.py") and report["machine"]["cores"] >= 1
+    runs = report["runs"]
+    # Smallest first; the block holds exactly n³ particles at the chosen radius.
+    assert [r["liquid_particles"] for r in runs] == [10 ** 3, 20 ** 3]
+    assert runs[0]["particle_radius"] == 2 * runs[1]["particle_radius"]
+    for r in runs:
+        assert r["frames"] == 3 and r["unconverged_frames"] == 0
+        assert r["us_per_particle_step"] > 0 and r["substeps_per_frame"] >= 1
+        assert r["bytes_per_liquid_particle"] == r["peak_rss_mb"] * 1e6 / r["liquid_particles"]
+        assert md_row(f"{r['liquid_particles']:,}", f"{1000 * r['particle_radius']:.3f}",
+                      f"{r['substeps_per_frame']:.1f}", f"{r['solver_iterations_per_substep']:.1f}",
+                      f"{r['us_per_particle_step']:.3f}",
+                      f"{r['us_per_particle_step'] / runs[0]['us_per_particle_step']:.2f}",
+                      f"{r['ms_per_frame']:.0f}", f"{r['peak_rss_mb']:.0f}",
+                      f"{r['bytes_per_liquid_particle']:.0f}") in md
