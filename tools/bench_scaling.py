@@ -97,9 +97,10 @@ def markdown(report: dict) -> str:
                      f"| {r['solver_iterations_per_substep']:.1f} | {r['us_per_particle_step']:.3f} "
                      f"| {r['us_per_particle_step'] / base:.2f} | {r['ms_per_frame']:.0f} | {r['peak_rss_mb']:.0f} "
                      f"| {r['bytes_per_liquid_particle']:.0f} |")
-    lines += ["", "The µs per particle-step include the solver's iterations, which grow with the resolution "
-              "(a finer column needs more of them to hold the same density tolerance); the column beside them "
-              "shows how much of the growth that is.", ""]
+    lines += ["", "The µs per particle-step include the solver's iterations, which change with the resolution "
+              "(the step shrinks with the radius, so each substep starts closer to the solution): the column "
+              "before them gives how many there were. Bytes per liquid particle hold the tank's wall samples "
+              "too (as many as the liquid's at a million) and the process's own few tens of MB.", ""]
     return "\n".join(lines)
 
 
