@@ -2,7 +2,8 @@
 // validates one (app/run_command.cpp) without simulating: the bytes are a
 // scene file's text -> parseSceneText -> (copied and serialised, as the
 // server's scene routes do) -> (JSON object) -> resolveSceneFilePaths ->
-// sceneDimension -> parseScene<D> -> parseSceneControl<D>.
+// sceneDimension -> parseScene<D> -> parseSceneControl<D>, then the same for
+// each of its named resolutions (applySceneScale, `--scale NAME`).
 //
 // Documented outcome for bad input: fc::SceneError. Anything else escaping
 // is a finding (libFuzzer reports the std::terminate abort). For a valid
@@ -80,6 +81,13 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     FUZZ_CHECK(dimension == 2 || dimension == 3, "sceneDimension returned " + std::to_string(dimension));
     if (dimension == 2) validate<2>(scene);
     else validate<3>(scene);
+    // `--scale NAME` (run, record, bench scenes): each named resolution of a valid scene.
+    if (const auto scales = scene.find("scales"); scales != scene.end() && scales->is_object())
+      for (const auto& item : scales->items()) {
+        const json scaled = fc::applySceneScale(scene, item.key());
+        if (dimension == 2) validate<2>(scaled);
+        else validate<3>(scaled);
+      }
   } catch (const fc::SceneError&) {
     // The documented error for a bad scene.
   }
