@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import datetime
 import filecmp
 import json
 import os
@@ -42,7 +41,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench_report import loadavg, machine  # tools/, beside this script
+from bench_report import report_start, write_report  # tools/, beside this script
 
 ROOT = Path(__file__).resolve().parent.parent
 FLOWCLIP_BIN = Path(os.environ.get("FLOWCLIP_BIN", ROOT / "build" / "flowclip")).resolve()
@@ -244,18 +243,12 @@ def main() -> int:
     templates = Path("templates")  # relative to ROOT, where the commands run
     if not (ROOT / templates / "drop2d.h5").exists():
         raise SystemExit("templates/drop2d.h5 is missing: make templates")
-    report = {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-              "machine": machine(), "repeat": a.repeat,
-              "command": shlex.join(["tools/bench_batch.py"] + sys.argv[1:])}
+    report = report_start("tools/bench_batch.py", sys.argv[1:])
+    report["repeat"] = a.repeat
     with tempfile.TemporaryDirectory(prefix="flowclip-bench-batch-") as tmp:
         report["accuracy"] = accuracy_sweep(Path(tmp), a.workers, a.repeat, templates)
         report["export"] = frame_export(Path(tmp), a.workers, a.repeat, a.export_seconds)
-    report["loadavg_at_end"] = loadavg()
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "batch.json").write_text(json.dumps(report, indent=1) + "\n")
-    (out / "batch.md").write_text(markdown(report))
-    log(f"bench batch: {out / 'batch.md'}, {out / 'batch.json'}")
+    write_report(Path(a.out), "batch", report, markdown)
     return 0
 
 

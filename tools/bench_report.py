@@ -4,9 +4,14 @@ that a figure is read against the machine and how busy it was."""
 
 from __future__ import annotations
 
+import datetime
+import json
 import os
 import platform
+import shlex
+import sys
 from pathlib import Path
+from typing import Callable
 
 
 def loadavg() -> str:
@@ -28,3 +33,18 @@ def machine() -> dict:
         pass
     return {"cpu": cpu, "cores": os.cpu_count(), "kernel": platform.release(),
             "python": platform.python_version(), "loadavg_at_start": loadavg(), "niceness": os.nice(0)}
+
+
+def report_start(tool: str, argv: list[str]) -> dict:
+    """The fields a report opens with: the date (UTC), the machine, the command that ran."""
+    return {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "machine": machine(), "command": shlex.join([tool] + list(argv))}
+
+
+def write_report(out: Path, name: str, report: dict, markdown: Callable[[dict], str]) -> None:
+    """Closes the report with the load average at its end and writes NAME.json and NAME.md into OUT."""
+    report["loadavg_at_end"] = loadavg()
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{name}.json").write_text(json.dumps(report, indent=1) + "\n")
+    (out / f"{name}.md").write_text(markdown(report))
+    print(f"bench {name}: {out / f'{name}.md'}, {out / f'{name}.json'}", file=sys.stderr, flush=True)

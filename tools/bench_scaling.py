@@ -16,7 +16,6 @@ peak RSS divided by its liquid particles.
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
 import os
 import shlex
@@ -25,7 +24,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from bench_report import loadavg, machine  # tools/, beside this script
+from bench_report import report_start, write_report  # tools/, beside this script
 
 ROOT = Path(__file__).resolve().parents[1]
 FLOWCLIP_BIN = Path(os.environ.get("FLOWCLIP_BIN", ROOT / "build" / "flowclip"))
@@ -115,17 +114,11 @@ def main() -> int:
     if not FLOWCLIP_BIN.exists():
         raise SystemExit(f"{FLOWCLIP_BIN} is missing: build first (make build) or set FLOWCLIP_BIN")
     counts = sorted(count_arg(c) for c in a.counts.split(","))
-    report = {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-              "machine": machine(), "threads": a.threads, "seconds": a.seconds, "scene": str(SCENE.relative_to(ROOT)),
-              "command": shlex.join(["tools/bench_scaling.py"] + sys.argv[1:])}
+    report = report_start("tools/bench_scaling.py", sys.argv[1:])
+    report.update({"threads": a.threads, "seconds": a.seconds, "scene": str(SCENE.relative_to(ROOT))})
     with tempfile.TemporaryDirectory(prefix="flowclip-bench-scaling-") as tmp:
         report["runs"] = [run(radius_for(c), a.seconds, a.threads, Path(tmp)) for c in counts]
-    report["loadavg_at_end"] = loadavg()
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "scaling.json").write_text(json.dumps(report, indent=1) + "\n")
-    (out / "scaling.md").write_text(markdown(report))
-    log(f"bench scaling: {out / 'scaling.md'}, {out / 'scaling.json'}")
+    write_report(Path(a.out), "scaling", report, markdown)
     return 0
 
 

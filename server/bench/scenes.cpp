@@ -54,6 +54,9 @@ const std::map<std::string, PaperRow>& paperTable() {
   return t;
 }
 
+// The stages of the step a frame's stats time (FrameStats' *_ms), in order.
+constexpr const char* kStages[] = {"neighbor_ms", "density_ms", "divergence_ms", "non_pressure_ms", "pressure_ms"};
+
 struct Options {
   std::vector<std::string> scenes;
   int frames = 60;
@@ -107,8 +110,7 @@ std::string markdown(const json& rows, const json& failures, int frames) {
     if (!r.contains("stages_ms_per_frame")) continue;
     const json& st = r["stages_ms_per_frame"];
     std::vector<std::string> row = {r["scene"]};
-    for (const char* k : {"neighbor_ms", "density_ms", "divergence_ms", "non_pressure_ms", "pressure_ms"})
-      row.push_back(fmt(st.value(k, 0.0), "%.1f"));
+    for (const char* k : kStages) row.push_back(fmt(st.value(k, 0.0), "%.1f"));
     row.push_back(fmt(r["control_ms_per_frame"], "%.1f"));
     row.push_back(fmt(r["simulation_ms_per_frame"], "%.1f"));
     stageRows.push_back(row);
@@ -209,10 +211,7 @@ int benchScenes(const Options& opt) {
     // Averages over the frames where an instance plays (as the paper's),
     // the timings over every frame.
     double liquid = 0, control = 0, repulsion = 0, temporary = 0, simMs = 0, controlMs = 0;
-    // Where the simulation's time goes, the stages of the step (FrameStats' *_ms).
-    static const char* const kStages[] = {"neighbor_ms", "density_ms", "divergence_ms", "non_pressure_ms",
-                                          "pressure_ms"};
-    std::map<std::string, double> stageMs;
+    std::map<std::string, double> stageMs;  // where the simulation's time goes
     size_t active = 0, frames = 0;
     std::set<std::string> templatesUsed;
     for (const json& f : stats["frames"]) {

@@ -1096,6 +1096,14 @@ static SceneCamera parseCamera(const json& j) {
   return c;
 }
 
+// A particle cap, the scene's own or a scale's.
+static size_t parseMaxParticles(const json& j, const std::string& path) {
+  const double n = getInteger(j, path);
+  if (n < 1 || n > kMaxParticlesLimit)
+    fail(path, fmt(n) + " is outside the allowed range [1, " + fmt(kMaxParticlesLimit) + "]");
+  return size_t(n);
+}
+
 // "scales": {"paper": {"particle_radius": 0.0036, "max_particles": 3000000}}:
 // named resolutions, each a particle radius and optionally a particle cap.
 static std::map<std::string, SceneScale> parseScales(const json& j) {
@@ -1113,12 +1121,7 @@ static std::map<std::string, SceneScale> parseScales(const json& j) {
                                   path + ".particle_radius");
     if (!(sc.particleRadius > 0) || !std::isfinite(sc.particleRadius))
       fail(path + ".particle_radius", fmt(sc.particleRadius) + " m must be a finite value > 0");
-    if (const json* m = member(v, "max_particles")) {
-      const double n = getInteger(*m, path + ".max_particles");
-      if (n < 1 || n > kMaxParticlesLimit)
-        fail(path + ".max_particles", fmt(n) + " is outside the allowed range [1, " + fmt(kMaxParticlesLimit) + "]");
-      sc.maxParticles = size_t(n);
-    }
+    if (const json* m = member(v, "max_particles")) sc.maxParticles = parseMaxParticles(*m, path + ".max_particles");
     out[name] = sc;
   }
   return out;
@@ -1174,12 +1177,7 @@ SimulationSetup<D> parseScene(const json& root, double particleRadiusOverride) {
   }
 
   s.maxParticles = size_t(kDefaultMaxParticles);
-  if (const json* m = member(root, "max_particles")) {
-    const double v = getInteger(*m, "max_particles");
-    if (v < 1 || v > kMaxParticlesLimit)
-      fail("max_particles", fmt(v) + " is outside the allowed range [1, " + fmt(kMaxParticlesLimit) + "]");
-    s.maxParticles = size_t(v);
-  }
+  if (const json* m = member(root, "max_particles")) s.maxParticles = parseMaxParticles(*m, "max_particles");
 
   s.phases = parsePhases(member(root, "phases"));
   s.fluidBlocks = parseFluidBlocks<D>(root, s.phases);
