@@ -134,63 +134,117 @@ void NeighborhoodSearch<D>::buildLists(const std::vector<Vec<D>>& x, const std::
   out.offsets.resize(n + 1);
   const int maxThreads = omp_get_max_threads();
   if (int(threadBuf_.size()) < maxThreads) threadBuf_.resize(maxThreads);
-  threadCounts_.assign(maxThreads + 1, 0);
+  threadCounts_.assign(size_t(maxThreads) + 1, 0);
+  regionNeed_.assign(size_t(maxThreads), 0);
+  overflowed_.assign(size_t(maxThreads), 0);
   const Real r2 = radius_ * radius_;
   const bool haveTargets = !sortedIdx.empty();
-#pragma omp parallel
-  {
-    const int t = omp_get_thread_num(), T = omp_get_num_threads();
-    const size_t begin = n * size_t(t) / size_t(T), end = n * size_t(t + 1) / size_t(T);
-    std::vector<uint32_t>& buf = threadBuf_[t];
-    size_t used = 0;
-    constexpr int rows = D == 2 ? 3 : 9;
-    std::array<uint32_t, rows> rowBegin{}, rowEnd{};
-    for (size_t i = begin; i < end; ++i) {
-      out.offsets[i] = uint32_t(used);
-      if (!haveTargets) continue;
-      const Vec<D> p = x[i];
-      const VecI<D> c = cellCoord(p);
-      const int x0 = std::max(c[0] - 1, 0), x1 = std::min(c[0] + 1, dims_[0] - 1);
-      int nrows = 0;
-      size_t candidates = 0;
-      auto addRow = [&](VecI<D> cc) {
-        cc[0] = x0;
-        const size_t a = linearCell(cc);
-        rowBegin[nrows] = start[a];
-        rowEnd[nrows] = start[a + size_t(x1 - x0) + 1];
-        candidates += rowEnd[nrows] - rowBegin[nrows];
-        ++nrows;
-      };
-      if constexpr (D == 2) {
-        for (int y = std::max(c[1] - 1, 0); y <= std::min(c[1] + 1, dims_[1] - 1); ++y) addRow(VecI<D>(0, y));
-      } else {
-        for (int z = std::max(c[2] - 1, 0); z <= std::min(c[2] + 1, dims_[2] - 1); ++z)
-          for (int y = std::max(c[1] - 1, 0); y <= std::min(c[1] + 1, dims_[1] - 1); ++y)
-            addRow(VecI<D>(0, y, z));
-      }
-      // Room for every candidate, so the loop below can write each one and
-      // advance the cursor only for hits, without a branch.
-      if (buf.size() < used + candidates + kScanSlack)
-        buf.resize(std::max(2 * buf.size(), used + candidates + kScanSlack + 1024));
-      uint32_t* dst = buf.data() + used;
-      size_t hits = 0;
-      for (int rr = 0; rr < nrows; ++rr)
-        hits += scanRow<D>(sorted, sortedIdx.data(), rowBegin[rr], rowEnd[rr], p, r2,
-                        excludeSelf ? uint32_t(i) : UINT32_MAX, dst + hits);
-      used += hits;
+  // Each thread block writes into its own region of out.indices, sized from
+  // the last build's pairs with a margin; a block that outgrows its region
+  // only counts, and the build is repeated once with regions of the counts.
+  std::vector<size_t>& last = out.blockPairs;
+  auto planRegions = [&](int teams, bool exact) {
+    regionStart_.assign(size_t(teams) + 1, 0);
+    for (int t = 0; t < teams; ++t) {
+      const size_t base = exact ? regionNeed_[size_t(t)] : last.size() == size_t(teams) ? last[size_t(t)] : 0;
+      regionStart_[size_t(t) + 1] = regionStart_[size_t(t)] + base + base / 8 + 4096 + kScanSlack;
     }
-    threadCounts_[t + 1] = uint32_t(used);
+    // The old pairs are not needed: a list that must grow is freed before it
+    // is allocated again, never copied (which would hold both at once).
+    if (regionStart_.back() > out.indices.capacity()) out.indices = {};
+    out.indices.resize(regionStart_.back());
+  };
+  int teams = 0;
+  bool exact = false;
+  for (int attempt = 0; attempt < 2; ++attempt) {
+    bool anyOverflow = false;
+#pragma omp parallel
+    {
+      const int t = omp_get_thread_num(), T = omp_get_num_threads();
+#pragma omp single
+      {
+        teams = T;
+        planRegions(T, exact);
+      }
+      const size_t begin = n * size_t(t) / size_t(T), end = n * size_t(t + 1) / size_t(T);
+      uint32_t* region = out.indices.data() + regionStart_[size_t(t)];
+      const size_t room = regionStart_[size_t(t) + 1] - regionStart_[size_t(t)];
+      std::vector<uint32_t>& scratch = threadBuf_[t];
+      bool overflow = false;
+      size_t used = 0, most = 0;
+      constexpr int rows = D == 2 ? 3 : 9;
+      std::array<uint32_t, rows> rowBegin{}, rowEnd{};
+      for (size_t i = begin; i < end; ++i) {
+        out.offsets[i] = uint32_t(used);
+        if (!haveTargets) continue;
+        const Vec<D> p = x[i];
+        const VecI<D> c = cellCoord(p);
+        const int x0 = std::max(c[0] - 1, 0), x1 = std::min(c[0] + 1, dims_[0] - 1);
+        int nrows = 0;
+        size_t candidates = 0;
+        auto addRow = [&](VecI<D> cc) {
+          cc[0] = x0;
+          const size_t a = linearCell(cc);
+          rowBegin[nrows] = start[a];
+          rowEnd[nrows] = start[a + size_t(x1 - x0) + 1];
+          candidates += rowEnd[nrows] - rowBegin[nrows];
+          ++nrows;
+        };
+        if constexpr (D == 2) {
+          for (int y = std::max(c[1] - 1, 0); y <= std::min(c[1] + 1, dims_[1] - 1); ++y) addRow(VecI<D>(0, y));
+        } else {
+          for (int z = std::max(c[2] - 1, 0); z <= std::min(c[2] + 1, dims_[2] - 1); ++z)
+            for (int y = std::max(c[1] - 1, 0); y <= std::min(c[1] + 1, dims_[1] - 1); ++y)
+              addRow(VecI<D>(0, y, z));
+        }
+        most = std::max(most, candidates);
+        // Room for every candidate, so the scan can write each one and
+        // advance the cursor only for hits, without a branch.
+        overflow = overflow || used + candidates + kScanSlack > room;
+        uint32_t* dst;
+        if (!overflow) {
+          dst = region + used;
+        } else {
+          if (scratch.size() < candidates + kScanSlack) scratch.resize(candidates + kScanSlack);
+          dst = scratch.data();
+        }
+        size_t hits = 0;
+        for (int rr = 0; rr < nrows; ++rr)
+          hits += scanRow<D>(sorted, sortedIdx.data(), rowBegin[rr], rowEnd[rr], p, r2,
+                             excludeSelf ? uint32_t(i) : UINT32_MAX, dst + hits);
+        used += hits;
+      }
+      threadCounts_[size_t(t) + 1] = used;
+      regionNeed_[size_t(t)] = used + most + kScanSlack;
+      overflowed_[size_t(t)] = overflow;
 #pragma omp barrier
 #pragma omp single
-    {
-      for (int k = 0; k < T; ++k) threadCounts_[k + 1] += threadCounts_[k];
-      out.indices.resize(threadCounts_[T]);
-      out.offsets[n] = threadCounts_[T];
+      {
+        for (int k = 0; k < T; ++k) anyOverflow = anyOverflow || overflowed_[size_t(k)];
+        if (!anyOverflow) {
+          // Close the gaps between the regions, in order: each block moves
+          // towards the front, never over a block still to be moved.
+          for (int k = 0; k < T; ++k) {
+            threadCounts_[size_t(k) + 1] += threadCounts_[size_t(k)];
+            const size_t to = threadCounts_[size_t(k)], from = regionStart_[size_t(k)];
+            const size_t count = threadCounts_[size_t(k) + 1] - to;
+            if (count && to != from)
+              std::memmove(out.indices.data() + to, out.indices.data() + from, count * sizeof(uint32_t));
+          }
+          out.indices.resize(threadCounts_[size_t(T)]);
+          out.offsets[n] = uint32_t(threadCounts_[size_t(T)]);
+        }
+      }
+      if (!anyOverflow) {
+        const uint32_t base = uint32_t(threadCounts_[size_t(t)]);
+        for (size_t i = begin; i < end; ++i) out.offsets[i] += base;
+      }
     }
-    const uint32_t base = threadCounts_[t];
-    for (size_t i = begin; i < end; ++i) out.offsets[i] += base;
-    if (used) std::memcpy(out.indices.data() + base, buf.data(), used * sizeof(uint32_t));
+    if (!anyOverflow) break;
+    exact = true;
   }
+  last.assign(size_t(teams), 0);
+  for (int t = 0; t < teams; ++t) last[size_t(t)] = threadCounts_[size_t(t) + 1] - threadCounts_[size_t(t)];
 }
 
 template <int D>

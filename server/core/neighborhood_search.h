@@ -25,6 +25,11 @@ struct NeighborList {
   const uint32_t* begin(uint32_t i) const { return indices.data() + offsets[i]; }
   const uint32_t* end(uint32_t i) const { return indices.data() + offsets[i + 1]; }
   size_t pairs() const { return indices.size(); }
+  // Each build's pairs per thread block: the next build writes every block
+  // straight into `indices`, in a region this large plus a margin, instead
+  // of into a private buffer copied over (which held a second copy of the
+  // list).
+  std::vector<size_t> blockPairs;
 };
 
 template <int D>
@@ -157,9 +162,10 @@ class NeighborhoodSearch {
 
   NeighborList dyn_;
   mutable std::vector<std::pair<uint64_t, uint32_t>> mortonKeys_;  // zOrder's scratch
-  std::vector<std::vector<uint32_t>> threadBuf_;
+  std::vector<std::vector<uint32_t>> threadBuf_;  // buildLists' per-thread scan of one particle's candidates
   mutable std::vector<std::vector<uint32_t>> boxBuf_;  // dynamicInBox's per-thread rows
-  std::vector<uint32_t> threadCounts_;
+  std::vector<size_t> threadCounts_, regionStart_, regionNeed_;
+  std::vector<uint8_t> overflowed_;
 };
 
 }  // namespace fc
