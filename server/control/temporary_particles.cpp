@@ -188,17 +188,26 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
         for (size_t k = 0; k < sortedMass_.size(); ++k) sortedMass_[k] = mc[order[k]];
       }
       const long m = long(sources.size());
-      const Real* massGradW[D];
-      for (int d = 0; d < D; ++d) massGradW[d] = sim.massGradW[d].data();
       auto& local = seedCandidates_;
       local.resize(static_cast<size_t>(omp_get_max_threads()));
+      pairGradients_.resize(static_cast<size_t>(omp_get_max_threads()));
       for (auto& v : local) v.clear();
 #pragma omp parallel for schedule(dynamic, 16)
       for (long k = 0; k < m; ++k) {
         const uint32_t i = sources[k];
         if (emitted[i] || f.phase[i] != phase || !insideBox(s, st.toTemplate.point(f.x[i]))) continue;
         // ∇ρ_i from the substep's pair gradients and the boundary's.
-        const Vec<D> g = sim.restDensity(i) * sim.boundaryGradW[i] + sumRanges<D>(massGradW, off[i], off[i + 1]);
+        auto& rows = pairGradients_[size_t(omp_get_thread_num())];
+        const Real* grads[D];
+        for (int d = 0; d < D; ++d) {
+          rows[size_t(d)].resize(off[i + 1] - off[i]);
+          grads[d] = rows[size_t(d)].data();
+        }
+        for (uint32_t q = off[i]; q < off[i + 1]; ++q) {
+          const Vec<D> gq = sim.massGradWAt(long(i), q);
+          for (int d = 0; d < D; ++d) rows[size_t(d)][q - off[i]] = gq[d];
+        }
+        const Vec<D> g = sim.restDensity(i) * sim.boundaryGradW[i] + sumRanges<D>(grads, 0, off[i + 1] - off[i]);
         // A gradient this small gives no direction to seed along (a
         // symmetric neighbourhood). It is not what filters the liquid's
         // interior: the particles' disorder keeps ‖∇ρ‖ above it almost

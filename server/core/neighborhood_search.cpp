@@ -248,6 +248,18 @@ void NeighborhoodSearch<D>::buildLists(const std::vector<Vec<D>>& x, const std::
 }
 
 template <int D>
+size_t NeighborhoodSearch<D>::memoryBytes() const {
+  auto bytes = [](const auto& v) { return v.capacity() * sizeof(v[0]); };
+  size_t b = bytes(dynStart_) + bytes(dynSortedIdx_) + bytes(dynCellOf_) + bytes(statStart_) + bytes(staticIdx_) +
+             bytes(statCellOf_) + bytes(dyn_.offsets) + bytes(dyn_.indices) + bytes(dyn_.blockPairs) +
+             bytes(mortonKeys_) + bytes(threadCounts_) + bytes(regionStart_) + bytes(regionNeed_) + bytes(overflowed_);
+  for (int d = 0; d < D; ++d) b += bytes(dynSorted_[d]) + bytes(staticPos_[d]);
+  for (const auto& v : threadBuf_) b += bytes(v);
+  for (const auto& v : boxBuf_) b += bytes(v);
+  return b;
+}
+
+template <int D>
 void NeighborhoodSearch<D>::dynamicInBox(const AABB<D>& box, std::vector<uint32_t>& out) const {
   out.clear();
   if (dynStart_.empty() || box.empty()) return;

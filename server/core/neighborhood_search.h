@@ -54,6 +54,10 @@ class NeighborhoodSearch {
   // effects that keep per-pair data do.
   void staticNeighborLists(const std::vector<Vec<D>>& x, NeighborList& out);
 
+  // What the search holds: grids, sorted copies, lists and scratch
+  // (capacities, in bytes).
+  size_t memoryBytes() const;
+
   // Permutation that orders x along the Morton curve of their cells:
   // new index k holds old particle perm[k].
   void zOrder(const std::vector<Vec<D>>& x, std::vector<uint32_t>& perm) const;

@@ -341,9 +341,10 @@ void Simulation<D>::buildFluid() {
 // ρ_i = m_i δ_i. A boundary sample stands for V_b / V_i of particle i's
 // kind (V_i = m_i / ρ0_i its rest volume), which gives the same Akinci term
 // ρ0_i Σ_b V_b W_ib as before. With one phase (equal masses) both are the
-// same sum. The pair gradients m_j ∇W_ij and the boundary sums are cached
-// for the solvers and effects of this substep in both, and under the number
-// density also ∇W_ij alone (gradW), for the pressure solvers' volume form.
+// same sum. The pair gradients m_j ∇W_ij (as m_j F_ij, massGradScale) and
+// the boundary sums are cached for the solvers and effects of this substep
+// in both, and under the number density also F_ij alone (gradScale), for the
+// pressure solvers' volume form.
 // ([SP08] is cited by section and formula: its equation numbers could not be
 // checked against the paper's text here.)
 template <int D>
@@ -391,9 +392,8 @@ template <bool NumberDensity>
 void Simulation<D>::computeDensitiesWith() {
   const auto& nf = search.dynamicNeighbors();
   const long n = long(fluid.size());
-  for (auto& g : massGradW) g.resize(nf.pairs());
-  if constexpr (NumberDensity)
-    for (auto& g : gradW) g.resize(nf.pairs());
+  massGradScale.resize(nf.pairs());
+  gradScale.resize(NumberDensity ? nf.pairs() : 0);
   boundaryGradW.resize(size_t(n));
   boundaryFlux.resize(size_t(n));
   boundaryNeighbors.resize(size_t(n));
@@ -403,9 +403,8 @@ void Simulation<D>::computeDensitiesWith() {
   const uint32_t* nbr = nf.indices.data();
   const Real* xs = fluid.x.data()->data();  // Vec<D> is D packed Reals
   const Real* mass = fluid.mass.data();
-  std::array<Real*, D> grad, plain;
-  for (int d = 0; d < D; ++d) grad[d] = massGradW[d].data();
-  for (int d = 0; d < D; ++d) plain[d] = NumberDensity ? gradW[d].data() : nullptr;
+  Real* grad = massGradScale.data();
+  Real* plain = NumberDensity ? gradScale.data() : nullptr;
 #pragma omp parallel
   {
     const auto [first, last] = threadParticles();
@@ -427,9 +426,8 @@ void Simulation<D>::computeDensitiesWith() {
         const Real mj = mass[nbr[k]];
         if constexpr (NumberDensity) rho += w;
         else rho += mj * w;
-        for (int d = 0; d < D; ++d) grad[d][k] = mj * fac * r[d];
-        if constexpr (NumberDensity)
-          for (int d = 0; d < D; ++d) plain[d][k] = fac * r[d];
+        grad[k] = mj * fac;
+        if constexpr (NumberDensity) plain[k] = fac;
       }
       // ρ_i = m_i δ_i, [SP08] §4 (its "adapted density").
       if constexpr (NumberDensity) rho *= fluid.mass[i];

@@ -312,8 +312,12 @@ TEST(ControlReproduction, DropTemplateOnItsSourceScene) {
   // from its template only through the resolution change, so uncontrolled it
   // already scores high; control must still lift it. Without the drop, the
   // splash exists only through control.
+  // The lift on the copy is small and the splash chaotic: builds whose sums
+  // differ only in rounding measured a mean lift of 0.011 to 0.027 and a
+  // lift of the worst frame of 0.021 to 0.044.
   EXPECT_GE(copyOn.min, 0.85);
-  EXPECT_GT(copyOn.mean, copyOff.mean + 0.015);
+  EXPECT_GT(copyOn.mean, copyOff.mean + 0.005);
+  EXPECT_GT(copyOn.min, copyOff.min + 0.01);
   EXPECT_GE(poolOn.min, 0.65);
   EXPECT_GT(poolOn.mean, poolOff.mean + 0.1);
 }

@@ -207,3 +207,45 @@ TEST(NeighborhoodSearch, BoxQueryEqualsBruteForceInCellOrder2D) {
   checkBoxQuery<2>(x, grid, 0.02f, AABB<2>(Vec<2>(0.05f, 0.1f), Vec<2>(0.95f, 0.9f)));
   checkBoxQuery<2>(x, grid, 0.02f, AABB<2>(Vec<2>(0.5f, 0.5f), Vec<2>(0.52f, 0.6f)));
 }
+
+// The list is written in place, each thread block into a region sized from
+// the last build: when the pairs grow eightfold (the region is outgrown and
+// the build repeated) or shrink, the list still equals brute force, is the
+// same pair for pair on one, two and three threads, and holds no more than
+// its largest list and the regions' margins (no second copy of itself).
+TEST(NeighborhoodSearch, InPlaceListsFollowGrowthAndShrinkOnAnyThreadCount) {
+  const AABB<3> box{Vec<3>::Zero(), Vec<3>::Ones()};
+  const Real r = Real(0.1);
+  const std::vector<Vec<3>> loose = randomPoints<3>(3000, box, 11);
+  std::vector<Vec<3>> dense = loose;
+  for (auto& p : dense) p *= Real(0.5);
+  const int threadsBefore = omp_get_max_threads();
+  std::vector<std::vector<uint32_t>> firstRun;
+  for (int threads : {1, 2, 3}) {
+    omp_set_num_threads(threads);
+    NeighborhoodSearch<3> ns;
+    ns.setGrid(box, r);
+    std::vector<std::vector<uint32_t>> run;
+    size_t most = 0;
+    const std::vector<Vec<3>>* sets[] = {&loose, &dense, &dense, &loose, &dense};
+    for (const std::vector<Vec<3>>* x : sets) {
+      ns.update(*x);
+      const NeighborList& l = ns.dynamicNeighbors();
+      EXPECT_EQ(fromList(l, x->size()), bruteForce<3>(*x, *x, r, true)) << threads << " threads";
+      EXPECT_EQ(l.offsets.back(), l.pairs());
+      most = std::max(most, l.pairs());
+      EXPECT_LE(l.indices.capacity(), most + most / 4 + size_t(threads) * 8192)
+          << "the list keeps more than its largest pairs and the regions' margins";
+      // Beside the list: the grid's cell starts, the sorted copy (D
+      // coordinates, index, cell per point) and a particle's candidates.
+      const size_t grid = (ns.cellCount() + 1) * 4 + x->size() * (3 * sizeof(Real) + 8);
+      EXPECT_LE(ns.memoryBytes(), l.indices.capacity() * 4 + l.offsets.capacity() * 4 + grid + 64 * 1024)
+          << "the search keeps a second copy of its pairs";
+      run.emplace_back(l.indices.begin(), l.indices.end());
+    }
+    EXPECT_GT(run[1].size(), 6 * run[0].size()) << "the dense set must outgrow the loose set's regions";
+    if (firstRun.empty()) firstRun = run;
+    else EXPECT_EQ(run, firstRun) << "the lists differ between 1 and " << threads << " threads";
+  }
+  omp_set_num_threads(threadsBefore);
+}

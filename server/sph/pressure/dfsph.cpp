@@ -225,7 +225,7 @@ class DFSPH final : public PressureSolver<D> {
           Vec<D> sum = gb;
           Real sumSq = 0;
           for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
-            const Vec<D> g = sim.massGradWAt(k);
+            const Vec<D> g = sim.massGradWAt(i, k);
             sum += g;
             sumSq += g.squaredNorm();
           }
@@ -238,8 +238,7 @@ class DFSPH final : public PressureSolver<D> {
           Vec<D> sum = gb;
           Real sumSq = 0;
           for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
-            Vec<D> g;
-            for (int d = 0; d < D; ++d) g[d] = sim.gradW[d][k];
+            const Vec<D> g = sim.gradWAt(i, k);
             sum += g;
             sumSq += g.squaredNorm() / f.mass[nbr[k]];
           }
@@ -284,10 +283,9 @@ class DFSPH final : public PressureSolver<D> {
     const uint32_t* off = sim.pairOffsets();
     const uint32_t* nbr = sim.pairNeighbors();
     const Real* stiffness = stiffness_.data();
-    const auto& grad = ND ? sim.gradW : sim.massGradW;
-    const Real* gx = grad[0].data();
-    const Real* gy = grad[1].data();
+    const Real* scale = ND ? sim.gradScale.data() : sim.massGradScale.data();
     auto& f = sim.fluid;
+    const Real* xs = f.x.data()->data();  // Vec<D> is D packed Reals
     const Real w = sim.boundaryPressureWeight();
     double ix = 0, iy = 0, iz = 0;
     // Named scalar accumulators with `omp simd`, so the neighbour loop
@@ -298,22 +296,24 @@ class DFSPH final : public PressureSolver<D> {
       for (long i = first; i < last; ++i) {
         const Real ki = stiffness[i];
         const uint32_t b = off[i], e = off[i + 1];
+        const Vec<D> xi = f.x[i];
         Real dx = 0, dy = 0, dz = 0;
         if constexpr (D == 2) {
 #pragma omp simd reduction(+ : dx, dy)
           for (uint32_t k = b; k < e; ++k) {
+            const Real* xj = xs + 2 * size_t(nbr[k]);
             const Real s = ki + stiffness[nbr[k]];
-            dx += s * gx[k];
-            dy += s * gy[k];
+            dx += s * (scale[k] * (xi[0] - xj[0]));
+            dy += s * (scale[k] * (xi[1] - xj[1]));
           }
         } else {
-          const Real* gz = grad[D - 1].data();
 #pragma omp simd reduction(+ : dx, dy, dz)
           for (uint32_t k = b; k < e; ++k) {
+            const Real* xj = xs + 3 * size_t(nbr[k]);
             const Real s = ki + stiffness[nbr[k]];
-            dx += s * gx[k];
-            dy += s * gy[k];
-            dz += s * gz[k];
+            dx += s * (scale[k] * (xi[0] - xj[0]));
+            dy += s * (scale[k] * (xi[1] - xj[1]));
+            dz += s * (scale[k] * (xi[2] - xj[2]));
           }
         }
         Real kb = w * ki * sim.restDensity_[f.phase[i]];
@@ -410,25 +410,26 @@ class DFSPH final : public PressureSolver<D> {
     const auto& f = sim.fluid;
     const uint32_t* off = sim.pairOffsets();
     const uint32_t* nbr = sim.pairNeighbors();
-    const auto& grad = ND ? sim.gradW : sim.massGradW;
-    const Real* gx = grad[0].data();
-    const Real* gy = grad[1].data();
-    const Real* v = f.v.data()->data();  // Vec<D> is D packed Reals
-    const Vec<D> vi = f.v[i];
+    const Real* scale = ND ? sim.gradScale.data() : sim.massGradScale.data();
+    const Real* xs = f.x.data()->data();  // Vec<D> is D packed Reals
+    const Real* v = f.v.data()->data();
+    const Vec<D> xi = f.x[i], vi = f.v[i];
     const uint32_t b = off[i], e = off[i + 1];
     Real r = 0;
     if constexpr (D == 2) {
 #pragma omp simd reduction(+ : r)
       for (uint32_t k = b; k < e; ++k) {
+        const Real* xj = xs + 2 * size_t(nbr[k]);
         const Real* vj = v + 2 * size_t(nbr[k]);
-        r += (vi[0] - vj[0]) * gx[k] + (vi[1] - vj[1]) * gy[k];
+        r += (vi[0] - vj[0]) * (scale[k] * (xi[0] - xj[0])) + (vi[1] - vj[1]) * (scale[k] * (xi[1] - xj[1]));
       }
     } else {
-      const Real* gz = grad[D - 1].data();
 #pragma omp simd reduction(+ : r)
       for (uint32_t k = b; k < e; ++k) {
+        const Real* xj = xs + 3 * size_t(nbr[k]);
         const Real* vj = v + 3 * size_t(nbr[k]);
-        r += (vi[0] - vj[0]) * gx[k] + (vi[1] - vj[1]) * gy[k] + (vi[2] - vj[2]) * gz[k];
+        r += (vi[0] - vj[0]) * (scale[k] * (xi[0] - xj[0])) + (vi[1] - vj[1]) * (scale[k] * (xi[1] - xj[1])) +
+             (vi[2] - vj[2]) * (scale[k] * (xi[2] - xj[2]));
       }
     }
     if constexpr (ND) r *= f.mass[i];

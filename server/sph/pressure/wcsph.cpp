@@ -96,15 +96,13 @@ class WCSPH final : public PressureSolver<D> {
       if constexpr (!ND) {
         for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
           const uint32_t j = sim.pairNeighbors()[k];
-          a -= (pi + f.pressure[j] / (f.density[j] * f.density[j])) * sim.massGradWAt(k);
+          a -= (pi + f.pressure[j] / (f.density[j] * f.density[j])) * sim.massGradWAt(i, k);
         }
       } else {
         Vec<D> sum = Vec<D>::Zero();
         for (uint32_t k = off[i], e = off[i + 1]; k < e; ++k) {
           const uint32_t j = sim.pairNeighbors()[k];
-          Vec<D> g;
-          for (int d = 0; d < D; ++d) g[d] = sim.gradW[d][k];
-          sum += (scaled_[i] + scaled_[j]) * g;
+          sum += (scaled_[i] + scaled_[j]) * sim.gradWAt(i, k);
         }
         a -= sum / f.mass[i];
       }

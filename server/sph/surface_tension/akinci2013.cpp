@@ -126,12 +126,11 @@ class SurfaceTensionAkinci2013 final : public Effect<D> {
     const Real* mass = f.mass.data();
     const Real* xs = f.x.data()->data();  // D packed Reals per particle
     const Real h = sim.supportRadius();
-    std::array<const Real*, D> mg;
+    const Real* mg = sim.massGradScale.data();  // m_j ∇W_ij = mg[k] x_ij
     std::array<Real*, D> nrm;
-    for (int d = 0; d < D; ++d) mg[d] = sim.massGradW[d].data(), nrm[d] = normal_[d].data();
+    for (int d = 0; d < D; ++d) nrm[d] = normal_[d].data();
     auto samePhase = [phase](long i, uint32_t j) { return !Multiphase || phase[j] == phase[i]; };
     // Plain local pointers: through the arrays the compiler reloads them every pair.
-    const Real *mg0 = mg[0], *mg1 = mg[1], *mg2 = mg[D - 1];
     Real *n0 = nrm[0], *n1 = nrm[1], *n2 = nrm[D - 1];
 
     Real* hOverRho = hOverRho_.data();
@@ -140,14 +139,16 @@ class SurfaceTensionAkinci2013 final : public Effect<D> {
     // equation (3) in [AAT13]: n_i = h Σ_j m_j/ρ_j ∇W_ij, same-phase neighbours
 #pragma omp parallel for schedule(static)
     for (long i = 0; i < n; ++i) {
+      const Real* xi = xs + size_t(D) * size_t(i);
       Real s0 = 0, s1 = 0, s2 = 0;  // s2: 3D only
 #pragma omp simd reduction(+ : s0, s1, s2)
       for (uint32_t k = off[i]; k < off[i + 1]; ++k) {
         const uint32_t j = nbr[k];
+        const Real* xj = xs + size_t(D) * j;
         const Real w = samePhase(i, j) ? hOverRho[j] : Real(0);
-        s0 += w * mg0[k];
-        s1 += w * mg1[k];
-        if constexpr (D == 3) s2 += w * mg2[k];
+        s0 += w * (mg[k] * (xi[0] - xj[0]));
+        s1 += w * (mg[k] * (xi[1] - xj[1]));
+        if constexpr (D == 3) s2 += w * (mg[k] * (xi[D - 1] - xj[D - 1]));
       }
       n0[i] = s0;
       n1[i] = s1;

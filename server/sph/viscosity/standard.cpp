@@ -68,7 +68,7 @@ class ViscosityStandard final : public Effect<D> {
           const uint32_t j = sim.pairNeighbors()[k];
           const Vec<D> xij = xi - f.x[j];
           const Real nuij = Real(0.5) * (nui + nu[f.phase[j]]);
-          a += (nuij / f.density[j] * (vi - f.v[j]).dot(xij) / (xij.squaredNorm() + eps)) * sim.massGradWAt(k);
+          a += (nuij / f.density[j] * (vi - f.v[j]).dot(xij) / (xij.squaredNorm() + eps)) * sim.massGradWAt(i, k);
         }
         if (boundaryViscosity_ > 0)
           sim.search.forEachStaticNear(xi, sim.supportRadius(), [&](uint32_t b, const Vec<D>& xb) {

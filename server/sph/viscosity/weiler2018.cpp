@@ -256,7 +256,7 @@ class ViscosityWeiler2018 final : public Effect<D> {
         const Real r2 = xij.squaredNorm();
         // -m_j F from the cached m_j ∇W_ij = m_j F x_ij.
         Real gx = 0;
-        for (int d = 0; d < D; ++d) gx += sim.massGradW[d][k] * xij[d];
+        for (int d = 0; d < D; ++d) gx += (sim.massGradScale[k] * xij[d]) * xij[d];
         const Real c = r2 > 0 ? std::max(Real(0), -gx / r2) : Real(0);
         const Real coef = dd * Real(0.5) * (mui + mu[f.phase[j]]) * vi / f.density[j] * c / (r2 + eps);
         const Vec<D> yk = std::sqrt(coef) * xij;
