@@ -141,7 +141,7 @@ void NeighborhoodSearch<D>::buildLists(const std::vector<Vec<D>>& x, const std::
   const bool haveTargets = !sortedIdx.empty();
   // Each thread block writes into its own region of out.indices, sized from
   // the last build's pairs with a margin; a block that outgrows its region
-  // only counts, and the build is repeated once with regions of the counts.
+  // only counts, and the build is repeated with regions of the counts.
   std::vector<size_t>& last = out.blockPairs;
   auto planRegions = [&](int teams, bool exact) {
     regionStart_.assign(size_t(teams) + 1, 0);
@@ -156,7 +156,9 @@ void NeighborhoodSearch<D>::buildLists(const std::vector<Vec<D>>& x, const std::
   };
   int teams = 0;
   bool exact = false;
-  for (int attempt = 0; attempt < 2; ++attempt) {
+  // Regions of the counts cannot be outgrown by the same team: the second
+  // pass is the last (unless the team's size changed in between).
+  for (;;) {
     bool anyOverflow = false;
 #pragma omp parallel
     {
