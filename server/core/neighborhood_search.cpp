@@ -149,10 +149,19 @@ void NeighborhoodSearch<D>::buildLists(const std::vector<Vec<D>>& x, const std::
       const size_t base = exact ? regionNeed_[size_t(t)] : last.size() == size_t(teams) ? last[size_t(t)] : 0;
       regionStart_[size_t(t) + 1] = regionStart_[size_t(t)] + base + base / 8 + 4096 + kScanSlack;
     }
+    const size_t want = regionStart_.back();
     // The old pairs are not needed: a list that must grow is freed before it
-    // is allocated again, never copied (which would hold both at once).
-    if (regionStart_.back() > out.indices.capacity()) out.indices = {};
-    out.indices.resize(regionStart_.back());
+    // is allocated again, never copied (which would hold both at once), and
+    // with an eighth to spare, so that a slowly growing list is not
+    // allocated again at every build.
+    if (want > out.indices.size()) {
+      out.indices = {};
+      out.indices.resize(want + want / 8);
+    }
+    // What the regions leave is shared out among them.
+    const size_t spare = (out.indices.size() - want) / size_t(teams);
+    for (int t = 1; t <= teams; ++t) regionStart_[size_t(t)] += spare * size_t(t);
+    regionStart_.back() = out.indices.size();
   };
   int teams = 0;
   bool exact = false;
@@ -233,7 +242,6 @@ void NeighborhoodSearch<D>::buildLists(const std::vector<Vec<D>>& x, const std::
             if (count && to != from)
               std::memmove(out.indices.data() + to, out.indices.data() + from, count * sizeof(uint32_t));
           }
-          out.indices.resize(threadCounts_[size_t(T)]);
           out.offsets[n] = uint32_t(threadCounts_[size_t(T)]);
         }
       }

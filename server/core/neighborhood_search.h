@@ -20,15 +20,16 @@ namespace fc {
 
 struct NeighborList {
   std::vector<uint32_t> offsets;  // size n+1
-  std::vector<uint32_t> indices;  // neighbours of i: indices[offsets[i] .. offsets[i+1])
+  std::vector<uint32_t> indices;  // neighbours of i: indices[offsets[i] .. offsets[i+1]); room past pairs()
   uint32_t count(uint32_t i) const { return offsets[i + 1] - offsets[i]; }
   const uint32_t* begin(uint32_t i) const { return indices.data() + offsets[i]; }
   const uint32_t* end(uint32_t i) const { return indices.data() + offsets[i + 1]; }
-  size_t pairs() const { return indices.size(); }
+  size_t pairs() const { return offsets.empty() ? 0 : offsets.back(); }
   // Each build's pairs per thread block: the next build writes every block
   // straight into `indices`, in a region this large plus a margin, instead
   // of into a private buffer copied over (which held a second copy of the
-  // list).
+  // list). `indices` keeps its size between builds (the regions share it):
+  // it is allocated again only when the regions outgrow it.
   std::vector<size_t> blockPairs;
 };
 
