@@ -191,9 +191,9 @@ class Simulation {
   // Per substep, one entry per fluid neighbour pair, in the CSR order of
   // search.dynamicNeighbors(): m_j F_ij, where m_j ∇W(x_i - x_j) = m_j F_ij
   // (x_i - x_j) (the kernel's gradient points along the pair). One scalar
-  // instead of the gradient's D components: a third of the memory at
-  // millions of pairs, and the sweeps, which gather x_j beside v_j, run as
-  // fast (measured at 1M particles). Positions do not change between the
+  // instead of the gradient's D components: a third of the pair memory;
+  // the sweeps gather x_j beside v_j (as fast at 1M particles, 8-10 %
+  // slower at 59k: docs/benchmarks/paper-scale.md). Positions do not change between the
   // densities and the end of the substep's solves. Masses are folded in
   // because every solver loop multiplies by them. (Under the number density
   // as well: effects read m_j ∇W_ij / ρ_j, which is then the volume form
