@@ -189,25 +189,15 @@ void NeighborhoodSearch<D>::buildLists(const std::vector<Vec<D>>& x, const std::
         out.offsets[i] = uint32_t(used);
         if (!haveTargets) continue;
         const Vec<D> p = x[i];
-        const VecI<D> c = cellCoord(p);
-        const int x0 = std::max(c[0] - 1, 0), x1 = std::min(c[0] + 1, dims_[0] - 1);
         int nrows = 0;
         size_t candidates = 0;
-        auto addRow = [&](VecI<D> cc) {
-          cc[0] = x0;
-          const size_t a = linearCell(cc);
-          rowBegin[nrows] = start[a];
-          rowEnd[nrows] = start[a + size_t(x1 - x0) + 1];
-          candidates += rowEnd[nrows] - rowBegin[nrows];
+        auto addRow = [&](uint32_t rb, uint32_t re) {
+          rowBegin[nrows] = rb;
+          rowEnd[nrows] = re;
+          candidates += re - rb;
           ++nrows;
         };
-        if constexpr (D == 2) {
-          for (int y = std::max(c[1] - 1, 0); y <= std::min(c[1] + 1, dims_[1] - 1); ++y) addRow(VecI<D>(0, y));
-        } else {
-          for (int z = std::max(c[2] - 1, 0); z <= std::min(c[2] + 1, dims_[2] - 1); ++z)
-            for (int y = std::max(c[1] - 1, 0); y <= std::min(c[1] + 1, dims_[1] - 1); ++y)
-              addRow(VecI<D>(0, y, z));
-        }
+        forEachRow(p, start, addRow);
         most = std::max(most, candidates);
         // Room for every candidate, so the scan can write each one and
         // advance the cursor only for hits, without a branch.
