@@ -73,7 +73,7 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
       setup.solver.values = ParamValues();
     }
   }
-  std::string boundaryName = setup.boundary.name.empty() ? "akinci2012" : setup.boundary.name;
+  std::string boundaryName = setup.boundary.name.empty() ? std::string(kDefaultBoundaryModel) : setup.boundary.name;
   if (!opt.boundary.empty()) {
     if (!BoundaryModelRegistry<D>::instance().find(opt.boundary))
       throw SceneError("boundary.method", "unknown boundary method '" + opt.boundary + "' given by --boundary");

@@ -68,7 +68,7 @@ Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
   stageNames_.push_back("pressure:" + solverName);
 
   boundaryModel_ = makeNamed(BoundaryModelRegistry<D>::instance(),
-                             setup_.boundary.name.empty() ? "akinci2012" : setup_.boundary.name,
+                             setup_.boundary.name.empty() ? std::string(kDefaultBoundaryModel) : setup_.boundary.name,
                              setup_.boundary.values, "boundary method");
   boundaryWeight_ = boundaryModel_->pressureWeight();
   extrapolateBoundary_ = boundaryModel_->extrapolatesPressure();
