@@ -1,6 +1,6 @@
 """Surfaces and the files DCCs import (docs/surfaces.md), read back by
 readers that are not FlowClip's: OpenVDB's `vdb_print`, `plyfile`,
-`usd-core` (pxr) and Blender.
+`usd-core` (pxr) and Blender (Debian's 3.4, and PyPI's bpy 4.2 for USD).
 
 One run of the resting 3D column writes every format plus the HDF5
 particle export; the tests compare what each reader sees with the
@@ -214,6 +214,47 @@ def test_blender_imports_the_mesh_and_the_volume(exported, tmp_path):
     assert got["ply"] == [len(points), len(faces)]
     assert got["obj"] == [len(points), len(faces)]
     assert got["vdb"] == ["surface", "v"]
+
+
+BLENDER_PYTHON = ROOT / "build" / "venv-blender" / "bin" / "python"
+
+
+def test_blender_imports_the_usd_stage_with_its_time_samples(exported, tmp_path):
+    """PyPI's bpy (Debian's blender lacks USD): points and surface play frame by frame, upright."""
+    assert BLENDER_PYTHON.exists(), "the bpy venv is made by make setup (tools/setup.sh, requirements-blender.txt)"
+    script = tmp_path / "import_usd.py"
+    script.write_text(
+        "import bpy, json, sys\n"
+        "bpy.ops.wm.read_factory_settings(use_empty=True)\n"
+        "bpy.ops.wm.usd_import(filepath=sys.argv[1], set_frame_range=True)\n"
+        "s = bpy.context.scene\n"
+        "out = {'range': [s.frame_start, s.frame_end], 'types': {o.name: o.type for o in bpy.data.objects}}\n"
+        "for frame in (4, 9):\n"
+        "    s.frame_set(frame)\n"
+        "    dg = bpy.context.evaluated_depsgraph_get()\n"
+        "    p = bpy.data.objects['particles'].evaluated_get(dg).data.points\n"
+        "    m = bpy.data.objects['surface'].evaluated_get(dg).data\n"
+        "    out[frame] = {'points': [list(q.co) for q in p], 'vertices': [list(v.co) for v in m.vertices],\n"
+        "                  'polygons': len(m.polygons)}\n"
+        "w = bpy.data.objects['surface'].matrix_world\n"
+        "out['up'] = list(w.to_3x3() @ __import__('mathutils').Vector((0, 1, 0)))\n"
+        "print('IMPORTED ' + json.dumps(out))\n")
+    proc = subprocess.run([str(BLENDER_PYTHON), str(script), str(exported / "files" / "hydrostatic3d.usda")],
+                          capture_output=True, text=True, timeout=600)
+    found = re.search(r"^IMPORTED (.*)$", proc.stdout, re.M)
+    assert found, proc.stdout[-2000:] + proc.stderr[-2000:]
+    got = json.loads(found.group(1))
+    assert got["range"] == [0, FRAMES]
+    assert got["types"]["particles"] == "POINTCLOUD" and got["types"]["surface"] == "MESH"
+    for frame in (4, 9):
+        rows = frame_rows(exported / "pool.h5", frame)
+        keep = rows["kind"] <= 1
+        np.testing.assert_allclose(np.array(got[str(frame)]["points"]), rows["position"][keep], atol=1e-6)
+        _, points, faces = read_mesh(exported / "files" / f"hydrostatic3d.{frame:04d}.ply")
+        np.testing.assert_allclose(np.array(got[str(frame)]["vertices"]), points, atol=1e-6)
+        assert got[str(frame)]["polygons"] == len(faces)
+    # Our Y-up stage stands upright in Blender's Z-up world.
+    np.testing.assert_allclose(got["up"], [0, 0, 1], atol=1e-6)
 
 
 # Bad input: a clear error, exit status 2, and nothing under a final name.

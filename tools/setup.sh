@@ -46,6 +46,16 @@ if [ ! -x "$VENV/bin/python" ] || ! cmp -s requirements.txt "$VENV/.requirements
   cp requirements.txt "$VENV/.requirements"
 fi
 
+# Blender as a Python module (PyPI's bpy, with USD) in a venv of its own:
+# requirements-blender.txt says why.
+BLENDER_VENV=build/venv-blender
+if [ ! -x "$BLENDER_VENV/bin/python" ] || ! cmp -s requirements-blender.txt "$BLENDER_VENV/.requirements"; then
+  echo "setup: creating the bpy venv in $BLENDER_VENV"
+  /usr/bin/python3 -m venv "$BLENDER_VENV"
+  "$BLENDER_VENV/bin/pip" install -q --disable-pip-version-check -r requirements-blender.txt
+  cp requirements-blender.txt "$BLENDER_VENV/.requirements"
+fi
+
 # The Python client package (clients/python, docs: clients/python/README.md),
 # installed like a user's `pip install clients/python` and again whenever its
 # sources or the proto/ files it packages change. No network: its build runs
