@@ -10,7 +10,7 @@ ABS_BUILD_DIR = $(abspath $(BUILD_DIR))
 
 .PHONY: all setup build web templates run run-headless docs gallery portable bench-portable test test-parts test-ctest test-pytest test-web test-web-only bench bench-accuracy bench-web clean \
   fuzz fuzz-build fuzz-regress test-fuzz asan-build test-asan bench-soak bench-cache bench-suite bench-spheric2 bench-batch \
-  templates-paper bench-scenes-paper bench-scaling
+  templates-paper bench-scenes-paper bench-scaling bench-template-streaming
 
 # 2D templates are recorded when missing (seconds); larger ones on demand:
 # build/flowclip record templates/recipes/letters3d.json
@@ -44,6 +44,11 @@ templates-paper: build
 # bytes per particle (bench/scaling/scaling.md; tools/bench_scaling.py).
 bench-scaling: build
 	$(BUILD_DIR)/venv/bin/python tools/bench_scaling.py
+
+# Templates streamed under smaller --template-memory budgets against read
+# whole (bench/template-streaming/streaming.md; tools/bench_template_streaming.py).
+bench-template-streaming: templates-paper
+	$(BUILD_DIR)/venv/bin/python tools/bench_template_streaming.py
 
 # Table 1 at the paper's scale: bench/scenes-paper/scenes.md (+ .json).
 BENCH_SCENES_PAPER_ARGS ?= --frames 60

@@ -14,4 +14,9 @@ void addServeCommand(CLI::App& app);      // serve (serve_command.cpp)
 void addParamsCommand(CLI::App& app);     // params (params_command.cpp)
 void addExportCommand(CLI::App& app);     // export (export_command.cpp)
 
+// --template-memory MB (run and serve): how much of the memory a template may
+// take decoded before it is streamed from its file (templates_command.cpp).
+void addTemplateMemoryOption(CLI::App* cmd, double& megabytes);
+size_t templateMemoryBytes(double megabytes);
+
 }  // namespace fc::app

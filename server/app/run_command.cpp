@@ -42,6 +42,7 @@ struct RunOptions {
   std::string solver;
   std::string boundary;
   std::string templates = "templates";
+  double templateMemoryMB = kDefaultTemplateMemoryMB;
   std::vector<std::string> controlSettings;  // KEY=VALUE, over the scene's "control" object
   double frameTimeout = 0;                    // s of wall time per frame (0: no limit)
   bool quiet = false;
@@ -85,7 +86,7 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
   SceneControl<D> control = parseSceneControl<D>(sceneJson, setup.phases);
   overrideControlSettings(opt.controlSettings, control.settings);
   Simulation<D> sim(setup);
-  TemplateDatabase database(opt.templates);
+  TemplateDatabase database(opt.templates, templateMemoryBytes(opt.templateMemoryMB));
   const auto tBind = std::chrono::steady_clock::now();
   const size_t instances = attachControl<D>(sim, control, database);
   const double bindS = std::chrono::duration<double>(std::chrono::steady_clock::now() - tBind).count();
@@ -252,6 +253,19 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
     // Control's share next to the simulation's, as the paper's Table 1.
     summary["control_overhead_pct"] = wallS * 1000 > controlMs ? 100.0 * controlMs / (wallS * 1000 - controlMs) : 0.0;
     summary["template_bind_s"] = bindS;
+    nlohmann::json streamed = nlohmann::json::array();
+    for (const auto& t : database.streamedTemplates()) {
+      streamed.push_back({{"name", t.name}, {"frames", t.frames}, {"cache_mb", double(t.cacheBytes) / 1048576.0},
+                          {"peak_mb", double(t.peakBytes) / 1048576.0}, {"frames_read", t.loads},
+                          {"frames_reused", t.hits}, {"read_s", t.loadSeconds}});
+      if (!opt.quiet)
+        std::fprintf(stderr,
+                     "template %s streamed from its file: %zu of its frames read (%zu reused), at most %.0f MB of "
+                     "its %.0f MB cache held, %.2f s reading and building\n",
+                     t.name.c_str(), t.loads, t.hits, double(t.peakBytes) / 1048576.0,
+                     double(t.cacheBytes) / 1048576.0, t.loadSeconds);
+    }
+    if (!streamed.empty()) summary["templates_streamed"] = streamed;
   }
   if (surfaces) {
     summary["surface_ms_per_frame"] = surfaces->frames() ? surfaces->surfaceMs() / surfaces->frames() : 0.0;
@@ -300,6 +314,7 @@ void addRunCommand(CLI::App& app) {
                   "override the scene's boundary model (a different one runs with its default parameters)");
   run->add_option("--templates", opt->templates,
                   "template database directory (default: templates, or templates/NAME with --scale NAME)");
+  addTemplateMemoryOption(run, opt->templateMemoryMB);
   run->add_option("--frame-timeout", opt->frameTimeout,
                   "stop with exit status 3 if one frame takes longer than this many wall seconds (default: no limit)")
       ->check(CLI::NonNegativeNumber);

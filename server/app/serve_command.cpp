@@ -2,6 +2,7 @@
 // files) on one port. See service/http_server.h and docs/api.md.
 #include "app/commands.h"
 #include "io/staged_files.h"
+#include "io/template_database.h"
 #include "cli/process.h"
 #include "service/child_process.h"
 #include "service/http_server.h"
@@ -29,6 +30,7 @@ struct ServeOptions {
   std::string host = "127.0.0.1";
   int port = 8080;
   std::string templates = "templates";
+  double templateMemoryMB = kDefaultTemplateMemoryMB;
   std::string scenes = "scenes";
   std::string recipes;  // "": TEMPLATES/recipes, else the source tree's
   std::string exports = "exports";
@@ -70,6 +72,7 @@ int serve(const ServeOptions& o, bool presetsGiven) {
   }
   service::ServiceOptions so;
   so.templatesDir = o.templates;
+  so.templateMemoryBytes = templateMemoryBytes(o.templateMemoryMB);
   so.scenesDir = o.scenes;
   so.exportsDir = o.exports;
   so.presetsFile = o.presets;
@@ -146,6 +149,7 @@ void addServeCommand(CLI::App& app) {
   cmd->add_option("--host", o->host, "address to bind (default 127.0.0.1; another address requires --token)");
   cmd->add_option("--port", o->port, "TCP port (default 8080; 0: any free port, printed)")->check(CLI::Range(0, 65535));
   cmd->add_option("--templates", o->templates, "template directory (default: templates)");
+  addTemplateMemoryOption(cmd, o->templateMemoryMB);
   cmd->add_option("--scenes", o->scenes, "scene directory (default: scenes)");
   cmd->add_option("--recipes", o->recipes,
                   "recipes the editor can record (default: TEMPLATES/recipes, else the source tree's "

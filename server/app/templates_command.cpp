@@ -241,4 +241,13 @@ void addTemplatesCommands(CLI::App& app) {
   }));
 }
 
+void addTemplateMemoryOption(CLI::App* cmd, double& megabytes) {
+  cmd->add_option("--template-memory", megabytes,
+                  "MB a template may take decoded; a larger one is streamed from its file, at most this much of it "
+                  "kept (default: " + std::to_string(int(kDefaultTemplateMemoryMB)) + ")")
+      ->check(CLI::Range(1.0, 1.0e7));
+}
+
+size_t templateMemoryBytes(double megabytes) { return size_t(megabytes * 1024 * 1024); }
+
 }  // namespace fc::app

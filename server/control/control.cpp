@@ -479,7 +479,8 @@ void Control<D>::gather(size_t i, const Simulation<D>& sim) {
 template <int D>
 void Control<D>::computeCoverage(size_t i, const Simulation<D>& sim) {
   State& s = state_[i];
-  const TemplateFrameGrids<D>& grids = instances_[i].accel->frame(s.frame);
+  const auto gridsHeld = instances_[i].accel->frame(s.frame);  // keeps a streamed frame while it is read
+  const TemplateFrameGrids<D>& grids = *gridsHeld;
   const auto& xc = grids.controlPositions();
   const long nc = long(xc.size());
   s.alpha.assign(size_t(nc), Real(1));
@@ -542,7 +543,8 @@ template <int D>
 void Control<D>::addInstanceForces(size_t i, Simulation<D>& sim, Real applyFor) {
   State& s = state_[i];
   const BoundInstance<D>& inst = instances_[i];
-  const TemplateFrameGrids<D>& grids = inst.accel->frame(s.frame);
+  const auto gridsHeld = inst.accel->frame(s.frame);  // keeps a streamed frame while it is read
+  const TemplateFrameGrids<D>& grids = *gridsHeld;
   const auto& xc = grids.controlPositions();
   const auto& vc = grids.controlVelocities();
   const auto& mc = grids.controlMasses();
@@ -700,7 +702,8 @@ double Control<D>::measureFidelity(size_t i) {
   const State& s = state_[i];
   const BoundInstance<D>& inst = instances_[i];
   const AABB<D>& region = s.region;
-  const TemplateFrameGrids<D>& grids = inst.accel->frame(s.frame);
+  const auto gridsHeld = inst.accel->frame(s.frame);  // keeps a streamed frame while it is read
+  const TemplateFrameGrids<D>& grids = *gridsHeld;
   Real radius = Real(inst.templ().header.particleRadius);
   if (!(radius > 0)) radius = s.kernel.radius() / 4;
   const Real cell = Real(settings_.fidelityCell) * radius;
@@ -813,7 +816,8 @@ void Control<D>::endFrame(Simulation<D>&, FrameStats& fs) {
     is.controlParticles = is.repulsionParticles = 0;
     if (!s.on) continue;
     for (Real f : s.fade) is.controlled += f > 0;
-    const auto& grids = instances_[i].accel->frame(s.frame);
+    const auto gridsHeld = instances_[i].accel->frame(s.frame);  // keeps a streamed frame while it is read
+    const auto& grids = *gridsHeld;
     is.controlParticles = grids.controlCount();
     if (instances_[i].spec.params.repulsion) is.repulsionParticles = grids.repulsionCount();
     fs.controlParticles += is.controlParticles;

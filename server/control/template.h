@@ -33,9 +33,10 @@ struct TemplateHeader {
 template <int D>
 struct Template {
   TemplateHeader header;
-  std::vector<TemplateFrame<D>> frames;
-  size_t frameCount() const { return frames.size(); }
-  double duration() const { return frames.empty() ? 0.0 : double(frames.size() - 1) / header.frameRate; }
+  std::vector<TemplateFrame<D>> frames;  // empty when the frames are streamed
+  size_t streamedFrames = 0;             // the file's frames, read on demand (TemplateAccel)
+  size_t frameCount() const { return frames.empty() ? streamedFrames : frames.size(); }
+  double duration() const { return frameCount() == 0 ? 0.0 : double(frameCount() - 1) / header.frameRate; }
   AABB<D> region() const {
     AABB<D> b;
     for (int d = 0; d < D; ++d) {
@@ -44,6 +45,17 @@ struct Template {
     }
     return b;
   }
+};
+
+// Where a streamed template's frames come from (io/template_file.h's
+// TemplateStream): one frame at a time, decoded, from any thread.
+template <int D>
+class TemplateFrameSource {
+ public:
+  virtual ~TemplateFrameSource() = default;
+  virtual size_t frameCount() const = 0;
+  virtual size_t frameParticles(size_t f) const = 0;
+  virtual TemplateFrame<D> readFrame(size_t f) const = 0;
 };
 
 }  // namespace fc

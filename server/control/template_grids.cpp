@@ -4,6 +4,9 @@
 #include <chrono>
 #include <cmath>
 #include <exception>
+#include <list>
+#include <mutex>
+#include <unordered_map>
 #include <stdexcept>
 #include <string>
 
@@ -229,9 +232,103 @@ TemplateAccel<D> TemplateAccel<D>::build(std::shared_ptr<const Template<D>> tpl,
   return acc;
 }
 
+// A streamed frame: its particles and the grids built on them.
+template <int D>
+struct StreamedFrame {
+  TemplateFrame<D> data;
+  TemplateFrameGrids<D> grids;  // refers to data
+  size_t bytes = 0;
+};
+
+template <int D>
+struct TemplateAccel<D>::Cache {
+  std::mutex mutex;
+  std::unordered_map<size_t, std::shared_ptr<StreamedFrame<D>>> frames;
+  std::list<size_t> recent;  // most recently used first
+  CacheStats stats;
+};
+
+template <int D>
+TemplateAccel<D> TemplateAccel<D>::streamed(std::shared_ptr<const Template<D>> tpl,
+                                            std::shared_ptr<const TemplateFrameSource<D>> source, size_t cacheBytes,
+                                            const RepulsionOptions& options) {
+  if (!tpl || !source) throw std::invalid_argument("no template to stream");
+  TemplateAccel<D> acc;
+  acc.source = tpl.get();
+  acc.owner = std::move(tpl);
+  acc.supportRadius = Real(acc.source->header.supportRadius);
+  if (!(acc.supportRadius > 0))
+    throw std::invalid_argument("template '" + acc.source->header.name +
+                                "': header supportRadius must be positive to build its repulsion layer");
+  acc.options = options;
+  if (acc.options.thinDistance < 0)
+    acc.options.thinDistance = acc.source->header.particleRadius > 0 ? Real(0.5 * acc.source->header.particleRadius)
+                                                                     : acc.supportRadius / Real(8);
+  acc.stream_ = std::move(source);
+  acc.cache_ = std::make_shared<Cache>();
+  acc.cache_->stats.cacheBytes = cacheBytes;
+  return acc;
+}
+
+template <int D>
+std::shared_ptr<const TemplateFrameGrids<D>> TemplateAccel<D>::frame(size_t i) const {
+  // Resident frames live as long as the accelerator: a pointer that owns nothing.
+  if (!stream_) return std::shared_ptr<const TemplateFrameGrids<D>>(std::shared_ptr<const void>(), &frames.at(i));
+  Cache& c = *cache_;
+  std::lock_guard<std::mutex> lock(c.mutex);
+  if (auto it = c.frames.find(i); it != c.frames.end()) {
+    ++c.stats.hits;
+    c.recent.remove(i);
+    c.recent.push_front(i);
+    return std::shared_ptr<const TemplateFrameGrids<D>>(it->second, &it->second->grids);
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  auto built = std::make_shared<StreamedFrame<D>>();
+  built->data = stream_->readFrame(i);
+  try {
+    built->grids.build(built->data, supportRadius, options, !omp_in_parallel());
+  } catch (const std::exception& e) {
+    throw std::invalid_argument("template '" + source->header.name + "' frame " + std::to_string(i) + ": " + e.what());
+  }
+  built->bytes = built->grids.memoryBytes() + built->data.x.capacity() * sizeof(Vec<D>) +
+                 built->data.v.capacity() * sizeof(Vec<D>) + built->data.mass.capacity() * sizeof(Real) +
+                 built->data.phase.capacity();
+  c.stats.loadSeconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  ++c.stats.loads;
+  c.frames.emplace(i, built);
+  c.recent.push_front(i);
+  c.stats.residentBytes += built->bytes;
+  // Over budget: drop the least recently used frames nobody holds (a frame
+  // in use stays, so a budget smaller than the frames in use is exceeded).
+  for (auto it = c.recent.end(); c.stats.residentBytes > c.stats.cacheBytes && it != c.recent.begin();) {
+    --it;
+    auto f = c.frames.find(*it);
+    if (*it == i || f->second.use_count() > 1) continue;
+    c.stats.residentBytes -= f->second->bytes;
+    c.frames.erase(f);
+    it = c.recent.erase(it);
+  }
+  c.stats.residentFrames = c.frames.size();
+  c.stats.peakBytes = std::max(c.stats.peakBytes, c.stats.residentBytes);
+  return std::shared_ptr<const TemplateFrameGrids<D>>(built, &built->grids);
+}
+
+template <int D>
+typename TemplateAccel<D>::CacheStats TemplateAccel<D>::cacheStats() const {
+  if (!cache_) return {};
+  std::lock_guard<std::mutex> lock(cache_->mutex);
+  CacheStats s = cache_->stats;
+  s.residentFrames = cache_->frames.size();
+  return s;
+}
+
 template <int D>
 size_t TemplateAccel<D>::particleFrames() const {
   size_t s = 0;
+  if (stream_) {
+    for (size_t f = 0; f < stream_->frameCount(); ++f) s += stream_->frameParticles(f);
+    return s;
+  }
   for (const auto& f : frames) s += f.controlCount();
   return s;
 }
@@ -240,6 +337,10 @@ template <int D>
 size_t TemplateAccel<D>::repulsionParticleFrames() const {
   size_t s = 0;
   for (const auto& f : frames) s += f.repulsionCount();
+  if (cache_) {
+    std::lock_guard<std::mutex> lock(cache_->mutex);
+    for (const auto& [index, f] : cache_->frames) s += f->grids.repulsionCount();
+  }
   return s;
 }
 
@@ -253,7 +354,7 @@ template <int D>
 size_t TemplateAccel<D>::memoryBytes() const {
   size_t s = sizeof(*this);
   for (const auto& f : frames) s += f.memoryBytes();
-  return s;
+  return s + cacheStats().residentBytes;
 }
 
 template <int D>

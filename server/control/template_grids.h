@@ -130,10 +130,14 @@ class TemplateFrameGrids {
   RepulsionStats stats_;
 };
 
-// Everything a loaded template needs at control time, one entry per frame.
+// Everything a loaded template needs at control time, one entry per frame:
+// built for every frame at load, or, for a streamed template, built from
+// its frame source when a frame is first asked for and kept in a cache of
+// at most `cacheBytes` (the least recently used frames that nobody holds
+// are dropped first).
 template <int D>
 struct TemplateAccel {
-  std::vector<TemplateFrameGrids<D>> frames;
+  std::vector<TemplateFrameGrids<D>> frames;  // every frame (empty when streamed)
   double buildSeconds = 0;       // wall time of build()
   Real supportRadius = 0;        // h used (the template header's supportRadius)
   RepulsionOptions options;      // with thinDistance resolved to the value used
@@ -146,14 +150,42 @@ struct TemplateAccel {
   // positive supportRadius or a frame is malformed (message names the frame).
   static TemplateAccel build(const Template<D>& tpl, const RepulsionOptions& options = {});
   static TemplateAccel build(std::shared_ptr<const Template<D>> tpl, const RepulsionOptions& options = {});
+  // Streamed: `tpl` holds the header (and streamedFrames), `source` the frames.
+  static TemplateAccel streamed(std::shared_ptr<const Template<D>> tpl,
+                                std::shared_ptr<const TemplateFrameSource<D>> source, size_t cacheBytes,
+                                const RepulsionOptions& options = {});
 
-  size_t frameCount() const { return frames.size(); }
-  const TemplateFrameGrids<D>& frame(size_t i) const { return frames[i]; }
+  // What a frame takes per control particle, decoded with its grids: the
+  // particle, its place in the control grid, and room for the repulsion
+  // layer and the cells (TemplateDatabase streams what would not fit).
+  static constexpr size_t kBytesPerParticleFrame =
+      2 * sizeof(Vec<D>) + sizeof(Real) + 1 + D * sizeof(Real) + 2 * sizeof(uint32_t) + 16;
+
+  bool isStreamed() const { return stream_ != nullptr; }
+  size_t frameCount() const { return stream_ ? stream_->frameCount() : frames.size(); }
+  // Frame i's grids, valid while the pointer is held (a streamed frame is
+  // read and built here when it is not in the cache: a TemplateError or
+  // std::invalid_argument then says why). Thread-safe.
+  std::shared_ptr<const TemplateFrameGrids<D>> frame(size_t i) const;
   size_t particleFrames() const;            // Σ control particles over frames
-  size_t repulsionParticleFrames() const;   // Σ repulsion particles over frames
+  size_t repulsionParticleFrames() const;   // Σ repulsion particles over the built frames
   double msPerMillionParticleFrames() const;
-  size_t memoryBytes() const;               // grids + repulsion layer, all frames
+  size_t memoryBytes() const;               // grids + repulsion layer, all built frames (and their particles, streamed)
   static size_t templateBytes(const Template<D>& tpl);  // the particle data itself
+
+  // A streamed template's cache.
+  struct CacheStats {
+    size_t cacheBytes = 0;      // the budget
+    size_t residentFrames = 0, residentBytes = 0, peakBytes = 0;
+    size_t loads = 0, hits = 0;  // frames read and built, frames found built
+    double loadSeconds = 0;      // reading, decoding and building them
+  };
+  CacheStats cacheStats() const;
+
+ private:
+  struct Cache;
+  std::shared_ptr<const TemplateFrameSource<D>> stream_;
+  std::shared_ptr<Cache> cache_;
 };
 
 }  // namespace fc

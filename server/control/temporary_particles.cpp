@@ -178,7 +178,8 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
       const Real eps = Real(0.05) * dtp;
       const Template<D>& tpl = instances_[s].templ();
       const Real rho0T = Real(tpl.header.restDensity);
-      const TemplateFrameGrids<D>& grids = instances_[s].accel->frame(st.frame);
+      const auto gridsHeld = instances_[s].accel->frame(st.frame);  // keeps a streamed frame while it is read
+      const TemplateFrameGrids<D>& grids = *gridsHeld;
       const auto& mc = grids.controlMasses();
       // The control masses in their grid's order, for the density sums.
       const NeighborhoodSearch<D>* controlGrid = grids.controlGrid();

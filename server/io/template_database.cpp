@@ -26,8 +26,8 @@ void checkTemplateName(const std::string& name) {
   throw DatabaseError(msg);
 }
 
-TemplateDatabase::TemplateDatabase(std::string directory)
-    : dir_(directory.empty() ? std::string(".") : std::move(directory)) {}
+TemplateDatabase::TemplateDatabase(std::string directory, size_t memoryBytes)
+    : dir_(directory.empty() ? std::string(".") : std::move(directory)), memoryBytes_(memoryBytes) {}
 
 std::string TemplateDatabase::pathFor(const std::string& name) const {
   checkTemplateName(name);
@@ -40,6 +40,10 @@ bool TemplateDatabase::contains(const std::string& name) const {
 }
 
 namespace {
+
+// Bytes a template takes decoded per byte of its file, at most (its
+// particles compress to no less than a sixteenth of TemplateAccel's bytes).
+constexpr uint64_t kMaxDecodedPerFileByte = 16;
 
 TemplateEntry readEntry(const std::string& name, const std::string& path) {
   TemplateEntry e;
@@ -105,10 +109,35 @@ std::shared_ptr<const LoadedTemplate<D>> TemplateDatabase::load(const std::strin
   auto loaded = std::make_shared<LoadedTemplate<D>>();
   loaded->name = name;
   const auto t0 = std::chrono::steady_clock::now();
-  loaded->tpl = std::make_shared<const Template<D>>(readTemplate<D>(path));
-  loaded->readSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const auto seconds = [&] { return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(); };
   try {
-    loaded->accel = TemplateAccel<D>::build(loaded->tpl, options);
+    // Decoded, a template takes a bounded multiple of its file: small files
+    // are read whole without looking further. Larger ones are opened as a
+    // stream (the whole file verified, its index read), and streamed when
+    // their frames would not fit the budget decoded.
+    std::shared_ptr<TemplateStream<D>> stream;
+    if (size * kMaxDecodedPerFileByte > memoryBytes_ && startsWithChecksumBlock(path))
+      stream = std::make_shared<TemplateStream<D>>(path);
+    if (stream && stream->particleFrames() * TemplateAccel<D>::kBytesPerParticleFrame > memoryBytes_) {
+      auto header = std::make_shared<Template<D>>();
+      header->header = stream->header();
+      header->streamedFrames = stream->frameCount();
+      loaded->tpl = header;
+      loaded->readSeconds = seconds();
+      loaded->accel = TemplateAccel<D>::streamed(loaded->tpl, stream, memoryBytes_, options);
+    } else {
+      if (stream) {
+        auto whole = std::make_shared<Template<D>>();
+        whole->header = stream->header();
+        whole->frames.reserve(stream->frameCount());
+        for (size_t f = 0; f < stream->frameCount(); ++f) whole->frames.push_back(stream->readFrame(f));
+        loaded->tpl = whole;
+      } else {
+        loaded->tpl = std::make_shared<const Template<D>>(readTemplate<D>(path));
+      }
+      loaded->readSeconds = seconds();
+      loaded->accel = TemplateAccel<D>::build(loaded->tpl, options);
+    }
   } catch (const std::invalid_argument& e) {
     throw TemplateError(path + ": " + e.what());
   }
@@ -118,6 +147,29 @@ std::shared_ptr<const LoadedTemplate<D>> TemplateDatabase::load(const std::strin
   // Drop expired entries so the cache does not grow with names never reloaded.
   for (auto i = cache_.begin(); i != cache_.end();) i = i->second.ptr.expired() ? cache_.erase(i) : std::next(i);
   return result;
+}
+
+namespace {
+template <int D>
+void addStreamed(const std::string& name, const std::shared_ptr<const void>& p,
+                 std::vector<TemplateDatabase::Streamed>& out) {
+  const auto& lt = *std::static_pointer_cast<const LoadedTemplate<D>>(p);
+  if (!lt.streamed()) return;
+  const auto c = lt.accel.cacheStats();
+  out.push_back({name, D, lt.accel.frameCount(), c.cacheBytes, c.peakBytes, c.loads, c.hits, c.loadSeconds});
+}
+}  // namespace
+
+std::vector<TemplateDatabase::Streamed> TemplateDatabase::streamedTemplates() const {
+  std::vector<Streamed> out;
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (const auto& [key, entry] : cache_) {
+    const auto p = entry.ptr.lock();
+    if (!p) continue;
+    if (key.second == 2) addStreamed<2>(key.first, p, out);
+    else addStreamed<3>(key.first, p, out);
+  }
+  return out;
 }
 
 void TemplateDatabase::remove(const std::string& name) {

@@ -49,20 +49,31 @@ struct TemplateEntry {
 };
 
 // A template ready for control: its particles plus the per-frame grids and
-// repulsion layer (built at load).
+// repulsion layer, built at load, or streamed from its file (tpl holds the
+// header only; accel reads and builds frames as control asks for them).
 template <int D>
 struct LoadedTemplate {
   std::string name;
   std::shared_ptr<const Template<D>> tpl;
   TemplateAccel<D> accel;           // refers to *tpl (and keeps it alive)
-  double readSeconds = 0;           // reading and decoding the file
-  double buildSeconds = 0;          // grids + repulsion layer (accel.buildSeconds)
+  double readSeconds = 0;           // reading and decoding the file (streamed: verifying it and its index)
+  double buildSeconds = 0;          // grids + repulsion layer (accel.buildSeconds; 0 when streamed)
+  bool streamed() const { return accel.isStreamed(); }
   const Template<D>& templ() const { return *tpl; }
 };
 
+// How much of the memory a template may take decoded before it is streamed
+// instead (the default of `--template-memory`, MB): a template whose frames,
+// grids and repulsion layers would need more is read frame by frame, with at
+// most this much of it kept.
+inline constexpr double kDefaultTemplateMemoryMB = 4096;
+
 class TemplateDatabase {
  public:
-  explicit TemplateDatabase(std::string directory = "templates");
+  // memoryBytes: the budget above, per template.
+  explicit TemplateDatabase(std::string directory = "templates",
+                            size_t memoryBytes = size_t(kDefaultTemplateMemoryMB * 1024 * 1024));
+  size_t memoryBytes() const { return memoryBytes_; }
 
   const std::string& directory() const { return dir_; }
   // DIR/NAME.h5 (name validated).
@@ -82,6 +93,16 @@ class TemplateDatabase {
   template <int D>
   std::shared_ptr<const LoadedTemplate<D>> load(const std::string& name, const RepulsionOptions& options = {});
 
+  // The templates loaded streamed and still held by someone, with their caches' figures.
+  struct Streamed {
+    std::string name;
+    int dimension = 0;
+    size_t frames = 0;
+    size_t cacheBytes = 0, peakBytes = 0, loads = 0, hits = 0;
+    double loadSeconds = 0;
+  };
+  std::vector<Streamed> streamedTemplates() const;
+
   // Deletes DIR/NAME.h5 only. Throws DatabaseError if it does not exist.
   // Holders of a loaded copy keep it.
   void remove(const std::string& name);
@@ -93,6 +114,7 @@ class TemplateDatabase {
     int64_t mtime = 0;
   };
   std::string dir_;
+  size_t memoryBytes_;
   mutable std::mutex mutex_;
   std::map<std::pair<std::string, int>, CacheEntry> cache_;  // (name, D)
 };

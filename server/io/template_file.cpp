@@ -23,7 +23,10 @@
 #include <cstring>
 #include <filesystem>
 #include <limits>
+#include <memory>
+#include <mutex>
 #include <numeric>
+#include <optional>
 #include <regex>
 #include <string_view>
 #include <system_error>
@@ -229,9 +232,13 @@ constexpr uint64_t kMaxChunkBytes = uint64_t(64) << 20;
 class Reader {
  public:
   explicit Reader(const std::string& path) : path_(path), image_(readImage(path)), file_(open(), H5Fclose) {}
+  // From the disk instead of a copy in memory (TemplateStream): only files
+  // with a checksum block, verified by reading the file through once.
+  struct FromDisk {};
+  Reader(const std::string& path, FromDisk) : path_(path), disk_(openDisk(path)), file_(openFromDisk(), H5Fclose) {}
   hid_t file() const { return file_.get(); }
   const std::string& path() const { return path_; }
-  uint64_t fileSize() const { return image_.size(); }
+  uint64_t fileSize() const { return disk_ ? disk_->size : image_.size(); }
   bool checksummed() const { return checksummed_; }
 
   bool hasAttr(const char* name) const {
@@ -285,7 +292,7 @@ class Reader {
       H5Dvlen_reclaim(mem.get(), space.get(), H5P_DEFAULT, &p);
     } else if (variable == 0) {
       const size_t n = H5Tget_size(type.get());
-      if (n == 0 || n > image_.size()) fail(path_, "is damaged: " + what + " has an impossible size");
+      if (n == 0 || n > fileSize()) fail(path_, "is damaged: " + what + " has an impossible size");
       Handle mem(checked(H5Tcopy(H5T_C_S1)), H5Tclose);
       if (!mem.ok() || checked(H5Tset_size(mem.get(), n + 1)) < 0) failHdf5(path_, "cannot set up a string type");
       std::vector<char> buf(n + 1, '\0');
@@ -394,6 +401,24 @@ class Reader {
     return v;
   }
 
+  // Rows [first, first + rows) of a dataset of `cols` columns (0: one-dimensional).
+  template <class T>
+  std::vector<T> readRows(const Handle& ds, hid_t memType, hsize_t first, hsize_t rows, int cols,
+                          const char* name) const {
+    const hsize_t width = hsize_t(std::max(cols, 1));
+    std::vector<T> v(size_t(rows * width));
+    if (rows == 0) return v;
+    const hsize_t start[2] = {first, 0}, count[2] = {rows, width};
+    const int rank = cols > 0 ? 2 : 1;
+    Handle file(checked(H5Dget_space(ds.get())), H5Sclose);
+    Handle memory(checked(H5Screate_simple(rank, count, nullptr)), H5Sclose);
+    if (!file.ok() || !memory.ok() ||
+        checked(H5Sselect_hyperslab(file.get(), H5S_SELECT_SET, start, nullptr, count, nullptr)) < 0 ||
+        checked(H5Dread(ds.get(), memType, memory.get(), file.get(), H5P_DEFAULT, v.data())) < 0)
+      failHdf5(path_, std::string("cannot read rows of dataset ") + name + " (truncated or corrupt?)");
+    return v;
+  }
+
   // The frame-offset index, validated against `frames` and `rows`.
   std::vector<uint64_t> offsets(size_t frames, hsize_t rows) const {
     hsize_t n = 0;
@@ -484,13 +509,80 @@ class Reader {
     return f;
   }
 
+  // The checksum block read from the disk, the rest streamed through the
+  // CRC, then the file opened by HDF5 and checked to be the one verified
+  // (the same inode: a template is replaced by renaming, never rewritten in
+  // place).
+  hid_t openFromDisk() {
+    unsigned char block[kChecksumBlockSize];
+    const std::string_view head(reinterpret_cast<const char*>(block), kChecksumMagic.size());
+    if (!bytesAt(0, block, kChecksumBlockSize) || head != kChecksumMagic)
+      fail(path_, "has no checksum block (written before templates had one): it is read whole, not streamed");
+    uint32_t crc = 0;
+    uint64_t length = 0;
+    if (!parseChecksumBlock(block, &crc, &length))
+      fail(path_, "is damaged: its checksum block (the first 512 bytes) is unreadable");
+    if (length != disk_->size - kChecksumBlockSize)
+      fail(path_, "is truncated or damaged: its checksum block covers " + std::to_string(length) +
+                      " bytes after it, the file has " + std::to_string(disk_->size - kChecksumBlockSize));
+    std::vector<unsigned char> buf(size_t(1) << 20);
+    uint32_t actual = crc32Of(0, nullptr, 0);
+    for (uint64_t done = 0; done < length;) {
+      const size_t n = size_t(std::min<uint64_t>(buf.size(), length - done));
+      if (!bytesAt(kChecksumBlockSize + done, buf.data(), n)) fail(path_, "became shorter while it was read");
+      actual = crc32Of(actual, buf.data(), n);
+      done += n;
+    }
+    if (actual != crc) {
+      char text[96];
+      std::snprintf(text, sizeof text, "(CRC-32 %08x, the checksum block says %08x)", unsigned(actual), unsigned(crc));
+      fail(path_, std::string("is damaged: its content does not match its checksum ") + text);
+    }
+    checksummed_ = true;
+    base_ = kChecksumBlockSize;
+    unsigned char signature[8];
+    if (!bytesAt(base_, signature, 8) || std::memcmp(signature, kHdf5Signature, 8) != 0)
+      fail(path_, "is damaged: no HDF5 signature after its checksum block");
+    checkSuperblock();
+    Handle fapl(checked(H5Pcreate(H5P_FILE_ACCESS)), H5Pclose);
+    if (!fapl.ok() || checked(H5Pset_fapl_sec2(fapl.get())) < 0 ||
+        checked(H5Pset_fclose_degree(fapl.get(), H5F_CLOSE_STRONG)) < 0)
+      failHdf5(path_, "cannot set up the file access properties");
+    const hid_t f = checked(H5Fopen(path_.c_str(), H5F_ACC_RDONLY, fapl.get()));
+    if (f < 0) failHdf5(path_, "cannot be opened as HDF5 (truncated or corrupt?)");
+    int* handle = nullptr;
+    struct stat theirs {};
+    if (checked(H5Fget_vfd_handle(f, fapl.get(), reinterpret_cast<void**>(&handle))) < 0 || !handle ||
+        ::fstat(*handle, &theirs) != 0 || theirs.st_dev != disk_->dev || theirs.st_ino != disk_->ino) {
+      H5Fclose(f);
+      fail(path_, "was replaced while it was opened");
+    }
+    return f;
+  }
+
+  // n bytes at `at` of the file (the image, or the disk): false if it is shorter.
+  bool bytesAt(uint64_t at, void* out, size_t n) const {
+    if (!disk_) {
+      if (at > image_.size() || image_.size() - at < n) return false;
+      std::memcpy(out, image_.data() + at, n);
+      return true;
+    }
+    for (size_t done = 0; done < n;) {
+      const ssize_t got = ::pread(disk_->fd, static_cast<unsigned char*>(out) + done, n - done, off_t(at + done));
+      if (got < 0 && errno == EINTR) continue;
+      if (got <= 0) return false;
+      done += size_t(got);
+    }
+    return true;
+  }
+
   // The superblock of the HDF5 1.10 format that writeTemplate writes
   // (version 2 or 3: checksummed; 8-byte addresses and lengths), with the
   // root group's object header where it points.
   void checkSuperblock() const {
-    const unsigned char* h = image_.data() + base_;
-    const size_t n = image_.size() - base_;
-    if (n < 48) fail(path_, "is truncated: its HDF5 superblock is cut off");
+    unsigned char h[48];
+    const uint64_t n = fileSize() - base_;
+    if (n < 48 || !bytesAt(base_, h, 48)) fail(path_, "is truncated: its HDF5 superblock is cut off");
     if (h[8] != 2 && h[8] != 3)
       fail(path_, "is HDF5 but not a FlowClip template, or is damaged (HDF5 superblock version " +
                       std::to_string(h[8]) + "; templates use the HDF5 1.10 format, versions 2 and 3)");
@@ -503,8 +595,9 @@ class Reader {
   // A version-2 object header (signature OHDR, checksummed) at the HDF5
   // address `addr`: HDF5 1.10 verifies those before parsing them.
   bool objectHeaderAt(uint64_t addr) const {
-    const size_t n = image_.size() - base_;
-    return addr < n && n - addr >= 4 && std::memcmp(image_.data() + base_ + addr, "OHDR", 4) == 0;
+    const uint64_t n = fileSize() - base_;
+    char sig[4];
+    return addr < n && n - addr >= 4 && bytesAt(base_ + addr, sig, 4) && std::memcmp(sig, "OHDR", 4) == 0;
   }
 
   // True if `name` (absolute, each component checked) is a hard link to an
@@ -583,7 +676,33 @@ class Reader {
   }
 
   std::string path_;
+  // The file opened for reading from the disk, and what it was when opened.
+  struct Disk {
+    int fd = -1;
+    uint64_t size = 0;
+    dev_t dev{};
+    ino_t ino{};
+    ~Disk() {
+      if (fd >= 0) ::close(fd);
+    }
+  };
+  static std::unique_ptr<Disk> openDisk(const std::string& path) {
+    std::error_code ec;
+    const auto st = fs::status(path, ec);
+    if (!fs::exists(st)) fail(path, "does not exist");
+    if (!fs::is_regular_file(st)) fail(path, "is not a regular file");
+    auto d = std::make_unique<Disk>();
+    d->fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (d->fd < 0) fail(path, std::string("cannot be opened: ") + std::strerror(errno));
+    struct stat sb {};
+    if (::fstat(d->fd, &sb) != 0) fail(path, std::string("cannot be read: ") + std::strerror(errno));
+    if (!S_ISREG(sb.st_mode)) fail(path, "is not a regular file");
+    d->size = uint64_t(sb.st_size), d->dev = sb.st_dev, d->ino = sb.st_ino;
+    return d;
+  }
+
   std::vector<unsigned char> image_;  // the whole file; HDF5 reads it in place
+  std::unique_ptr<Disk> disk_;        // or the file on the disk (FromDisk)
   bool checksummed_ = false;
   size_t base_ = 0;  // where the HDF5 file starts in image_ (after the checksum block)
   Handle file_;      // declared last: closed before image_ goes
@@ -829,114 +948,211 @@ void writeTemplate(const std::string& path, const Template<D>& tpl) {
   }
 }
 
+// A file with a checksum block is read from the disk, verified as it streams
+// by: its bytes need not be held to read its header and index.
+bool startsWithChecksumBlock(const std::string& path) {
+  char head[kChecksumMagic.size()];
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return false;
+  const ssize_t got = ::pread(fd, head, sizeof head, 0);
+  ::close(fd);
+  return got == ssize_t(sizeof head) && std::string_view(head, sizeof head) == kChecksumMagic;
+}
+
 TemplateHeader readTemplateHeader(const std::string& path) {
   hdf5::Quiet quiet;
+  if (startsWithChecksumBlock(path)) return readHeader(Reader(path, Reader::FromDisk{}));
   Reader r(path);
   return readHeader(r);
 }
 
+namespace {
+
+// How a file stores its particles (its header's encodings and the tables
+// they need), read and checked once.
 template <int D>
-Template<D> readTemplate(const std::string& path) {
-  hdf5::Quiet quiet;
-  Reader r(path);
-  Template<D> tpl;
-  tpl.header = readHeader(r);
-  if (tpl.header.dimension != D)
-    fail(path, "is a " + std::to_string(tpl.header.dimension) + "D template, expected a " + std::to_string(D) +
+struct Layout {
+  TemplateHeader header;
+  size_t frames = 0;
+  hsize_t rows = 0;
+  std::vector<uint64_t> offset;  // frame f: rows offset[f]..offset[f + 1]
+  std::vector<double> velScale;
+  bool quantized = false, massIndexed = false;
+  std::vector<double> origin, step, massTable;
+  std::optional<Handle> phase, velocity, position, mass;  // mass: /particles/mass_index or /particles/mass
+};
+
+template <int D>
+Layout<D> readLayout(const Reader& r) {
+  const std::string& path = r.path();
+  Layout<D> l;
+  l.header = readHeader(r);
+  if (l.header.dimension != D)
+    fail(path, "is a " + std::to_string(l.header.dimension) + "D template, expected a " + std::to_string(D) +
                    "D one");
-  const size_t F = size_t(r.integer("frame_count"));
+  l.frames = size_t(r.integer("frame_count"));
   const std::string posEnc = r.string("position_encoding");
   const std::string velEnc = r.string("velocity_encoding");
   const std::string massEnc = r.string("mass_encoding");
   if (posEnc != "uint16" && posEnc != "float32") fail(path, "unknown position_encoding '" + posEnc + "'");
   if (velEnc != "int16_frame_scale") fail(path, "unknown velocity_encoding '" + velEnc + "'");
   if (massEnc != "table" && massEnc != "float64") fail(path, "unknown mass_encoding '" + massEnc + "'");
-  const bool quantized = posEnc == "uint16";
-  const bool massIndexed = massEnc == "table";
+  l.quantized = posEnc == "uint16";
+  l.massIndexed = massEnc == "table";
 
-  const hsize_t N = r.particleRows();
-  const std::vector<uint64_t> off = r.offsets(F, N);
+  const hsize_t N = l.rows = r.particleRows();
+  l.offset = r.offsets(l.frames, N);
   auto checkRows = [&](const char* name, hsize_t rows) {
     if (rows != N)
       fail(path, std::string(name) + " has " + std::to_string(rows) + " rows, /particles/phase has " +
                      std::to_string(N));
   };
   hsize_t rows = 0;
-  Handle phaseDs = r.openDataset("/particles/phase", H5T_INTEGER, 1, H5T_SGN_NONE, 0, &rows);
-  const auto phase = r.read<uint8_t>(phaseDs, H5T_NATIVE_UINT8, N, "/particles/phase");
-
+  l.phase.emplace(r.openDataset("/particles/phase", H5T_INTEGER, 1, H5T_SGN_NONE, 0, &rows));
   Handle scaleDs = r.openDataset("/frames/velocity_scale", H5T_FLOAT, 8, 0, 0, &rows);
-  if (rows != F) fail(path, "/frames/velocity_scale has " + std::to_string(rows) + " entries, expected frame_count");
-  const auto velScale = r.read<double>(scaleDs, H5T_NATIVE_DOUBLE, F, "/frames/velocity_scale");
-  for (size_t f = 0; f < F; ++f)
-    if (!finite(velScale[f]) || velScale[f] < 0)
+  if (rows != l.frames)
+    fail(path, "/frames/velocity_scale has " + std::to_string(rows) + " entries, expected frame_count");
+  l.velScale = r.read<double>(scaleDs, H5T_NATIVE_DOUBLE, l.frames, "/frames/velocity_scale");
+  for (size_t f = 0; f < l.frames; ++f)
+    if (!finite(l.velScale[f]) || l.velScale[f] < 0)
       fail(path, "/frames/velocity_scale of frame " + std::to_string(f) + " is negative or not finite");
-
-  Handle velDs = r.openDataset("/particles/velocity", H5T_INTEGER, 2, H5T_SGN_2, D, &rows);
+  l.velocity.emplace(r.openDataset("/particles/velocity", H5T_INTEGER, 2, H5T_SGN_2, D, &rows));
   checkRows("/particles/velocity", rows);
-  const auto velQ = r.read<int16_t>(velDs, H5T_NATIVE_INT16, N * D, "/particles/velocity");
+  if (l.quantized) {
+    l.origin = r.doubles("position_origin", D);
+    l.step = r.doubles("position_step", D);
+    for (double s : l.step)
+      if (!(s > 0)) fail(path, "attribute 'position_step' must be positive");
+    l.position.emplace(r.openDataset("/particles/position", H5T_INTEGER, 2, H5T_SGN_NONE, D, &rows));
+  } else {
+    l.position.emplace(r.openDataset("/particles/position", H5T_FLOAT, 4, 0, D, &rows));
+  }
+  checkRows("/particles/position", rows);
+  if (l.massIndexed) {
+    l.massTable = r.doubles("mass_table", -1, 256);
+    if (l.massTable.empty() && N > 0) fail(path, "attribute 'mass_table' is empty");
+    l.mass.emplace(r.openDataset("/particles/mass_index", H5T_INTEGER, 1, H5T_SGN_NONE, 0, &rows));
+    checkRows("/particles/mass_index", rows);
+  } else {
+    l.mass.emplace(r.openDataset("/particles/mass", H5T_FLOAT, 8, 0, 0, &rows));
+    checkRows("/particles/mass", rows);
+  }
+  return l;
+}
 
-  std::vector<double> origin, step;
+// Rows [first, first + n) of the particle datasets, checked and decoded
+// into frames: every frame whose rows they hold (whole file), or one.
+template <int D>
+void decodeRows(const Reader& r, const Layout<D>& l, hsize_t first, hsize_t n, size_t frameFirst, size_t frameLast,
+                std::vector<TemplateFrame<D>>& out) {
+  const std::string& path = r.path();
+  const auto phase = r.readRows<uint8_t>(*l.phase, H5T_NATIVE_UINT8, first, n, 0, "/particles/phase");
+  const auto velQ = r.readRows<int16_t>(*l.velocity, H5T_NATIVE_INT16, first, n, D, "/particles/velocity");
   std::vector<uint16_t> posQ;
   std::vector<float> posF;
-  if (quantized) {
-    origin = r.doubles("position_origin", D);
-    step = r.doubles("position_step", D);
-    for (double s : step)
-      if (!(s > 0)) fail(path, "attribute 'position_step' must be positive");
-    Handle ds = r.openDataset("/particles/position", H5T_INTEGER, 2, H5T_SGN_NONE, D, &rows);
-    checkRows("/particles/position", rows);
-    posQ = r.read<uint16_t>(ds, H5T_NATIVE_UINT16, N * D, "/particles/position");
+  if (l.quantized) {
+    posQ = r.readRows<uint16_t>(*l.position, H5T_NATIVE_UINT16, first, n, D, "/particles/position");
   } else {
-    Handle ds = r.openDataset("/particles/position", H5T_FLOAT, 4, 0, D, &rows);
-    checkRows("/particles/position", rows);
-    posF = r.read<float>(ds, H5T_NATIVE_FLOAT, N * D, "/particles/position");
+    posF = r.readRows<float>(*l.position, H5T_NATIVE_FLOAT, first, n, D, "/particles/position");
     for (size_t i = 0; i < posF.size(); ++i)
-      if (!std::isfinite(posF[i])) fail(path, "/particles/position row " + std::to_string(i / D) + " is not finite");
+      if (!std::isfinite(posF[i]))
+        fail(path, "/particles/position row " + std::to_string(first + i / D) + " is not finite");
   }
-
-  std::vector<double> massTable, mass;
+  std::vector<double> mass;
   std::vector<uint8_t> massIdx;
-  if (massIndexed) {
-    massTable = r.doubles("mass_table", -1, 256);
-    if (massTable.empty() && N > 0) fail(path, "attribute 'mass_table' is empty");
-    Handle ds = r.openDataset("/particles/mass_index", H5T_INTEGER, 1, H5T_SGN_NONE, 0, &rows);
-    checkRows("/particles/mass_index", rows);
-    massIdx = r.read<uint8_t>(ds, H5T_NATIVE_UINT8, N, "/particles/mass_index");
-    for (size_t i = 0; i < N; ++i)
-      if (massIdx[i] >= massTable.size())
-        fail(path, "/particles/mass_index row " + std::to_string(i) + " is outside mass_table");
+  if (l.massIndexed) {
+    massIdx = r.readRows<uint8_t>(*l.mass, H5T_NATIVE_UINT8, first, n, 0, "/particles/mass_index");
+    for (size_t i = 0; i < n; ++i)
+      if (massIdx[i] >= l.massTable.size())
+        fail(path, "/particles/mass_index row " + std::to_string(first + i) + " is outside mass_table");
   } else {
-    Handle ds = r.openDataset("/particles/mass", H5T_FLOAT, 8, 0, 0, &rows);
-    checkRows("/particles/mass", rows);
-    mass = r.read<double>(ds, H5T_NATIVE_DOUBLE, N, "/particles/mass");
-    for (size_t i = 0; i < N; ++i)
-      if (!finite(mass[i])) fail(path, "/particles/mass row " + std::to_string(i) + " is not finite");
+    mass = r.readRows<double>(*l.mass, H5T_NATIVE_DOUBLE, first, n, 0, "/particles/mass");
+    for (size_t i = 0; i < n; ++i)
+      if (!finite(mass[i])) fail(path, "/particles/mass row " + std::to_string(first + i) + " is not finite");
   }
-
-  tpl.frames.resize(F);
-  for (size_t f = 0; f < F; ++f) {
-    TemplateFrame<D>& fr = tpl.frames[f];
-    const size_t a = off[f], n = off[f + 1] - off[f];
-    fr.x.resize(n);
-    fr.v.resize(n);
-    fr.mass.resize(n);
-    fr.phase.assign(phase.begin() + a, phase.begin() + a + n);
-    for (size_t k = 0; k < n; ++k) {
+  for (size_t f = frameFirst; f < frameLast; ++f) {
+    TemplateFrame<D>& fr = out[f - frameFirst];
+    const size_t a = size_t(l.offset[f] - first), count = size_t(l.offset[f + 1] - l.offset[f]);
+    fr.x.resize(count);
+    fr.v.resize(count);
+    fr.mass.resize(count);
+    fr.phase.assign(phase.begin() + a, phase.begin() + a + count);
+    for (size_t k = 0; k < count; ++k) {
       const size_t row = a + k;
       for (int d = 0; d < D; ++d) {
-        fr.x[k][d] = quantized ? Real(origin[d] + posQ[row * D + d] * step[d]) : Real(posF[row * D + d]);
-        fr.v[k][d] = Real(velQ[row * D + d] * velScale[f]);
+        fr.x[k][d] = l.quantized ? Real(l.origin[d] + posQ[row * D + d] * l.step[d]) : Real(posF[row * D + d]);
+        fr.v[k][d] = Real(velQ[row * D + d] * l.velScale[f]);
       }
-      fr.mass[k] = Real(massIndexed ? massTable[massIdx[row]] : mass[row]);
+      fr.mass[k] = Real(l.massIndexed ? l.massTable[massIdx[row]] : mass[row]);
     }
   }
+}
+
+}  // namespace
+
+template <int D>
+Template<D> readTemplate(const std::string& path) {
+  hdf5::Quiet quiet;
+  Reader r(path);
+  const Layout<D> l = readLayout<D>(r);
+  Template<D> tpl;
+  tpl.header = l.header;
+  tpl.frames.resize(l.frames);
+  decodeRows<D>(r, l, 0, l.rows, 0, l.frames, tpl.frames);
   return tpl;
+}
+
+template <int D>
+struct TemplateStream<D>::Impl {
+  Reader reader;
+  Layout<D> layout;
+  explicit Impl(const std::string& path) : reader(path, Reader::FromDisk{}), layout(readLayout<D>(reader)) {}
+};
+
+template <int D>
+TemplateStream<D>::TemplateStream(const std::string& path) {
+  hdf5::Quiet quiet;
+  impl_ = std::make_unique<Impl>(path);
+}
+template <int D>
+TemplateStream<D>::~TemplateStream() = default;
+
+template <int D>
+const TemplateHeader& TemplateStream<D>::header() const {
+  return impl_->layout.header;
+}
+template <int D>
+size_t TemplateStream<D>::frameCount() const {
+  return impl_->layout.frames;
+}
+template <int D>
+size_t TemplateStream<D>::frameParticles(size_t f) const {
+  return size_t(impl_->layout.offset.at(f + 1) - impl_->layout.offset[f]);
+}
+template <int D>
+uint64_t TemplateStream<D>::particleFrames() const {
+  return impl_->layout.rows;
+}
+template <int D>
+uint64_t TemplateStream<D>::bytesOnDisk() const {
+  return impl_->reader.fileSize();
+}
+
+template <int D>
+TemplateFrame<D> TemplateStream<D>::readFrame(size_t f) const {
+  const Layout<D>& l = impl_->layout;
+  if (f >= l.frames)
+    throw TemplateError(impl_->reader.path() + ": frame " + std::to_string(f) + " of " +
+                        std::to_string(l.frames) + " asked for");
+  hdf5::Quiet quiet;
+  std::vector<TemplateFrame<D>> one(1);
+  decodeRows<D>(impl_->reader, l, l.offset[f], l.offset[f + 1] - l.offset[f], f, f + 1, one);
+  return std::move(one[0]);
 }
 
 TemplateFileStats templateFileStats(const std::string& path) {
   hdf5::Quiet quiet;
-  Reader r(path);
+  const Reader r = startsWithChecksumBlock(path) ? Reader(path, Reader::FromDisk{}) : Reader(path);
   TemplateFileStats s;
   s.header = readHeader(r);
   s.frames = size_t(r.integer("frame_count"));
@@ -958,5 +1174,7 @@ template void writeTemplate<2>(const std::string&, const Template<2>&);
 template void writeTemplate<3>(const std::string&, const Template<3>&);
 template Template<2> readTemplate<2>(const std::string&);
 template Template<3> readTemplate<3>(const std::string&);
+template class TemplateStream<2>;
+template class TemplateStream<3>;
 
 }  // namespace fc

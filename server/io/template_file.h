@@ -34,6 +34,7 @@
 #include "control/template.h"
 
 #include <cstdint>
+#include <memory>
 #include <stdexcept>
 #include <string>
 
@@ -59,6 +60,36 @@ void writeTemplate(const std::string& path, const Template<D>& tpl);
 // read.
 template <int D>
 Template<D> readTemplate(const std::string& path);
+
+// A template file read frame by frame from the disk, for templates too large
+// to hold decoded (TemplateDatabase streams them; control/template_grids.h
+// keeps a cache of their frames). Opening verifies the whole file against
+// its checksum block by reading it through once, then checks and keeps the
+// header, the encodings and the frame index; readFrame reads one frame's
+// rows, checks and decodes them exactly as readTemplate does. Throws
+// TemplateError for everything readTemplate refuses, and for a file without
+// a checksum block (older files: read them whole) or one replaced between
+// the check and HDF5 opening it. Thread-safe (HDF5 is built thread-safe).
+template <int D>
+class TemplateStream final : public TemplateFrameSource<D> {
+ public:
+  explicit TemplateStream(const std::string& path);
+  ~TemplateStream() override;
+  const TemplateHeader& header() const;
+  size_t frameCount() const override;
+  size_t frameParticles(size_t f) const override;
+  uint64_t particleFrames() const;  // rows of the particle datasets
+  uint64_t bytesOnDisk() const;
+  TemplateFrame<D> readFrame(size_t f) const override;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// True if the file begins with the checksum block that writeTemplate writes
+// (TemplateStream reads only such files).
+bool startsWithChecksumBlock(const std::string& path);
 
 // The header attributes only (validated), without reading particle data.
 TemplateHeader readTemplateHeader(const std::string& path);

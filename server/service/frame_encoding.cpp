@@ -381,7 +381,8 @@ void encodeFrameImpl(const Simulation<D>& sim, const FrameStats& stats, const Co
     if (!control->isActive(i) || !inst.accel) continue;
     const size_t f = control->templateFrame(i);
     if (f >= inst.accel->frameCount()) continue;
-    const TemplateFrameGrids<D>& grids = inst.accel->frame(f);
+    const auto gridsHeld = inst.accel->frame(f);  // keeps a streamed frame while it is read
+    const TemplateFrameGrids<D>& grids = *gridsHeld;
     const WorldMap<D> map(maps[i]);
     if (sendControl) {
       const auto& alpha = control->coverage(i);
@@ -446,7 +447,8 @@ void encodeFrameImpl(const Simulation<D>& sim, const FrameStats& stats, const Co
     const auto points = createPoints(fbb, controlBox, nControl, D, [&](uint16_t* q, const Quantizer& quant) {
       for (size_t i = 0; i < nInst; ++i) {
         if (spans[i].controlCount == 0) continue;
-        const auto& grids = control->instances()[i].accel->frame(control->templateFrame(i));
+        const auto gridsHeld = control->instances()[i].accel->frame(control->templateFrame(i));  // keeps a streamed frame while it is read
+        const auto& grids = *gridsHeld;
         quantizeMapped<D>(WorldMap<D>(maps[i]), grids.controlPositions(), q + size_t(spans[i].controlOffset) * D, quant);
       }
     });
@@ -468,7 +470,8 @@ void encodeFrameImpl(const Simulation<D>& sim, const FrameStats& stats, const Co
     p.repulsion = createPoints(fbb, repulsionBox, nRepulsion, D, [&](uint16_t* q, const Quantizer& quant) {
       for (size_t i = 0; i < nInst; ++i) {
         if (spans[i].repulsionCount == 0) continue;
-        const auto& grids = control->instances()[i].accel->frame(control->templateFrame(i));
+        const auto gridsHeld = control->instances()[i].accel->frame(control->templateFrame(i));  // keeps a streamed frame while it is read
+        const auto& grids = *gridsHeld;
         quantizeMapped<D>(WorldMap<D>(maps[i]), grids.repulsionPositions(), q + size_t(spans[i].repulsionOffset) * D,
                           quant);
       }

@@ -82,7 +82,7 @@ json parseJsonLimited(const std::string& text) {
 // ---- the hub -------------------------------------------------------------------
 
 ServiceHub::ServiceHub(ServiceOptions options)
-    : options_(std::move(options)), database_(options_.templatesDir), started_(std::chrono::steady_clock::now()) {
+    : options_(std::move(options)), database_(options_.templatesDir, options_.templateMemoryBytes), started_(std::chrono::steady_clock::now()) {
   if (options_.maxThreads <= 0) options_.maxThreads = std::max(1, int(std::thread::hardware_concurrency()));
   if (options_.recordThreads <= 0) options_.recordThreads = std::max(1, int(std::thread::hardware_concurrency()) / 2);
   surfaceJobs_ = std::make_unique<SurfaceJobs>(options_.recordThreads);

@@ -62,6 +62,7 @@ const char* errorCode(int status);  // "bad_request", "not_found", ...
 
 struct ServiceOptions {
   std::string templatesDir = "templates";
+  size_t templateMemoryBytes = size_t(kDefaultTemplateMemoryMB * 1024 * 1024);  // TemplateDatabase's budget
   std::string scenesDir = "scenes";
   std::string exportsDir = "exports";
   // Recipes the editor can record (service/recipe_jobs.h); "": none.
@@ -199,12 +200,14 @@ class ServiceHub {
   uint64_t nextSession_ = 1;
   int creating_ = 0;  // sessions being created (count against maxSessions)
   std::mutex fileMutex_;  // scene saves and exports: one writer at a time
-  // Decoded template files for previews, keyed by name and revalidated by
-  // the file's size and modification time (a library panel asks often).
+  // Template files opened for previews, keyed by name and revalidated by
+  // the file's size and modification time (a library panel asks often):
+  // read frame by frame (TemplateStream), or whole if they have no checksum block.
   struct PreviewSource {
     uint64_t size = 0;
     int64_t mtime = 0;
-    std::shared_ptr<const void> tpl;  // Template<2> or Template<3>
+    std::shared_ptr<const void> tpl;  // TemplateStream<D> if streamed, else Template<D>
+    bool streamed = false;
     int dimension = 0;
   };
   static constexpr size_t kPreviewCacheSize = 4;

@@ -37,23 +37,44 @@ json templateEntryJson(const TemplateEntry& e) {
 // Positions of one template frame for a library thumbnail: every k-th
 // particle so that at most maxPoints remain, rounded to 0.1 mm.
 template <int D>
-json previewJson(const Template<D>& tpl, long frame, long maxPoints) {
-  const TemplateFrame<D>& f = tpl.frames[size_t(frame)];
+json previewJson(const TemplateHeader& header, size_t frames, const TemplateFrame<D>& f, long frame, long maxPoints) {
   const size_t n = f.size();
   const size_t stride = std::max<size_t>(1, (n + size_t(maxPoints) - 1) / size_t(maxPoints));
   json pos = json::array();
   for (size_t i = 0; i < n; i += stride)
     for (int d = 0; d < D; ++d) pos.push_back(std::round(double(f.x[i][d]) * 1e4) / 1e4);
-  return {{"name", tpl.header.name},
+  return {{"name", header.name},
           {"dimension", D},
           {"frame", frame},
-          {"frames", tpl.frameCount()},
-          {"time", double(frame) / tpl.header.frameRate},
+          {"frames", frames},
+          {"time", double(frame) / header.frameRate},
           {"particles", n},
           {"stride", stride},
-          {"region_min", tpl.header.regionMin},
-          {"region_max", tpl.header.regionMax},
+          {"region_min", header.regionMin},
+          {"region_max", header.regionMax},
           {"positions", pos}};
+}
+
+template <int D>
+std::shared_ptr<const void> openPreview(const std::string& path, bool streamed) {
+  if (streamed) return std::make_shared<const TemplateStream<D>>(path);
+  return std::make_shared<const Template<D>>(readTemplate<D>(path));
+}
+
+template <int D>
+size_t previewFrames(const std::shared_ptr<const void>& tpl, bool streamed) {
+  return streamed ? static_cast<const TemplateStream<D>*>(tpl.get())->frameCount()
+                  : static_cast<const Template<D>*>(tpl.get())->frameCount();
+}
+
+template <int D>
+json previewOf(const std::shared_ptr<const void>& tpl, bool streamed, long frame, long maxPoints) {
+  if (!streamed) {
+    const auto& t = *static_cast<const Template<D>*>(tpl.get());
+    return previewJson<D>(t.header, t.frameCount(), t.frames[size_t(frame)], frame, maxPoints);
+  }
+  const auto& s = *static_cast<const TemplateStream<D>*>(tpl.get());
+  return previewJson<D>(s.header(), s.frameCount(), s.readFrame(size_t(frame)), frame, maxPoints);
 }
 
 }  // namespace
@@ -105,10 +126,8 @@ HttpResponse ServiceHub::templatePreview(const HttpRequest& req, const Params& p
     try {
       const TemplateHeader header = readTemplateHeader(path);
       src.dimension = header.dimension;
-      if (header.dimension == 2)
-        src.tpl = std::make_shared<const Template<2>>(readTemplate<2>(path));
-      else
-        src.tpl = std::make_shared<const Template<3>>(readTemplate<3>(path));
+      src.streamed = startsWithChecksumBlock(path);
+      src.tpl = header.dimension == 2 ? openPreview<2>(path, src.streamed) : openPreview<3>(path, src.streamed);
     } catch (const TemplateError& e) {
       throw ApiError(422, e.what(), "name");
     }
@@ -119,14 +138,18 @@ HttpResponse ServiceHub::templatePreview(const HttpRequest& req, const Params& p
     if (previews_.size() >= kPreviewCacheSize && !previews_.count(p[0])) previews_.erase(previews_.begin());
     previews_[p[0]] = src;
   }
-  const size_t frames = src.dimension == 2 ? static_cast<const Template<2>*>(src.tpl.get())->frameCount()
-                                           : static_cast<const Template<3>*>(src.tpl.get())->frameCount();
+  const size_t frames =
+      src.dimension == 2 ? previewFrames<2>(src.tpl, src.streamed) : previewFrames<3>(src.tpl, src.streamed);
   if (frames == 0) throw ApiError(422, "template \"" + p[0] + "\" has no frames", "name");
   const long frame = queryInteger(req.query, "frame", long(frames / 2), 0, long(frames) - 1);
   const long maxPoints = queryInteger(req.query, "max", 2000, 1, 100000);
-  const json out = src.dimension == 2
-                       ? previewJson(*static_cast<const Template<2>*>(src.tpl.get()), frame, maxPoints)
-                       : previewJson(*static_cast<const Template<3>*>(src.tpl.get()), frame, maxPoints);
+  json out;
+  try {
+    out = src.dimension == 2 ? previewOf<2>(src.tpl, src.streamed, frame, maxPoints)
+                             : previewOf<3>(src.tpl, src.streamed, frame, maxPoints);
+  } catch (const TemplateError& e) {
+    throw ApiError(422, e.what(), "name");
+  }
   return jsonResponse(out);
 }
 

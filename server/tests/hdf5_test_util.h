@@ -34,6 +34,7 @@ class TempDir {
   TempDir(const TempDir&) = delete;
   TempDir& operator=(const TempDir&) = delete;
   std::string file(const std::string& name) const { return (dir_ / name).string(); }
+  std::string path() const { return dir_.string(); }
   // The names in the directory, sorted.
   std::vector<std::string> entries() const {
     std::vector<std::string> e;

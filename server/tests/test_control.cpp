@@ -495,7 +495,8 @@ void checkSumsAgainstDirectEvaluation() {
   const auto& acc = rig.control->controlAcceleration();
   const auto& alpha = rig.control->coverage(0);
 
-  const auto& grids = inst.accel->frame(rig.control->templateFrame(0));
+  const auto gridsHeld = inst.accel->frame(rig.control->templateFrame(0));
+  const auto& grids = *gridsHeld;
   const auto& xc = grids.controlPositions();
   const auto& mc = grids.controlMasses();
   const Real hT = inst.accel->supportRadius;

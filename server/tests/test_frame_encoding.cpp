@@ -291,7 +291,7 @@ TEST(WireFrame, InstanceAndControlLayers) {
 
   const BoundInstance<2>& inst = scene.control->instances()[0];
   const size_t tf = scene.control->templateFrame(0);
-  const auto& grids = inst.accel->frame(tf);
+  const auto& grids = *inst.accel->frame(tf);
   // Control selected the template frame at the frame's start, t = 0.
   const Affine<2> toWorld = inst.spec.transform.templateToWorld(0.0, inst.centre());
 

@@ -113,7 +113,7 @@ void checkBall(Real R) {
   const Template<D> tpl = makeTemplate<D>({ballFrame<D>(R)});
   const TemplateAccel<D> acc = TemplateAccel<D>::build(tpl);
   ASSERT_EQ(acc.frameCount(), 1u);
-  const auto& g = acc.frame(0);
+  const auto& g = *acc.frame(0);
   const auto& cx = g.controlPositions();
   ASSERT_GT(cx.size(), 100u);
   EXPECT_EQ(cx.data(), tpl.frames[0].x.data()) << "control positions must refer to the template, not a copy";
@@ -185,7 +185,7 @@ void checkSlab() {
   for (const auto& p : cx) yTop = std::max(yTop, p[1]);
   ASSERT_NEAR(yTop, y0, 1e-5);
   const TemplateAccel<D> acc = TemplateAccel<D>::build(tpl);
-  const auto& g = acc.frame(0);
+  const auto& g = *acc.frame(0);
   Vec<D> up = Vec<D>::Zero();
   up[1] = 1;
   size_t above = 0, interiorTop = 0;
@@ -234,7 +234,7 @@ void checkQueries() {
   }
   const Template<D> tpl = makeTemplate<D>({f});
   const auto acc = TemplateAccel<D>::build(tpl);
-  const auto& g = acc.frame(0);
+  const auto& g = *acc.frame(0);
   ASSERT_GT(g.repulsionCount(), 0u);
   std::uniform_real_distribution<Real> q(Real(-0.35), Real(0.35));
   for (int t = 0; t < 300; ++t) {
@@ -274,18 +274,18 @@ void checkFramesIndependent() {
   for (size_t f = 0; f < frames.size(); ++f) {
     const Template<D> one = makeTemplate<D>({frames[f]});
     const auto single = TemplateAccel<D>::build(one);
-    EXPECT_EQ(acc.frame(f).repulsionPositions(), single.frame(0).repulsionPositions()) << "frame " << f;
-    EXPECT_EQ(acc.frame(f).repulsionNormals(), single.frame(0).repulsionNormals()) << "frame " << f;
-    EXPECT_EQ(acc.frame(f).controlCount(), frames[f].size());
-    EXPECT_EQ(acc.frame(f).controlPositions().data(), all.frames[f].x.data());
-    sum += acc.frame(f).repulsionCount();
+    EXPECT_EQ(acc.frame(f)->repulsionPositions(), single.frame(0)->repulsionPositions()) << "frame " << f;
+    EXPECT_EQ(acc.frame(f)->repulsionNormals(), single.frame(0)->repulsionNormals()) << "frame " << f;
+    EXPECT_EQ(acc.frame(f)->controlCount(), frames[f].size());
+    EXPECT_EQ(acc.frame(f)->controlPositions().data(), all.frames[f].x.data());
+    sum += acc.frame(f)->repulsionCount();
   }
   EXPECT_EQ(acc.repulsionParticleFrames(), sum);
-  EXPECT_EQ(acc.frame(2).repulsionCount(), 0u);
+  EXPECT_EQ(acc.frame(2)->repulsionCount(), 0u);
   // The shifted ball's layer is the first ball's, shifted (same lattice
   // offsets, up to float rounding of the shift).
-  const auto& a = acc.frame(0);
-  const auto& b = acc.frame(3);
+  const auto& a = *acc.frame(0);
+  const auto& b = *acc.frame(3);
   ASSERT_EQ(a.repulsionCount(), b.repulsionCount());
   for (size_t k = 0; k < a.repulsionCount(); ++k) {
     EXPECT_LT((b.repulsionPositions()[k] - a.repulsionPositions()[k] - shift).norm(), Real(1e-3) * kR);
@@ -294,8 +294,8 @@ void checkFramesIndependent() {
   // A frame's grid only sees its own particles: near the shifted ball's
   // centre, frame 0 has nothing and frame 3 has its particles.
   size_t c0 = 0, c3 = 0;
-  acc.frame(0).forEachControlNear(shift, kH, [&](uint32_t, const Vec<D>&) { ++c0; });
-  acc.frame(3).forEachControlNear(shift, kH, [&](uint32_t, const Vec<D>&) { ++c3; });
+  acc.frame(0)->forEachControlNear(shift, kH, [&](uint32_t, const Vec<D>&) { ++c0; });
+  acc.frame(3)->forEachControlNear(shift, kH, [&](uint32_t, const Vec<D>&) { ++c3; });
   EXPECT_EQ(c0, 0u);
   EXPECT_GT(c3, 0u);
 }
@@ -318,16 +318,16 @@ TEST(RepulsionLayer, EmptyAndSingleParticleFrames) {
   tpl.frames[1].mass.push_back(latticeMass<3>());
   const auto acc = TemplateAccel<3>::build(tpl);
   ASSERT_EQ(acc.frameCount(), 2u);
-  EXPECT_EQ(acc.frame(0).controlCount(), 0u);
-  EXPECT_EQ(acc.frame(0).repulsionCount(), 0u);
+  EXPECT_EQ(acc.frame(0)->controlCount(), 0u);
+  EXPECT_EQ(acc.frame(0)->repulsionCount(), 0u);
   size_t hits = 0;
-  acc.frame(0).forEachControlNear(Vec3::Zero(), kH, [&](uint32_t, const Vec3&) { ++hits; });
-  acc.frame(0).forEachRepulsionNear(Vec3::Zero(), kH, [&](uint32_t, const Vec3&) { ++hits; });
+  acc.frame(0)->forEachControlNear(Vec3::Zero(), kH, [&](uint32_t, const Vec3&) { ++hits; });
+  acc.frame(0)->forEachRepulsionNear(Vec3::Zero(), kH, [&](uint32_t, const Vec3&) { ++hits; });
   EXPECT_EQ(hits, 0u);
   // One isolated particle has no density gradient: no direction, no layer.
-  EXPECT_EQ(acc.frame(1).repulsionCount(), 0u);
-  EXPECT_EQ(acc.frame(1).stats().interiorSkipped, 1u);
-  acc.frame(1).forEachControlNear(Vec3(0.1f, 0.2f, 0.3f), kH, [&](uint32_t j, const Vec3&) { hits += 1 + j; });
+  EXPECT_EQ(acc.frame(1)->repulsionCount(), 0u);
+  EXPECT_EQ(acc.frame(1)->stats().interiorSkipped, 1u);
+  acc.frame(1)->forEachControlNear(Vec3(0.1f, 0.2f, 0.3f), kH, [&](uint32_t j, const Vec3&) { hits += 1 + j; });
   EXPECT_EQ(hits, 1u);
   // A template with no frames at all.
   const auto none = TemplateAccel<3>::build(makeTemplate<3>({}));
@@ -367,16 +367,16 @@ TEST(RepulsionLayer, ThinningMergesOnlyConvergingCandidates) {
   RepulsionOptions off;
   off.thinDistance = 0;
   const auto raw = TemplateAccel<2>::build(tplL, off);
-  EXPECT_EQ(raw.frame(0).stats().thinned, 0u);
-  EXPECT_EQ(thin.frame(0).stats().kept + thin.frame(0).stats().thinned, raw.frame(0).stats().kept);
+  EXPECT_EQ(raw.frame(0)->stats().thinned, 0u);
+  EXPECT_EQ(thin.frame(0)->stats().kept + thin.frame(0)->stats().thinned, raw.frame(0)->stats().kept);
   // No two kept particles closer than the thinning distance (r/2).
-  const auto& x = thin.frame(0).repulsionPositions();
+  const auto& x = thin.frame(0)->repulsionPositions();
   for (size_t i = 0; i < x.size(); ++i)
     for (size_t j = i + 1; j < x.size(); ++j) EXPECT_GE((x[i] - x[j]).norm(), Real(0.5) * kR * Real(1 - 1e-5));
   // The disk (convex) loses nothing to thinning.
   const Template<2> disk = makeTemplate<2>({ballFrame<2>(Real(0.2))});
-  EXPECT_EQ(TemplateAccel<2>::build(disk).frame(0).stats().thinned, 0u);
-  std::printf("  L-block: %zu raw, %zu thinned\n", raw.frame(0).stats().kept, thin.frame(0).stats().thinned);
+  EXPECT_EQ(TemplateAccel<2>::build(disk).frame(0)->stats().thinned, 0u);
+  std::printf("  L-block: %zu raw, %zu thinned\n", raw.frame(0)->stats().kept, thin.frame(0)->stats().thinned);
 }
 
 TEST(RepulsionLayer, MemoryAndTimingAreReported) {
