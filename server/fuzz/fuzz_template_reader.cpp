@@ -1,7 +1,8 @@
 // Fuzz target: template files (io/template_file.h). The bytes are a template
 // file's content; they are written to a per-process temporary file and read
 // the ways the program reads one: readTemplateHeader (listing, inspect),
-// templateFileStats, readTemplate<2> and readTemplate<3> (loading).
+// templateFileStats, readTemplate<2> and readTemplate<3> (loading), and
+// TemplateStream<2|3> frame by frame (streaming).
 //
 // Documented outcome for a bad file: fc::TemplateError whose message names
 // the file. Anything else escaping is a finding (libFuzzer reports the
@@ -85,6 +86,31 @@ void checkAgainst(const fc::Template<D>& tpl, const std::optional<fc::TemplateHe
                  std::to_string(tpl.frames.size()) + " of " + std::to_string(lo) + ".." + std::to_string(hi));
 }
 
+// The streamed reader (TemplateStream<D>, frame by frame from the disk)
+// reads what readTemplate<D> reads, frame for frame; a file readTemplate
+// refuses may open as a stream, but then some frame must be refused.
+template <int D>
+void checkStream(const std::optional<fc::Template<D>>& whole) {
+  std::optional<fc::TemplateStream<D>> stream;
+  attempt("TemplateStream", [&] { stream.emplace(inputPath()); });
+  if (!stream) return;
+  bool refused = false;
+  for (size_t f = 0; f < stream->frameCount(); ++f) {
+    std::optional<fc::TemplateFrame<D>> frame;
+    if (!attempt("TemplateStream::readFrame", [&] { frame = stream->readFrame(f); })) {
+      FUZZ_CHECK(!whole, "TemplateStream refused frame " + std::to_string(f) + " of a file readTemplate reads");
+      refused = true;
+      continue;
+    }
+    if (!whole) continue;
+    const auto& w = whole->frames.at(f);
+    FUZZ_CHECK(frame->x == w.x && frame->v == w.v && frame->mass == w.mass && frame->phase == w.phase,
+               "TemplateStream and readTemplate read frame " + std::to_string(f) + " differently");
+  }
+  FUZZ_CHECK(whole || refused || stream->header().dimension != D,
+             "TemplateStream read every frame of a file readTemplate refuses");
+}
+
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
@@ -110,5 +136,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   attempt("readTemplate<3>", [&] { t3 = fc::readTemplate<3>(path); });
   if (t2) checkAgainst(*t2, header, stats);
   if (t3) checkAgainst(*t3, header, stats);
+  checkStream<2>(t2);
+  checkStream<3>(t3);
   return 0;
 }
