@@ -275,13 +275,20 @@ std::shared_ptr<const TemplateFrameGrids<D>> TemplateAccel<D>::frame(size_t i) c
   // Resident frames live as long as the accelerator: a pointer that owns nothing.
   if (!stream_) return std::shared_ptr<const TemplateFrameGrids<D>>(std::shared_ptr<const void>(), &frames.at(i));
   Cache& c = *cache_;
-  std::lock_guard<std::mutex> lock(c.mutex);
-  if (auto it = c.frames.find(i); it != c.frames.end()) {
+  const auto found = [&]() -> std::shared_ptr<const TemplateFrameGrids<D>> {
+    const auto it = c.frames.find(i);
+    if (it == c.frames.end()) return nullptr;
     ++c.stats.hits;
     c.recent.remove(i);
     c.recent.push_front(i);
     return std::shared_ptr<const TemplateFrameGrids<D>>(it->second, &it->second->grids);
+  };
+  {
+    std::lock_guard<std::mutex> lock(c.mutex);
+    if (auto hit = found()) return hit;
   }
+  // Read and built outside the lock: other frames stay available meanwhile
+  // (two threads may build the same frame once each; the first one kept wins).
   const auto t0 = std::chrono::steady_clock::now();
   auto built = std::make_shared<StreamedFrame<D>>();
   built->data = stream_->readFrame(i);
@@ -293,8 +300,11 @@ std::shared_ptr<const TemplateFrameGrids<D>> TemplateAccel<D>::frame(size_t i) c
   built->bytes = built->grids.memoryBytes() + built->data.x.capacity() * sizeof(Vec<D>) +
                  built->data.v.capacity() * sizeof(Vec<D>) + built->data.mass.capacity() * sizeof(Real) +
                  built->data.phase.capacity();
-  c.stats.loadSeconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  std::lock_guard<std::mutex> lock(c.mutex);
+  c.stats.loadSeconds += seconds;
   ++c.stats.loads;
+  if (auto hit = found()) return hit;
   c.frames.emplace(i, built);
   c.recent.push_front(i);
   c.stats.residentBytes += built->bytes;

@@ -163,9 +163,9 @@ struct TemplateAccel {
 
   bool isStreamed() const { return stream_ != nullptr; }
   size_t frameCount() const { return stream_ ? stream_->frameCount() : frames.size(); }
-  // Frame i's grids, valid while the pointer is held (a streamed frame is
-  // read and built here when it is not in the cache: a TemplateError or
-  // std::invalid_argument then says why). Thread-safe.
+  // Frame i's grids, valid while the pointer and this accelerator are held
+  // (a streamed frame is read and built here when it is not in the cache: a
+  // TemplateError or std::invalid_argument then says why). Thread-safe.
   std::shared_ptr<const TemplateFrameGrids<D>> frame(size_t i) const;
   size_t particleFrames() const;            // Σ control particles over frames
   size_t repulsionParticleFrames() const;   // Σ repulsion particles over the built frames
@@ -177,7 +177,7 @@ struct TemplateAccel {
   struct CacheStats {
     size_t cacheBytes = 0;      // the budget
     size_t residentFrames = 0, residentBytes = 0, peakBytes = 0;
-    size_t loads = 0, hits = 0;  // frames read and built, frames found built
+    size_t loads = 0, hits = 0;  // frames read and built; requests answered from the cache
     double loadSeconds = 0;      // reading, decoding and building them
   };
   CacheStats cacheStats() const;

@@ -107,8 +107,7 @@ void checkStream(const std::optional<fc::Template<D>>& whole) {
     FUZZ_CHECK(frame->x == w.x && frame->v == w.v && frame->mass == w.mass && frame->phase == w.phase,
                "TemplateStream and readTemplate read frame " + std::to_string(f) + " differently");
   }
-  FUZZ_CHECK(whole || refused || stream->header().dimension != D,
-             "TemplateStream read every frame of a file readTemplate refuses");
+  FUZZ_CHECK(whole || refused, "TemplateStream read every frame of a file readTemplate refuses");
 }
 
 }  // namespace

@@ -41,9 +41,9 @@ bool TemplateDatabase::contains(const std::string& name) const {
 
 namespace {
 
-// Bytes a template takes decoded per byte of its file, at most (its
-// particles compress to no less than a sixteenth of TemplateAccel's bytes).
-constexpr uint64_t kMaxDecodedPerFileByte = 16;
+// Bytes a template takes decoded per byte of its file, at most: files hold
+// 4 to 6.5 bytes per particle-frame, TemplateAccel 53 to 65 and its cells.
+constexpr uint64_t kMaxDecodedPerFileByte = 24;
 
 TemplateEntry readEntry(const std::string& name, const std::string& path) {
   TemplateEntry e;

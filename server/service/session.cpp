@@ -629,7 +629,18 @@ class SessionImpl final : public Session {
   void computeFrame(std::unique_lock<std::mutex>& lk) {
     replayLayers_.unpark(*sim_);
     sim_->setFrameLimits({Clock::now() + options_.frameTimeout, &cancel_});
-    FrameStats fs = sim_->advanceFrame();
+    FrameStats fs;
+    try {
+      fs = sim_->advanceFrame();
+    } catch (const std::exception& e) {
+      // A stage that cannot go on (a streamed template frame that no longer
+      // reads): the frame fails like an unstable one, the session survives.
+      fs = FrameStats{};
+      fs.finite = false;
+      fs.failure = e.what();
+      fs.frame = sim_->frame() + 1;
+      fs.time = sim_->time();
+    }
     FramePtr snap;
     if (fs.finite) {
       snap = makeSnapshot(fs);
@@ -882,8 +893,8 @@ class SessionImpl final : public Session {
     out->layers = want;
     try {
       wire::encodeFrame<D>(*sim_, stats, controlStage_, id_, want, layerBuilder_);
-    } catch (const wire::EncodeError&) {
-      return;
+    } catch (const std::exception&) {
+      return;  // an encode failure, or a streamed template frame that no longer reads
     }
     out->envelope.assign(layerBuilder_.GetBufferPointer(), layerBuilder_.GetBufferPointer() + layerBuilder_.GetSize());
     std::lock_guard lk(mutex_);

@@ -6,14 +6,18 @@
 #include "control/control.h"
 #include "io/template_database.h"
 #include "io/template_file.h"
+#include "service/session.h"
 #include "sph/simulation.h"
 #include "tests/hdf5_test_util.h"
+#include "tests/test_fixtures.h"
 
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <random>
 #include <string>
@@ -28,8 +32,9 @@ namespace {
 constexpr Real kR = Real(0.01);
 constexpr double kRho0 = 1000;
 
-// A blob that falls, spreads and changes its particle count from frame to
-// frame (so that rows and frames do not line up), with two phases.
+// A blob that falls and spreads, every frame in another place, with fewer
+// particles from frame 5 on (so that rows and frames do not line up), and
+// two phases.
 Template<2> movingBlob(int frames) {
   Template<2> t;
   t.header.name = "blob";
@@ -196,7 +201,7 @@ TEST(TemplateStream, ThreadsAskingForFramesAllGetTheRightOnes) {
       for (int k = 0; k < 150; ++k) {
         const size_t f = rng() % 12;
         const auto g = acc->frame(f);
-        if (g->controlPositions().size() != whole.frames[f].size()) ++wrong;
+        if (g->controlPositions() != whole.frames[f].x) ++wrong;
       }
     });
   for (auto& th : threads) th.join();
@@ -259,4 +264,53 @@ TEST(TemplateStream, DatabaseStreamsWhatExceedsItsBudgetAndSteersTheSame) {
   }
   const auto stats = tight.streamedTemplates().at(0);
   EXPECT_GE(stats.loads, 12u) << "the instance plays every frame";
+}
+
+// A template cut short in place while a session streams it (a disk that
+// fails, a file written over by another program: re-recording replaces the
+// file and does not do this): the frame that needs a lost frame fails with
+// the file's name, the session stops in its error state, and another
+// session goes on.
+TEST(TemplateStream, ASessionWhoseTemplateStopsReadingFailsItsFrameNotTheServer) {
+  using namespace std::chrono_literals;
+  TempDir dir;
+  // 24 frames of 6 400 particles: the rows span three of the file's chunks,
+  // so frames past the first chunk are read from the disk when first played.
+  Template<2> big = movingBlob(1);
+  big.header.name = "big";
+  big.header.frameRate = 60;
+  TemplateFrame<2> f0;
+  for (int i = 0; i < 80; ++i)
+    for (int j = 0; j < 80; ++j) {
+      f0.x.push_back(Vec<2>(Real(0.21) + Real(i) * Real(0.0075), Real(0.01) + Real(j) * Real(0.0075)));
+      f0.v.push_back(Vec<2>::Zero());
+      f0.mass.push_back(Real(0.05));
+      f0.phase.push_back(0);
+    }
+  big.frames.assign(24, f0);
+  for (size_t f = 0; f < big.frames.size(); ++f)
+    for (auto& x : big.frames[f].x) x.y() += Real(0.001) * Real(f);
+  const std::string path = dir.file("big.h5");
+  writeTemplate(path, big);
+  TemplateDatabase db(dir.path(), 256 * 1024);
+  nlohmann::json scene = fc::test::smallTankScene("streamed");
+  scene["instances"] = nlohmann::json::array({{{"template", "big"}, {"name", "big"}}});
+  auto bad = service::createSession("bad", "", scene, db);
+  auto good = service::createSession("good", "", fc::test::smallTankScene("good"), db);
+  ASSERT_EQ(db.streamedTemplates().size(), 1u);
+  bad->step(2);
+  ASSERT_TRUE(bad->waitIdle(60s));
+  ASSERT_EQ(bad->status(), service::SessionStatus::Paused) << bad->state().dump();
+  std::filesystem::resize_file(path, std::filesystem::file_size(path) / 4);
+  good->play();
+  bad->play();
+  ASSERT_TRUE(fc::test::waitFor([&] { return bad->status() == service::SessionStatus::Error; }, 60s))
+      << bad->state().dump();
+  const nlohmann::json st = bad->state();
+  EXPECT_NE(st["error"]["message"].get<std::string>().find(path), std::string::npos) << st.dump();
+  EXPECT_GE(st["error"]["frame"].get<int>(), 3);
+  const int g = good->currentFrame();
+  EXPECT_TRUE(good->waitForFrame(g + 3, 60s));
+  EXPECT_EQ(good->status(), service::SessionStatus::Playing);
+  good->pause();
 }
