@@ -35,8 +35,9 @@ SHIPPED = {
 
 @pytest.mark.parametrize("name", sorted(bench_reference.SCENES))
 def test_reference_scene_carries_our_settings(name):
-    ours_path, shipped_name = bench_reference.SCENES[name]
-    ours = json.loads((ROOT / ours_path).read_text())
+    ours_path, shipped_name, radius = bench_reference.SCENES[name]
+    ours = bench_reference.our_scene(name)
+    assert ours["particle_radius"] == (radius or json.loads((ROOT / ours_path).read_text())["particle_radius"])
     shipped = json.loads(json.dumps(SHIPPED))
     s = bench_reference.reference_scene(ours, shipped)
     c = s["Configuration"]

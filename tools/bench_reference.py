@@ -6,6 +6,7 @@ per simulated second with our share of SPlisHSPlasH's into a report
 
     build/venv/bin/python tools/bench_reference.py                 # all four scenes/bench scenes, once each, into bench/reference
     build/venv/bin/python tools/bench_reference.py --only 3d_r0125 --repeat 3 --out /tmp/ref
+    build/venv/bin/python tools/bench_reference.py --only 3d_r005 --seconds 0.1 --out bench/reference-1m
 
 Why: figures read on different machines, or on one virtual machine at
 different times, do not divide (the same executable ran up to 1.7x slower
@@ -43,13 +44,17 @@ from bench_report import loadavg, machine  # tools/, beside this script
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 WHEEL = "pysplishsplash==2.19.0"
 
-# name: (our reference scene, the SPlisHSPlasH scene it is written from)
+# name: (our reference scene, the SPlisHSPlasH scene it is written from, a
+# particle radius in place of the scene's or None)
 SCENES = {
-    "3d_r010": ("scenes/bench/dambreak3d_r010.json", "DamBreakModel.json"),
-    "3d_r0125": ("scenes/bench/dambreak3d_r0125.json", "DamBreakModel.json"),
-    "2d_r010": ("scenes/bench/dambreak2d_r010.json", "DamBreakModel_2D.json"),
-    "2d_r005": ("scenes/bench/dambreak2d_r005.json", "DamBreakModel_2D.json"),
+    "3d_r010": ("scenes/bench/dambreak3d_r010.json", "DamBreakModel.json", None),
+    "3d_r0125": ("scenes/bench/dambreak3d_r0125.json", "DamBreakModel.json", None),
+    "2d_r010": ("scenes/bench/dambreak2d_r010.json", "DamBreakModel_2D.json", None),
+    "2d_r005": ("scenes/bench/dambreak2d_r005.json", "DamBreakModel_2D.json", None),
+    # 941 192 particles (98³): run on its own with a short --seconds.
+    "3d_r005": ("scenes/bench/dambreak3d_r010.json", "DamBreakModel.json", 0.005),
 }
+DEFAULT = ["3d_r010", "3d_r0125", "2d_r010", "2d_r005"]
 
 # Runs inside SPlisHSPlasH's venv: argv = scene, simulated seconds, output directory.
 DRIVER = r"""
@@ -122,9 +127,18 @@ def reference_scene(ours, shipped):
     return s
 
 
-def write_reference_scene(data, ours_path, shipped_name, path):
+def our_scene(name):
+    """Our scene of SCENES[name] (a dict), at its particle radius."""
+    ours_path, _, radius = SCENES[name]
     with open(os.path.join(ROOT, ours_path)) as fh:
         ours = json.load(fh)
+    if radius is not None:
+        ours["particle_radius"] = radius
+    return ours
+
+
+def write_reference_scene(data, name, path):
+    ours, shipped_name = our_scene(name), SCENES[name][1]
     with open(os.path.join(data, "Scenes", shipped_name)) as fh:
         shipped = json.load(fh)
     s = reference_scene(ours, shipped)
@@ -170,12 +184,13 @@ def run_reference(py, scene, seconds, threads, workdir):
     return parse_reference_output(out)
 
 
-def run_ours(binary, scene, seconds, threads):
+def run_ours(binary, scene, seconds, threads, radius=None):
     with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as f:
         stats = f.name
     try:
         subprocess.run([binary, "run", scene, "--seconds", str(seconds), "--threads", str(threads), "--stats", stats,
-                        "--quiet"], check=True, cwd=ROOT)
+                        "--quiet"] + ([] if radius is None else ["--particle-radius", str(radius)]), check=True,
+                       cwd=ROOT)
         with open(stats) as fh:
             s = json.load(fh)
     finally:
@@ -259,7 +274,8 @@ def write_report(out, report):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--only", nargs="+", choices=sorted(SCENES), help="scenes to run (default: all four)")
+    ap.add_argument("--only", nargs="+", choices=sorted(SCENES),
+                    help="scenes to run (default: " + ", ".join(DEFAULT) + "; 3d_r005 is a million particles)")
     ap.add_argument("--seconds", type=float, default=2.0, help="simulated seconds per run")
     ap.add_argument("--repeat", type=int, default=1, help="alternating pairs of runs per scene")
     ap.add_argument("--threads", type=int, default=2)
@@ -275,15 +291,15 @@ def main():
     date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
     version = subprocess.run([args.binary, "--version"], capture_output=True, text=True, check=True).stdout.strip()
     py, data = venv_python(os.path.join(ROOT, "build"))
-    names = args.only or list(SCENES)
+    names = args.only or DEFAULT
     results = {}
     with tempfile.TemporaryDirectory() as work:
         total = len(names) * args.repeat * 2
         done = 0
         for name in names:
-            ours_scene, shipped = SCENES[name]
+            ours_scene, _, radius = SCENES[name]
             ref_scene = os.path.join(work, name + ".json")
-            write_reference_scene(data, ours_scene, shipped, ref_scene)
+            write_reference_scene(data, name, ref_scene)
             runs = {"splishsplash": [], "flowclip": []}
             for k in range(args.repeat):
                 # Alternate which goes first, so a drift in the host's speed
@@ -293,7 +309,7 @@ def main():
                     done += 1
                     print(f"[{done}/{total}] {name} {who} ({args.seconds:g} simulated s)", file=sys.stderr, flush=True)
                     r = (run_reference(py, ref_scene, args.seconds, args.threads, work) if who == "splishsplash"
-                         else run_ours(args.binary, ours_scene, args.seconds, args.threads))
+                         else run_ours(args.binary, ours_scene, args.seconds, args.threads, radius))
                     runs[who].append(r)
             results[name] = runs
 
@@ -301,8 +317,8 @@ def main():
     print("\n".join(table(results)))
     scenes = {}
     for name, runs in results.items():
-        scenes[name] = {"flowclip_scene": SCENES[name][0], "reference_scene": SCENES[name][1], **runs,
-                        "ratios": ratios(runs)}
+        scenes[name] = {"flowclip_scene": SCENES[name][0], "reference_scene": SCENES[name][1],
+                        "particle_radius": SCENES[name][2], **runs, "ratios": ratios(runs)}
     met = all(max(v) <= TARGET_PCT for s in scenes.values() for v in s["ratios"].values())
     report = {"benchmark": "reference", "date": date, "command": command, "machine": started,
               "loadavg_at_end": loadavg(),
