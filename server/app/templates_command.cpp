@@ -135,6 +135,12 @@ void printLoadStats(TemplateDatabase& db, const std::string& name) {
   auto lt = db.load<D>(name);
   const double total = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   const auto& acc = lt->accel;
+  if (lt->streamed()) {
+    std::printf("too large to hold decoded (over %.0f MB): streamed frame by frame when played; opening it took "
+                "%.3f s (the file verified, its index read)\n",
+                double(db.memoryBytes()) / 1048576.0, lt->readSeconds);
+    return;
+  }
   size_t rmin = std::numeric_limits<size_t>::max(), rmax = 0;
   for (const auto& f : acc.frames) {
     rmin = std::min(rmin, f.repulsionCount());
