@@ -9,6 +9,7 @@ import json
 import os
 import platform
 import shlex
+import subprocess
 import sys
 from pathlib import Path
 from typing import Callable
@@ -48,3 +49,13 @@ def write_report(out: Path, name: str, report: dict, markdown: Callable[[dict], 
     (out / f"{name}.json").write_text(json.dumps(report, indent=1) + "\n")
     (out / f"{name}.md").write_text(markdown(report))
     print(f"bench {name}: {out / f'{name}.md'}, {out / f'{name}.json'}", file=sys.stderr, flush=True)
+
+
+def run_with_stats(cmd: list[str], stats: Path, cwd: Path) -> dict:
+    """Runs a `flowclip run ... --stats STATS` command (printed first; its stderr passes through)
+    and returns the stats file's JSON; a failed run ends the benchmark."""
+    print("$ " + shlex.join(cmd), file=sys.stderr, flush=True)
+    proc = subprocess.run(cmd, cwd=cwd, stdout=subprocess.DEVNULL, stderr=sys.stderr)
+    if proc.returncode != 0:
+        raise SystemExit(f"flowclip run exited with {proc.returncode}")
+    return json.loads(stats.read_text())

@@ -18,21 +18,15 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shlex
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-from bench_report import report_start, write_report  # tools/, beside this script
+from bench_report import report_start, run_with_stats, write_report  # tools/, beside this script
 
 ROOT = Path(__file__).resolve().parents[1]
 FLOWCLIP_BIN = Path(os.environ.get("FLOWCLIP_BIN", ROOT / "build" / "flowclip"))
 SCENE = ROOT / "scenes" / "bench" / "dambreak3d_r0125.json"
-
-
-def log(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
 
 
 def count_arg(text: str) -> int:
@@ -54,11 +48,7 @@ def run(radius: float, seconds: float, threads: int, tmp: Path) -> dict:
     stats = tmp / f"r{radius:.6f}.json"
     cmd = [str(FLOWCLIP_BIN), "run", str(SCENE), "--particle-radius", f"{radius:.6g}", "--seconds", str(seconds),
            "--threads", str(threads), "--stats", str(stats)]
-    log("$ " + shlex.join(cmd))
-    proc = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=sys.stderr)
-    if proc.returncode != 0:
-        raise SystemExit(f"flowclip run exited with {proc.returncode}")
-    data = json.loads(stats.read_text())
+    data = run_with_stats(cmd, stats, ROOT)
     frames, summary = data["frames"], data["summary"]
     steady = frames[1:] or frames
     wall_ms = sum(f["wall_ms"] for f in steady)

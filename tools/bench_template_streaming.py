@@ -13,22 +13,15 @@ The paper-scale templates must be recorded first (`make templates-paper`).
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import shlex
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-from bench_report import report_start, write_report  # tools/, beside this script
+from bench_report import report_start, run_with_stats, write_report  # tools/, beside this script
 
 ROOT = Path(__file__).resolve().parents[1]
 FLOWCLIP_BIN = Path(os.environ.get("FLOWCLIP_BIN", ROOT / "build" / "flowclip"))
-
-
-def log(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
 
 
 def run(scene: Path, frames: int, threads: int, budget: float | None, tmp: Path) -> dict:
@@ -37,11 +30,7 @@ def run(scene: Path, frames: int, threads: int, budget: float | None, tmp: Path)
            str(threads), "--stats", str(stats), "--quiet"]
     if budget is not None:
         cmd += ["--template-memory", f"{budget:g}"]
-    log("$ " + shlex.join(cmd))
-    proc = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=sys.stderr)
-    if proc.returncode != 0:
-        raise SystemExit(f"flowclip run exited with {proc.returncode}")
-    data = json.loads(stats.read_text())
+    data = run_with_stats(cmd, stats, ROOT)
     frames_, summary = data["frames"], data["summary"]
     streamed = summary.get("templates_streamed", [])
     return {"scene": scene.stem, "budget_mb": budget, "frames": len(frames_),

@@ -482,22 +482,7 @@ class Reader {
     auto hdf5At = [&](size_t at) { return n >= at + 8 && std::memcmp(p + at, kHdf5Signature, 8) == 0; };
     const std::string_view head(reinterpret_cast<const char*>(p), std::min(n, kChecksumMagic.size()));
     if (head == kChecksumMagic) {
-      uint32_t crc = 0;
-      uint64_t length = 0;
-      if (n < kChecksumBlockSize || !parseChecksumBlock(p, &crc, &length))
-        fail(path_, "is damaged: its checksum block (the first 512 bytes) is unreadable");
-      if (length != n - kChecksumBlockSize)
-        fail(path_, "is truncated or damaged: its checksum block covers " + std::to_string(length) +
-                        " bytes after it, the file has " + std::to_string(n - kChecksumBlockSize));
-      const uint32_t actual = crc32Of(crc32Of(0, nullptr, 0), p + kChecksumBlockSize, length);
-      if (actual != crc) {
-        char text[96];
-        std::snprintf(text, sizeof text, "(CRC-32 %08x, the checksum block says %08x)", unsigned(actual), unsigned(crc));
-        fail(path_, std::string("is damaged: its content does not match its checksum ") + text);
-      }
-      checksummed_ = true;
-      base_ = kChecksumBlockSize;
-      if (!hdf5At(base_)) fail(path_, "is damaged: no HDF5 signature after its checksum block");
+      verifyChecksumBlock(p);
     } else if (!hdf5At(0)) {
       if (hdf5At(kChecksumBlockSize)) fail(path_, "is damaged: its checksum block (the first 512 bytes) is unreadable");
       fail(path_, "is not an HDF5 file (no HDF5 signature: wrong kind of file, or corrupt)");
@@ -518,31 +503,7 @@ class Reader {
     const std::string_view head(reinterpret_cast<const char*>(block), kChecksumMagic.size());
     if (!bytesAt(0, block, kChecksumBlockSize) || head != kChecksumMagic)
       fail(path_, "has no checksum block (written before templates had one): it is read whole, not streamed");
-    uint32_t crc = 0;
-    uint64_t length = 0;
-    if (!parseChecksumBlock(block, &crc, &length))
-      fail(path_, "is damaged: its checksum block (the first 512 bytes) is unreadable");
-    if (length != disk_->size - kChecksumBlockSize)
-      fail(path_, "is truncated or damaged: its checksum block covers " + std::to_string(length) +
-                      " bytes after it, the file has " + std::to_string(disk_->size - kChecksumBlockSize));
-    std::vector<unsigned char> buf(size_t(1) << 20);
-    uint32_t actual = crc32Of(0, nullptr, 0);
-    for (uint64_t done = 0; done < length;) {
-      const size_t n = size_t(std::min<uint64_t>(buf.size(), length - done));
-      if (!bytesAt(kChecksumBlockSize + done, buf.data(), n)) fail(path_, "became shorter while it was read");
-      actual = crc32Of(actual, buf.data(), n);
-      done += n;
-    }
-    if (actual != crc) {
-      char text[96];
-      std::snprintf(text, sizeof text, "(CRC-32 %08x, the checksum block says %08x)", unsigned(actual), unsigned(crc));
-      fail(path_, std::string("is damaged: its content does not match its checksum ") + text);
-    }
-    checksummed_ = true;
-    base_ = kChecksumBlockSize;
-    unsigned char signature[8];
-    if (!bytesAt(base_, signature, 8) || std::memcmp(signature, kHdf5Signature, 8) != 0)
-      fail(path_, "is damaged: no HDF5 signature after its checksum block");
+    verifyChecksumBlock(block);
     checkSuperblock();
     Handle fapl(checked(H5Pcreate(H5P_FILE_ACCESS)), H5Pclose);
     if (!fapl.ok() || checked(H5Pset_fapl_sec2(fapl.get())) < 0 ||
@@ -558,6 +519,45 @@ class Reader {
       fail(path_, "was replaced while it was opened");
     }
     return f;
+  }
+
+  // The checksum block at the file's start (its magic already seen) against
+  // the rest of the file, which must then start with HDF5's signature.
+  void verifyChecksumBlock(const unsigned char* block) {
+    uint32_t crc = 0;
+    uint64_t length = 0;
+    if (fileSize() < kChecksumBlockSize || !parseChecksumBlock(block, &crc, &length))
+      fail(path_, "is damaged: its checksum block (the first 512 bytes) is unreadable");
+    if (length != fileSize() - kChecksumBlockSize)
+      fail(path_, "is truncated or damaged: its checksum block covers " + std::to_string(length) +
+                      " bytes after it, the file has " + std::to_string(fileSize() - kChecksumBlockSize));
+    const uint32_t actual = crcAfterBlock(length);
+    if (actual != crc) {
+      char text[96];
+      std::snprintf(text, sizeof text, "(CRC-32 %08x, the checksum block says %08x)", unsigned(actual), unsigned(crc));
+      fail(path_, std::string("is damaged: its content does not match its checksum ") + text);
+    }
+    checksummed_ = true;
+    base_ = kChecksumBlockSize;
+    unsigned char signature[8];
+    if (!bytesAt(base_, signature, 8) || std::memcmp(signature, kHdf5Signature, 8) != 0)
+      fail(path_, "is damaged: no HDF5 signature after its checksum block");
+  }
+
+  // The CRC-32 of the `length` bytes after the checksum block: the image at
+  // once, the disk a megabyte at a time.
+  uint32_t crcAfterBlock(uint64_t length) const {
+    const uint32_t empty = crc32Of(0, nullptr, 0);
+    if (!disk_) return crc32Of(empty, image_.data() + kChecksumBlockSize, length);
+    std::vector<unsigned char> buf(size_t(1) << 20);
+    uint32_t crc = empty;
+    for (uint64_t done = 0; done < length;) {
+      const size_t n = size_t(std::min<uint64_t>(buf.size(), length - done));
+      if (!bytesAt(kChecksumBlockSize + done, buf.data(), n)) fail(path_, "became shorter while it was read");
+      crc = crc32Of(crc, buf.data(), n);
+      done += n;
+    }
+    return crc;
   }
 
   // n bytes at `at` of the file (the image, or the disk): false if it is shorter.
