@@ -49,11 +49,12 @@ std::string frameFileName(const std::string& name, int frame, const std::string&
 class Exporter {
  public:
   virtual ~Exporter() = default;
-  // Whether frame() needs the surface's grids or its mesh.
+  // Whether frame() needs the surface's grids, its mesh or a 2D liquid's outline.
   virtual bool needsGrids() const { return false; }
   virtual bool needsMesh() const { return false; }
+  virtual bool needsOutline() const { return false; }
   virtual void begin(const ExportInfo& info) { info_ = info; }
-  // One frame: `surface` is set when needsGrids() or needsMesh().
+  // One frame: `surface` is set when the exporter needs any of them.
   virtual void frame(const ParticleFrame& frame, const Surface* surface, FrameFiles& files) = 0;
   // After the last frame: the files that span every frame (a USD stage).
   virtual void finish(FrameFiles& files) {}

@@ -125,6 +125,7 @@ SurfaceExport::SurfaceExport(const ExportInfo& info, const std::vector<std::stri
     exporters_.back()->begin(info_);
     grids_ = grids_ || exporters_.back()->needsGrids();
     mesh_ = mesh_ || exporters_.back()->needsMesh();
+    outline_ = outline_ || exporters_.back()->needsOutline();
   }
   manifest_ = (fs::path(info_.directory) / (info_.name + ".export.json")).string();
   // Until this export closes, the directory does not claim a complete one.
@@ -137,13 +138,14 @@ SurfaceExport::~SurfaceExport() = default;
 void SurfaceExport::writeFrame(const ParticleFrame& frame) {
   if (closed_) throw std::runtime_error("export of '" + info_.name + "': already closed");
   Surface surface;
-  if (grids_ || mesh_) {
-    surface = reconstructSurface(frame, info_.particleRadius, surface_, mesh_, info_.dimension);
+  const bool reconstruct = grids_ || mesh_ || outline_;
+  if (reconstruct) {
+    surface = reconstructSurface(frame, info_.particleRadius, surface_, mesh_, info_.dimension, grids_);
     surfaceMs_ += surface.ms;
   }
   FrameFiles files(info_.directory);
   try {
-    for (auto& e : exporters_) e->frame(frame, (grids_ || mesh_) ? &surface : nullptr, files);
+    for (auto& e : exporters_) e->frame(frame, reconstruct ? &surface : nullptr, files);
     bytes_ += publish(files);
   } catch (...) {
     discard(files);

@@ -64,7 +64,7 @@ class SurfaceExport {
   std::vector<std::string> formats_;
   SurfaceSettings surface_;
   std::vector<std::unique_ptr<Exporter>> exporters_;
-  bool grids_ = false, mesh_ = false, closed_ = false;
+  bool grids_ = false, mesh_ = false, outline_ = false, closed_ = false;
   std::vector<int> frameIndices_;
   std::vector<double> frameTimes_;
   nlohmann::json frameFiles_ = nlohmann::json::array();

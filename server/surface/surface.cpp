@@ -17,6 +17,8 @@
 #include "core/key_map.h"
 #include "core/parallel_failure.h"
 #include "surface/block_mesher.h"
+#include "surface/particle_buckets.h"
+#include "surface/planar_surface.h"
 #include "surface/volumes.h"
 
 #include <openvdb/tools/VolumeToMesh.h>
@@ -61,10 +63,11 @@ const ParamTable<SurfaceSettings>& surfaceSettingsTable() {
        .help = "mesh adaptivity: 0 is a uniform mesh by marching cubes, the fastest, with the most triangles; "
                "above 0, OpenVDB's volume-to-mesh merges flat regions into larger polygons",
        .member = &SurfaceSettings::adaptivity},
-      {.name = "adaptivity_2d", .unit = "", .min = 0, .max = 1, .def = 0.1,
-       .help = "mesh adaptivity of a 2D liquid's slab, in place of `adaptivity`: its two faces are flat and as "
-               "large as the liquid's area, and 0.1 meshes them with a fortieth of the triangles",
-       .member = &SurfaceSettings::adaptivity2d},
+      {.name = "thickness_2d", .unit = "r", .min = 0, .max = 20, .def = 2.3,
+       .help = "a 2D liquid's mesh: a slab this thick, in particle radii, its faces the liquid's area at "
+               "z = ±thickness/2 and its walls the outline; 0 = the flat area at z = 0 (the level set is then "
+               "two voxels thick)",
+       .member = &SurfaceSettings::thickness2d},
   };
   return table;
 }
@@ -82,152 +85,33 @@ namespace {
 using openvdb::Coord;
 using LeafT = openvdb::FloatTree::LeafNodeType;
 using VLeafT = openvdb::Vec3STree::LeafNodeType;
-constexpr int kBlock = int(LeafT::DIM);     // voxels per block side
+using namespace surface_detail;
 constexpr int kVoxels = int(LeafT::SIZE);   // voxels per block
-static_assert(kBlock == 8 && kVoxels == 512, "a block row is one 8-float vector");
+static_assert(kBlock == int(LeafT::DIM) && kVoxels == 512, "a block row is one 8-float vector");
 
 void initialiseOpenVdb() {
   static std::once_flag once;
   std::call_once(once, [] { openvdb::initialize(); });
 }
 
-constexpr int64_t kKeyOffset = int64_t(1) << 20, kKeyMask = (int64_t(1) << 21) - 1;
-uint64_t key(int64_t i, int64_t j, int64_t k) {
-  return (uint64_t((i + kKeyOffset) & kKeyMask) << 42) | (uint64_t((j + kKeyOffset) & kKeyMask) << 21) |
-         uint64_t((k + kKeyOffset) & kKeyMask);
-}
-int64_t unkey(uint64_t k, int d) { return int64_t((k >> (42 - 21 * d)) & uint64_t(kKeyMask)) - kKeyOffset; }
-
-// The surface particles sorted into cubic cells of the kernel's radius.
-class Buckets {
- public:
-  // trail (s): each particle also leaves samples along its last trail
-  // seconds of motion, x - v t, at most `spacing` apart (and 16 of them).
-  Buckets(const ParticleFrame& f, double cell, double trail, double spacing) : inv_(1.0 / cell) {
-    std::vector<float> x, v;  // the particles and their trails' samples
-    std::vector<uint8_t> isTrail;
-    x.reserve(3 * f.count()), v.reserve(3 * f.count()), isTrail.reserve(f.count());
-    for (size_t i = 0; i < f.count(); ++i) {
-      const float* p = &f.position[3 * i];
-      const float* u = &f.velocity[3 * i];
-      // A non-finite position has no place on the grid.
-      if (!formsSurface(f.kind[i]) || !std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) continue;
-      ++particles_;
-      const double speed = std::sqrt(double(u[0]) * u[0] + double(u[1]) * u[1] + double(u[2]) * u[2]);
-      const int samples = trail > 0 && std::isfinite(speed) ? std::min(16, int(std::ceil(speed * trail / spacing))) : 0;
-      for (int m = 0; m <= samples; ++m) {
-        const double t = samples ? trail * m / samples : 0.0;
-        for (int d = 0; d < 3; ++d) x.push_back(float(p[d] - u[d] * t)), v.push_back(u[d]);
-        isTrail.push_back(m > 0);
-      }
-    }
-    const size_t count = x.size() / 3;
-    std::vector<std::pair<uint64_t, uint32_t>> keyed(count);
-#pragma omp parallel for schedule(static)
-    for (size_t n = 0; n < count; ++n)
-      keyed[n] = {key(cellOf(x[3 * n]), cellOf(x[3 * n + 1]), cellOf(x[3 * n + 2])), uint32_t(n)};
-    std::sort(keyed.begin(), keyed.end());
-    pos_.resize(count * 3);
-    vel_.resize(count * 3);
-    trail_.resize(count);
-#pragma omp parallel for schedule(static)
-    for (size_t n = 0; n < count; ++n) {
-      for (int d = 0; d < 3; ++d) {
-        pos_[3 * n + d] = x[3 * size_t(keyed[n].second) + d];
-        vel_[3 * n + d] = v[3 * size_t(keyed[n].second) + d];
-      }
-      trail_[n] = isTrail[keyed[n].second];
-    }
-    for (size_t n = 0; n < count; ++n)
-      if (n == 0 || keyed[n].first != keyed[n - 1].first) {
-        cells_.insert(keyed[n].first, uint32_t(starts_.size()));
-        starts_.push_back(uint32_t(n));
-      }
-    starts_.push_back(uint32_t(count));
-  }
-  size_t particles() const { return particles_; }
-  size_t size() const { return pos_.size() / 3; }  // particles and trail samples
-  int64_t cellOf(double x) const { return int64_t(std::floor(x * inv_)); }
-  const float* pos(size_t n) const { return &pos_[3 * n]; }
-  const float* vel(size_t n) const { return &vel_[3 * n]; }
-  bool trail(size_t n) const { return trail_[n] != 0; }
-  // Calls f(n) for the particles of every cell overlapping [lo, hi].
-  template <class F>
-  void forRange(const double lo[3], const double hi[3], F&& f) const {
-    int64_t a[3], b[3];
-    for (int d = 0; d < 3; ++d) a[d] = cellOf(lo[d]), b[d] = cellOf(hi[d]);
-    for (int64_t i = a[0]; i <= b[0]; ++i)
-      for (int64_t j = a[1]; j <= b[1]; ++j)
-        for (int64_t k = a[2]; k <= b[2]; ++k) {
-          const uint32_t c = cells_.find(key(i, j, k));
-          if (c == KeyMap::kMissing) continue;
-          for (uint32_t n = starts_[c]; n < starts_[c + 1]; ++n) f(n);
-        }
-  }
-
- private:
-  double inv_;
-  size_t particles_ = 0;
-  std::vector<float> pos_, vel_;
-  std::vector<uint8_t> trail_;  // a trail's sample, not a particle
-  std::vector<uint32_t> starts_;  // each cell's first particle, then the end
-  KeyMap cells_;                  // cell → its index in starts_
-};
-
-// The particles within the kernel radius of a block, in voxels from the
-// block's first voxel (small numbers: the sums keep their digits in float).
-struct Points {
-  std::vector<float> x, y, z, vx, vy, vz;
-  size_t size() const { return x.size(); }
-  void clear() { x.clear(), y.clear(), z.clear(), vx.clear(), vy.clear(), vz.clear(); }
-};
-struct Gathered {
-  Points real, trail;  // the particles, and their trails' samples
-  size_t size() const { return real.size() + trail.size(); }
-  void from(const Buckets& b, const double origin[3], double voxel, double R) {
-    real.clear(), trail.clear();
-    const double side = (kBlock - 1) * voxel;
-    const double lo[3] = {origin[0] - R, origin[1] - R, origin[2] - R};
-    const double hi[3] = {origin[0] + side + R, origin[1] + side + R, origin[2] + side + R};
-    const double inv = 1.0 / voxel;
-    b.forRange(lo, hi, [&](size_t n) {
-      const float* p = b.pos(n);
-      if (p[0] < lo[0] || p[0] > hi[0] || p[1] < lo[1] || p[1] > hi[1] || p[2] < lo[2] || p[2] > hi[2]) return;
-      Points& to = b.trail(n) ? trail : real;
-      to.x.push_back(float((p[0] - origin[0]) * inv)), to.y.push_back(float((p[1] - origin[1]) * inv));
-      to.z.push_back(float((p[2] - origin[2]) * inv));
-      const float* u = b.vel(n);
-      to.vx.push_back(u[0]), to.vy.push_back(u[1]), to.vz.push_back(u[2]);
-    });
-  }
-};
-
-// [ZB05]'s kernel k(s) = max(0, 1 - s²)³ at s² = d² · inv (inv = 1 / R²).
-inline float kernelWeight(float d2, float inv) {
-  float t = 1.0f - d2 * inv;
-  t = t > 0.0f ? t : 0.0f;
-  return t * t * t;
-}
-
 // [ZB05] Sec. 6: phi(x) = |x - x̄| - r̄, x̄ the mean of the particles within
 // R weighted by k(s), s = |x - x_i| / R. At one point (u in voxels from the
 // block's first voxel); +inf where no particle is within R.
-float phiAt(const Gathered& g, const float u[3], float rv, float rs, bool planar) {
+float phiAt(const Gathered& g, const float u[3], float rv, float rs) {
   const float inv = 1.0f / (rv * rv);
   float sum[2][4] = {};  // w, w dx, w dy, w dz: of the particles, of the trails
   for (int which = 0; which < 2; ++which) {
     const Points& points = which ? g.trail : g.real;
     float* a = sum[which];
     for (size_t n = 0; n < points.size(); ++n) {
-      const float dx = points.x[n] - u[0], dy = points.y[n] - u[1], dz = planar ? 0.0f : points.z[n] - u[2];
+      const float dx = points.x[n] - u[0], dy = points.y[n] - u[1], dz = points.z[n] - u[2];
       const float k = kernelWeight(dx * dx + dy * dy + dz * dz, inv);
       a[0] += k, a[1] += k * dx, a[2] += k * dy, a[3] += k * dz;
     }
   }
   const auto distance = [&](float w, float sx, float sy, float sz) {
     if (!(w > 0)) return std::numeric_limits<float>::infinity();
-    const float mz = planar ? 0.0f : sz / w;  // planar: u lies in the particles' plane
-    return std::sqrt((sx / w) * (sx / w) + (sy / w) * (sy / w) + mz * mz) - rs;
+    return std::sqrt((sx / w) * (sx / w) + (sy / w) * (sy / w) + (sz / w) * (sz / w)) - rs;
   };
   const float liquid = distance(sum[0][0], sum[0][1], sum[0][2], sum[0][3]);
   if (g.trail.size() == 0) return liquid;
@@ -280,48 +164,22 @@ void sumBlock(const Points& g, float rv, Sums& s) {
   }
 }
 
-// The same in the plane z = 0 of a 2D liquid: one sum per column (i, j).
-void sumColumns(const Points& g, float rv, Sums& s) {
-  std::memset(s.w, 0, sizeof s.w), std::memset(s.x, 0, sizeof s.x), std::memset(s.y, 0, sizeof s.y);
-  std::memset(s.vx, 0, sizeof s.vx), std::memset(s.vy, 0, sizeof s.vy);
-  const float rv2 = rv * rv, inv = 1.0f / rv2;
-  for (size_t n = 0; n < g.size(); ++n) {
-    const float ux = g.x[n], uy = g.y[n], ax = g.vx[n], ay = g.vy[n];
-    const int i0 = std::max(0, int(std::ceil(ux - rv))), i1 = std::min(kBlock - 1, int(std::floor(ux + rv)));
-    for (int i = i0; i <= i1; ++i) {
-      const float dx = float(i) - ux, dx2 = dx * dx;
-      if (dx2 >= rv2) continue;
-      float* __restrict w = s.w + 8 * i;
-      float* __restrict x = s.x + 8 * i;
-      float* __restrict y = s.y + 8 * i;
-      float* __restrict vx = s.vx + 8 * i;
-      float* __restrict vy = s.vy + 8 * i;
-#pragma omp simd
-      for (int j = 0; j < kBlock; ++j) {
-        const float dy = float(j) - uy;
-        const float c = kernelWeight(dx2 + dy * dy, inv);
-        w[j] += c, x[j] += c * ux, y[j] += c * uy, vx[j] += c * ax, vy[j] += c * ay;
-      }
-    }
-  }
-}
-
 enum Kind : uint8_t { Outside, Inside, Crossed };
 
 // One block's field clamped to [-band, band] and its mean velocity, and
 // what the block is: crossed when some voxel is inside the band or the
 // sign changes.
-Kind fieldOfBlock(const Sums& s, const Sums* trail, bool planar, int zOrigin, float voxel, float rs, float band,
+Kind fieldOfBlock(const Sums& s, const Sums* trail, float voxel, float rs, float band,
                   float* phi, float* vel) {
   const auto distance = [&](float w, float x, float y, float z, int i, int j, int k) {
     const float iw = 1.0f / w;
     const float mx = x * iw - float(i), my = y * iw - float(j);
-    const float mz = planar ? -float(zOrigin + k) : z * iw - float(k);
+    const float mz = z * iw - float(k);
     return voxel * std::sqrt(mx * mx + my * my + mz * mz) - rs;
   };
   bool in = false, out = false, near = false;
   for (int n = 0; n < kVoxels; ++n) {
-    const int i = n >> 6, j = (n >> 3) & 7, k = n & 7, c = planar ? (n >> 3) : n;
+    const int i = n >> 6, j = (n >> 3) & 7, k = n & 7, c = n;
     float p = band, w = s.w[c];
     vel[3 * n] = vel[3 * n + 1] = vel[3 * n + 2] = 0.0f;
     if (w > 0) p = distance(w, s.x[c], s.y[c], s.z[c], i, j, k);
@@ -333,7 +191,7 @@ Kind fieldOfBlock(const Sums& s, const Sums* trail, bool planar, int zOrigin, fl
       w += t.w[c], vx += t.vx[c], vy += t.vy[c], vz += t.vz[c];
       p = std::min(p, distance(w, s.x[c] + t.x[c], s.y[c] + t.y[c], s.z[c] + t.z[c], i, j, k));
     }
-    if (w > 0) vel[3 * n] = vx / w, vel[3 * n + 1] = vy / w, vel[3 * n + 2] = planar ? 0.0f : vz / w;
+    if (w > 0) vel[3 * n] = vx / w, vel[3 * n + 1] = vy / w, vel[3 * n + 2] = vz / w;
     p = std::min(band, std::max(-band, p));
     phi[n] = p;
     in |= p <= -band, out |= p >= band, near |= std::abs(p) < band;
@@ -395,10 +253,7 @@ double msSince(std::chrono::steady_clock::time_point t) {
 }  // namespace
 
 Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, const SurfaceSettings& s,
-                           bool withMesh, int dimension) {
-  // A 2D scene's particles lie in the plane z = 0: the field is evaluated
-  // there once per column and extruded into a slab.
-  const bool planar = dimension == 2;
+                           bool withMesh, int dimension, bool withGrids) {
   initialiseOpenVdb();
   const auto t0 = std::chrono::steady_clock::now();
   if (!(particleRadius > 0) || !std::isfinite(particleRadius))
@@ -413,6 +268,11 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   Surface out;
   out.particles = buckets.particles();
   if (buckets.size() == 0) return out;
+  if (dimension == 2) {  // the particles lie in the plane z = 0 (surface/planar_surface.h)
+    reconstructPlanar(buckets, particleRadius, s, withMesh, withGrids, out);
+    out.ms = msSince(t0);
+    return out;
+  }
 
   // Narrow band: 3 voxels each side, no deeper than the inside's depth (the
   // field's floor), and never under 1.5 voxels (meshing needs neighbours).
@@ -502,27 +362,23 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
       const double origin[3] = {o.x() * voxel, o.y() * voxel, o.z() * voxel};
       g.from(buckets, origin, voxel, R);
       if (g.size() == 0) continue;
-      const float mid[3] = {0.5f * (kBlock - 1), 0.5f * (kBlock - 1), planar ? float(-o.z()) : 0.5f * (kBlock - 1)};
-      const float phiMid = phiAt(g, mid, rv, rsv, planar);
+      const float mid[3] = {0.5f * (kBlock - 1), 0.5f * (kBlock - 1), 0.5f * (kBlock - 1)};
+      const float phiMid = phiAt(g, mid, rv, rsv);
       if (phiMid > halfDiagonal + bandv) continue;
       bool deep = phiMid < -0.5f * rsv;
       for (int corner = 0; corner < 8 && deep; ++corner) {
         const float u[3] = {corner & 1 ? kBlock - 1.0f : 0.0f, corner & 2 ? kBlock - 1.0f : 0.0f,
-                            planar ? float(-o.z()) : corner & 4 ? kBlock - 1.0f : 0.0f};
-        deep = phiAt(g, u, rv, rsv, planar) < -0.5f * rsv;
+                            corner & 4 ? kBlock - 1.0f : 0.0f};
+        deep = phiAt(g, u, rv, rsv) < -0.5f * rsv;
       }
-      if (deep && !planar) {
+      if (deep) {
         kinds[c] = Inside;
         continue;
       }
-      const auto sum = [&](const Points& points, Sums& into) {
-        if (planar) sumColumns(points, rv, into);
-        else sumBlock(points, rv, into);
-      };
-      sum(g.real, *sums);
+      sumBlock(g.real, rv, *sums);
       const bool trails = g.trail.size() > 0;
-      if (trails) sum(g.trail, *trailSums);
-      const Kind kind = fieldOfBlock(*sums, trails ? trailSums.get() : nullptr, planar, o.z(), float(voxel),
+      if (trails) sumBlock(g.trail, rv, *trailSums);
+      const Kind kind = fieldOfBlock(*sums, trails ? trailSums.get() : nullptr, float(voxel),
                                      float(rs), band, phi.data(), vel.data());
       kinds[c] = kind;
       if (kind != Crossed) continue;
@@ -594,7 +450,7 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   out.smoothMs = msSince(tSmooth);
 
   // A uniform mesh from the blocks themselves, while they are at hand.
-  const double adaptivity = planar ? s.adaptivity2d : s.adaptivity;
+  const double adaptivity = s.adaptivity;
   const bool uniform = withMesh && adaptivity <= 0;
   auto tMesh = std::chrono::steady_clock::now();
   if (uniform) {
@@ -616,28 +472,31 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
     meshBlocks(blocks, voxel, band, out.mesh);
   }
   out.meshMs = msSince(tMesh);
+  // The grids, unless only a uniform mesh was asked for (a ply, obj or usd export).
   const auto tInsert = std::chrono::steady_clock::now();
-  // The velocity of a voxel outside the band is no one's.
+  if (withGrids || (withMesh && !uniform)) {
+    // The velocity of a voxel outside the band is no one's.
 #pragma omp parallel for schedule(static)
-  for (size_t n = 0; n < crossed.size(); ++n) {
-    VLeafT& vleaf = *velocityLeaves[crossed[n]];
-    openvdb::Vec3s* v = vleaf.buffer().data();
-    for (int i = 0; i < kVoxels; ++i)
-      if (!vleaf.isValueOn(openvdb::Index(i))) v[i] = openvdb::Vec3s(0.0f);
-  }
-  for (size_t c = 0; c < candidates.size(); ++c) {
-    if (kinds[c] == Inside) {
-      const Coord o(int(unkey(candidates[c], 0) * kBlock), int(unkey(candidates[c], 1) * kBlock),
-                    int(unkey(candidates[c], 2) * kBlock));
-      sdf->tree().addTile(1, o, -band, false);
-    } else if (kinds[c] == Crossed) {
-      sdf->tree().addLeaf(leaves[c].release());
-      velocity->tree().addLeaf(velocityLeaves[c].release());
+    for (size_t n = 0; n < crossed.size(); ++n) {
+      VLeafT& vleaf = *velocityLeaves[crossed[n]];
+      openvdb::Vec3s* v = vleaf.buffer().data();
+      for (int i = 0; i < kVoxels; ++i)
+        if (!vleaf.isValueOn(openvdb::Index(i))) v[i] = openvdb::Vec3s(0.0f);
     }
+    for (size_t c = 0; c < candidates.size(); ++c) {
+      if (kinds[c] == Inside) {
+        const Coord o(int(unkey(candidates[c], 0) * kBlock), int(unkey(candidates[c], 1) * kBlock),
+                      int(unkey(candidates[c], 2) * kBlock));
+        sdf->tree().addTile(1, o, -band, false);
+      } else if (kinds[c] == Crossed) {
+        sdf->tree().addLeaf(leaves[c].release());
+        velocity->tree().addLeaf(velocityLeaves[c].release());
+      }
+    }
+    sdf->pruneGrid();
+    velocity->pruneGrid();
+    out.volumes = std::make_shared<SurfaceVolumes>(SurfaceVolumes{sdf, velocity});
   }
-  sdf->pruneGrid();
-  velocity->pruneGrid();
-  out.volumes = std::make_shared<SurfaceVolumes>(SurfaceVolumes{sdf, velocity});
   out.smoothMs += msSince(tInsert);
 
   // An adaptive mesh: OpenVDB's volume-to-mesh.

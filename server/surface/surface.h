@@ -27,7 +27,7 @@ struct SurfaceSettings {
   int smoothing = 1;           // box-filter passes
   double trail = 0;            // s: velocity trails, the path of the last `trail` seconds
   double adaptivity = 0;       // 0: uniform marching cubes; above: OpenVDB's adaptive volume-to-mesh
-  double adaptivity2d = 0.1;   // the same for a 2D liquid's slab
+  double thickness2d = 2.3;    // × r: a 2D liquid's slab; 0: its flat area
 };
 const ParamTable<SurfaceSettings>& surfaceSettingsTable();
 const ParamSpecs& surfaceSettingsSpecs();
@@ -61,17 +61,22 @@ struct SurfaceVolumes;  // the level set and velocity grids (surface/volumes.h)
 struct Surface {
   std::shared_ptr<SurfaceVolumes> volumes;  // null when the frame has no liquid
   SurfaceMesh mesh;
+  // A 2D liquid's outline in the plane z = 0 (m): closed loops with the
+  // liquid on their left, counter-clockwise around it, clockwise around a hole.
+  std::vector<std::vector<std::array<float, 2>>> outline;
   size_t particles = 0;  // how many particles formed it
   double ms = 0;         // wall time of the reconstruction, and of its stages:
   double classifyMs = 0, fillMs = 0, smoothMs = 0, meshMs = 0;
 };
 
 // The surface of the frame's liquid and temporary particles of radius
-// `particleRadius` (m). `withMesh` false: only the grids. `dimension` 2: the
-// particles lie at z = 0 and the surface is a slab 2 × surface_radius thick
-// (rounded at its edges), for DCCs that have no 2D liquids. Throws
-// std::invalid_argument for a radius that is not positive.
+// `particleRadius` (m). `withMesh` false: no mesh; `withGrids` false: no
+// grids (a uniform 3D mesh is made without them). `dimension` 2: the
+// particles lie at z = 0; the outline and a flat area mesh are made in the
+// plane, the mesh is that area as a slab `thickness_2d` thick (or flat),
+// the grids the same prism. Throws std::invalid_argument for a radius that
+// is not positive.
 Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, const SurfaceSettings& settings,
-                           bool withMesh = true, int dimension = 3);
+                           bool withMesh = true, int dimension = 3, bool withGrids = true);
 
 }  // namespace fc

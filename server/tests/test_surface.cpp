@@ -48,7 +48,7 @@ bool closedAndOriented(const SurfaceMesh& m) {
 // The default settings with one mesher: adaptivity 0 is our marching cubes.
 SurfaceSettings meshedWith(double adaptivity) {
   SurfaceSettings s = surfaceSettingsTable().defaults();
-  s.adaptivity = s.adaptivity2d = adaptivity;
+  s.adaptivity = adaptivity;
   return s;
 }
 constexpr double kMeshers[] = {0.0, 0.1};
@@ -207,35 +207,6 @@ ParticleFrame splash(double r, unsigned seed) {
     for (int p = 0; p < n; ++p) add(cx + 2.1 * r * (p % 3), cy + 2.1 * r * ((p / 3) % 3), cz + 2.1 * r * (p / 9));
   }
   return f;
-}
-
-TEST(Surface, A2DLiquidIsAClosedSlab) {
-  // A 2D block in the plane z = 0: a slab 2 surface_radius thick, rounded at its edges.
-  const double r = 0.01;
-  ParticleFrame f = lattice(30, 12, 1, r);
-  for (size_t i = 0; i < f.count(); ++i) f.velocity[3 * i + 2] = 0;
-  for (const double adaptivity : kMeshers) {
-    SCOPED_TRACE("adaptivity " + std::to_string(adaptivity));
-    const SurfaceSettings settings = meshedWith(adaptivity);
-    const Surface s = reconstructSurface(f, r, settings, true, 2);
-    EXPECT_TRUE(closedAndOriented(s.mesh));
-    // Area (N (2r)²) × thickness, less the rounding of its rim.
-    const double slab = double(f.count()) * 4 * r * r * 2 * settings.surfaceRadius * r;
-    const double v = enclosedVolume(s.mesh);
-    std::printf("2D slab: %zu triangles, volume %.4g of %.4g\n", s.mesh.triangles.size(), v, slab);
-    EXPECT_GT(v, 0.85 * slab);
-    EXPECT_LT(v, 1.05 * slab);
-    double zmax = 0;
-    for (const auto& p : s.mesh.points) zmax = std::max(zmax, std::abs(double(p[2])));
-    EXPECT_NEAR(zmax, settings.surfaceRadius * r, 0.5 * settings.voxelSize * r);
-    for (const auto& u : s.mesh.velocities) ASSERT_EQ(u[2], 0.0f);
-  }
-  // By default a slab's flat faces are meshed adaptively (adaptivity_2d), a 3D liquid uniformly.
-  const SurfaceSettings defaults = surfaceSettingsTable().defaults();
-  const size_t byDefault = reconstructSurface(f, r, defaults, true, 2).mesh.triangles.size();
-  EXPECT_LT(3 * byDefault, reconstructSurface(f, r, meshedWith(0), true, 2).mesh.triangles.size());
-  EXPECT_EQ(reconstructSurface(f, r, defaults, true, 3).mesh.triangles.size(),
-            reconstructSurface(f, r, meshedWith(0), true, 3).mesh.triangles.size());
 }
 
 TEST(Surface, VelocityTrailsStretchTheLiquidBehindItsMotion) {
