@@ -96,50 +96,70 @@ const CubeTable& cubeTable() {
 
 int neighbourOf(int di, int dj, int dk) { return (di + 1) * 9 + (dj + 1) * 3 + (dk + 1); }
 int blockOffset(int local) { return local < 0 ? -1 : local >= kB ? 1 : 0; }
+int padded(int i, int j, int k) { return ((i + 1) * 10 + (j + 1)) * 10 + (k + 1); }
+constexpr int kPadded = 1000;  // [-1, 8]³
 
-// A block's view of the voxels around it, local coordinates in [-1, 8].
+// A block's view of the voxels around it, local coordinates in [-1, 8]:
+// each neighbour's values (or the constant it holds) and velocities.
 struct Around {
-  const std::vector<MeshBlock>& blocks;
-  const MeshBlock& b;
-  float value(int i, int j, int k) const {
-    const int di = blockOffset(i), dj = blockOffset(j), dk = blockOffset(k), n = neighbourOf(di, dj, dk);
-    const int32_t other = b.neighbour[n];
-    if (other < 0) return b.constant[n];
-    return blocks[size_t(other)].phi[((i - di * kB) << 6) | ((j - dj * kB) << 3) | (k - dk * kB)];
+  const float* phi[27];
+  const float* velocity[27];
+  float constant[27];
+  bool crossed[27];
+  Around(const std::vector<MeshBlock>& blocks, const MeshBlock& b) {
+    for (int n = 0; n < 27; ++n) {
+      const int32_t other = b.neighbour[n];
+      crossed[n] = other >= 0;
+      phi[n] = other >= 0 ? blocks[size_t(other)].phi : nullptr;
+      velocity[n] = other >= 0 ? blocks[size_t(other)].velocity : nullptr;
+      constant[n] = b.constant[n];
+    }
   }
-  const float* velocity(int i, int j, int k) const {
+  static int local(int i, int d) { return i - d * kB; }
+  const float* velocityAt(int i, int j, int k) const {
     const int di = blockOffset(i), dj = blockOffset(j), dk = blockOffset(k);
-    const int32_t other = b.neighbour[neighbourOf(di, dj, dk)];
-    if (other < 0) return nullptr;
-    return blocks[size_t(other)].velocity + 3 * (((i - di * kB) << 6) | ((j - dj * kB) << 3) | (k - dk * kB));
+    const float* v = velocity[neighbourOf(di, dj, dk)];
+    return v ? v + 3 * ((local(i, di) << 6) | (local(j, dj) << 3) | local(k, dk)) : nullptr;
   }
-  bool crossed(int di, int dj, int dk) const { return b.neighbour[neighbourOf(di, dj, dk)] >= 0; }
-  // Every value in [-1, 8]³, at padded(i, j, k).
+  // Every value in [-1, 8]³, at padded(i, j, k): a row along k at a time.
   void pad(float* out) const {
     for (int i = -1; i <= kB; ++i)
       for (int j = -1; j <= kB; ++j) {
-        float* row = out + padded(i, j, -1);
-        if (i >= 0 && i < kB && j >= 0 && j < kB) {
-          row[0] = value(i, j, -1);
-          std::copy_n(b.phi + ((i << 6) | (j << 3)), kB, row + 1);
-          row[kB + 1] = value(i, j, kB);
-        } else {
-          for (int k = -1; k <= kB; ++k) row[k + 1] = value(i, j, k);
-        }
+        const int di = blockOffset(i), dj = blockOffset(j);
+        const int li = local(i, di), lj = local(j, dj), row = (li << 6) | (lj << 3);
+        float* o = out + padded(i, j, -1);
+        const int below = neighbourOf(di, dj, -1), middle = neighbourOf(di, dj, 0), above = neighbourOf(di, dj, 1);
+        o[0] = phi[below] ? phi[below][row + kB - 1] : constant[below];
+        if (phi[middle]) std::copy_n(phi[middle] + row, kB, o + 1);
+        else std::fill_n(o + 1, kB, constant[middle]);
+        o[kB + 1] = phi[above] ? phi[above][row] : constant[above];
       }
   }
-  static int padded(int i, int j, int k) { return ((i + 1) * 10 + (j + 1)) * 10 + (k + 1); }
 };
 
-// The vertices a block owns: one per crossing grid edge whose lower voxel is
-// in the block, and per crossing edge whose lower voxel is in a neighbour
-// without values (an orphan). Local lower voxel in [-1, 7] per axis.
-struct EdgeTable {
-  std::vector<int32_t> vertex;  // 3 axes × 9³, -1: no vertex
-  int32_t& at(int axis, int i, int j, int k) { return vertex[size_t(((axis * 9 + i + 1) * 9 + j + 1) * 9 + k + 1)]; }
-  int32_t at(int axis, int i, int j, int k) const {
-    return vertex[size_t(((axis * 9 + i + 1) * 9 + j + 1) * 9 + k + 1)];
+// The crossing grid edges a block owns, as a bit set over (axis, lower
+// voxel in [-1, 7]³) whose rank is the vertex's index in the block.
+struct EdgeBits {
+  static constexpr int kBits = 3 * 729, kWords = (kBits + 63) / 64;
+  uint64_t bits[kWords] = {};
+  uint16_t before[kWords] = {};  // set bits in the words before
+  static int index(int axis, int i, int j, int k) { return ((axis * 9 + i + 1) * 9 + j + 1) * 9 + k + 1; }
+  void set(int b) { bits[b >> 6] |= uint64_t(1) << (b & 63); }
+  void rank() {
+    uint16_t n = 0;
+    for (int w = 0; w < kWords; ++w) before[w] = n, n = uint16_t(n + __builtin_popcountll(bits[w]));
   }
+  int32_t vertex(int b) const {
+    const uint64_t word = bits[b >> 6], bit = uint64_t(1) << (b & 63);
+    if (!(word & bit)) return -1;
+    return int32_t(before[b >> 6]) + __builtin_popcountll(word & (bit - 1));
+  }
+};
+
+// One block's inside bits over [-1, 8]³ (1: phi < 0) and the edges it owns.
+struct BlockState {
+  uint8_t inside[kPadded];
+  EdgeBits edges;
 };
 
 }  // namespace
@@ -147,48 +167,61 @@ struct EdgeTable {
 void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, SurfaceMesh& mesh) {
   const CubeTable& table = cubeTable();
   const size_t nb = blocks.size();
-  std::vector<EdgeTable> edges(nb);
+  std::vector<BlockState> state(nb);
   std::vector<std::vector<std::array<float, 6>>> vertices(nb);  // position (voxels), velocity
-  const int unit[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+  constexpr int stride[3] = {100, 10, 1};
 
   ParallelFailure failure;  // an exception in the OpenMP regions, rethrown after them
 
-  // The crossing edges each block owns, and their vertices.
+  // The crossing edges each block owns: those whose lower voxel is in it,
+  // and the orphans whose lower voxel is in a neighbour without values
+  // (along that axis only). Their vertices, in the order of their bits.
 #pragma omp parallel for schedule(dynamic, 16)
   for (size_t n = 0; n < nb; ++n) try {
-    const Around around{blocks, blocks[n]};
-    float P[1000];
+    const Around around(blocks, blocks[n]);
+    float P[kPadded];
     around.pad(P);
-    EdgeTable& owned = edges[n];
-    owned.vertex.assign(3 * 9 * 9 * 9, -1);
+    BlockState& st = state[n];
+    for (int p = 0; p < kPadded; ++p) st.inside[p] = P[p] < 0;
+    const uint8_t* S = st.inside;
     auto& verts = vertices[n];
-    verts.reserve(256);
-    for (int axis = 0; axis < 3; ++axis)
-      for (int i = -1; i < kB; ++i)
-        for (int j = -1; j < kB; ++j)
-          for (int k = -1; k < kB; ++k) {
-            const int u[3] = {i + unit[axis][0], j + unit[axis][1], k + unit[axis][2]};
-            const float a = P[Around::padded(i, j, k)], b = P[Around::padded(u[0], u[1], u[2])];
-            if ((a < 0) == (b < 0)) continue;
-            const int lower[3] = {i, j, k};
-            bool own = true;
-            for (int d = 0; d < 3 && own; ++d)
-              if (lower[d] < 0)  // an orphan: along this axis only, from a neighbour without values
-                own = d == axis && !around.crossed(-unit[d][0], -unit[d][1], -unit[d][2]);
-            if (!own) continue;
-            const float t = std::clamp(a / (a - b), 0.0f, 1.0f);
-            std::array<float, 6> v{float(i), float(j), float(k), 0, 0, 0};
-            v[size_t(axis)] += t;
-            // A voxel outside the band may have no particle near it: its velocity is no one's.
-            const float* va = around.velocity(i, j, k);
-            const float* vb = around.velocity(u[0], u[1], u[2]);
-            if (va && vb && std::abs(a) >= band) va = nullptr;
-            else if (va && vb && std::abs(b) >= band) vb = nullptr;
-            for (int d = 0; d < 3; ++d)
-              v[size_t(3 + d)] = va && vb ? va[d] + t * (vb[d] - va[d]) : va ? va[d] : vb ? vb[d] : 0.0f;
-            owned.at(axis, i, j, k) = int32_t(verts.size());
-            verts.push_back(v);
+    verts.reserve(128);
+    for (int axis = 0; axis < 3; ++axis) {
+      const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+      int dir[3] = {0, 0, 0};
+      dir[axis] = -1;
+      const bool orphans = !around.crossed[neighbourOf(dir[0], dir[1], dir[2])];
+      for (int a = 0; a < kB; ++a)
+        for (int b = 0; b < kB; ++b)
+          for (int c = orphans ? -1 : 0; c < kB; ++c) {
+            int x[3];
+            x[axis] = c, x[u] = a, x[v] = b;
+            const int lo = padded(x[0], x[1], x[2]);
+            if (S[lo] == S[lo + stride[axis]]) continue;
+            st.edges.set(EdgeBits::index(axis, x[0], x[1], x[2]));
           }
+    }
+    st.edges.rank();
+    // The vertices, in bit order: the rank is the index.
+    for (int w = 0; w < EdgeBits::kWords; ++w)
+      for (uint64_t word = st.edges.bits[w]; word; word &= word - 1) {
+        const int bit = w * 64 + __builtin_ctzll(word);
+        const int axis = bit / 729, rest = bit % 729;
+        const int i = rest / 81 - 1, j = (rest / 9) % 9 - 1, k = rest % 9 - 1;
+        const int ui = i + (axis == 0), uj = j + (axis == 1), uk = k + (axis == 2);
+        const float a = P[padded(i, j, k)], b = P[padded(ui, uj, uk)];
+        const float t = std::clamp(a / (a - b), 0.0f, 1.0f);
+        std::array<float, 6> vx{float(i), float(j), float(k), 0, 0, 0};
+        vx[size_t(axis)] += t;
+        // A voxel outside the band may have no particle near it: its velocity is no one's.
+        const float* va = around.velocityAt(i, j, k);
+        const float* vb = around.velocityAt(ui, uj, uk);
+        if (va && vb && std::abs(a) >= band) va = nullptr;
+        else if (va && vb && std::abs(b) >= band) vb = nullptr;
+        for (int d = 0; d < 3; ++d)
+          vx[size_t(3 + d)] = va && vb ? va[d] + t * (vb[d] - va[d]) : va ? va[d] : vb ? vb[d] : 0.0f;
+        verts.push_back(vx);
+      }
   } catch (...) {
     failure.keep();
   }
@@ -198,7 +231,7 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
   mesh.points.resize(first[nb]);
   mesh.velocities.resize(first[nb]);
 #pragma omp parallel for schedule(static)
-  for (size_t n = 0; n < nb; ++n)
+  for (size_t n = 0; n < nb; ++n) {
     for (size_t v = 0; v < vertices[n].size(); ++v) {
       const auto& p = vertices[n][v];
       const int64_t* o = blocks[n].block;
@@ -206,55 +239,64 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
                                    float((double(o[2] * kB) + p[2]) * voxel)};
       mesh.velocities[first[n] + v] = {p[3], p[4], p[5]};
     }
+    std::vector<std::array<float, 6>>().swap(vertices[n]);
+  }
 
   // The cells each block owns: those whose first corner in a block with
   // values (corner 0 first) is in it.
   std::vector<std::vector<std::array<uint32_t, 3>>> triangles(nb);
+  const int unit[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
 #pragma omp parallel for schedule(dynamic, 16)
   for (size_t n = 0; n < nb; ++n) try {
-    const Around around{blocks, blocks[n]};
-    float P[1000];
-    around.pad(P);
+    const MeshBlock& b = blocks[n];
+    const uint8_t* S = state[n].inside;
     auto& tris = triangles[n];
-    tris.reserve(2 * vertices[n].size() + 16);
+    tris.reserve(2 * (first[n + 1] - first[n]) + 16);
     // The global index of the vertex on the edge from local voxel (i, j, k) along axis.
     const auto vertexOf = [&](int i, int j, int k, int axis) -> int64_t {
       int di = blockOffset(i), dj = blockOffset(j), dk = blockOffset(k);
-      int32_t owner = di || dj || dk ? blocks[n].neighbour[neighbourOf(di, dj, dk)] : int32_t(n);
+      int32_t owner = di || dj || dk ? b.neighbour[neighbourOf(di, dj, dk)] : int32_t(n);
       if (owner < 0) {  // the lower voxel's block has no values: an orphan of the upper voxel's block
         const int u[3] = {i + unit[axis][0], j + unit[axis][1], k + unit[axis][2]};
         di = blockOffset(u[0]), dj = blockOffset(u[1]), dk = blockOffset(u[2]);
-        owner = di || dj || dk ? blocks[n].neighbour[neighbourOf(di, dj, dk)] : int32_t(n);
+        owner = di || dj || dk ? b.neighbour[neighbourOf(di, dj, dk)] : int32_t(n);
         if (owner < 0) return -1;
         i = u[0] - di * kB - unit[axis][0], j = u[1] - dj * kB - unit[axis][1], k = u[2] - dk * kB - unit[axis][2];
       } else {
         i -= di * kB, j -= dj * kB, k -= dk * kB;
       }
-      const int32_t v = edges[size_t(owner)].at(axis, i, j, k);
+      const int32_t v = state[size_t(owner)].edges.vertex(EdgeBits::index(axis, i, j, k));
       return v < 0 ? -1 : int64_t(first[size_t(owner)]) + v;
     };
     for (int i = -1; i < kB; ++i)
-      for (int j = -1; j < kB; ++j)
+      for (int j = -1; j < kB; ++j) {
+        // The row's configurations, one cell per k.
+        const uint8_t* s00 = S + padded(i, j, -1);
+        const uint8_t* s10 = s00 + 100;
+        const uint8_t* s01 = s00 + 10;
+        const uint8_t* s11 = s00 + 110;
+        uint8_t config[kB + 1];
+        for (int k = 0; k <= kB; ++k)
+          config[k] = uint8_t(s00[k] | s10[k] << 1 | s01[k] << 2 | s11[k] << 3 | s00[k + 1] << 4 | s10[k + 1] << 5 |
+                              s01[k + 1] << 6 | s11[k + 1] << 7);
         for (int k = -1; k < kB; ++k) {
-          int config = 0;
-          const int base = Around::padded(i, j, k);
-          for (int c = 0; c < 8; ++c) config |= (P[base + (c & 1) * 100 + ((c >> 1) & 1) * 10 + ((c >> 2) & 1)] < 0) << c;
-          if (config == 0 || config == 255) continue;
+          const int c = config[k + 1];
+          if (c == 0 || c == 255) continue;
           if (i < 0 || j < 0 || k < 0) {
             // The first corner, in corner order, whose block has values owns the cell.
             bool mine = false;
-            for (int c = 0; c < 8; ++c) {
-              const int di = blockOffset(i + (c & 1)), dj = blockOffset(j + ((c >> 1) & 1)),
-                        dk = blockOffset(k + ((c >> 2) & 1));
+            for (int corner = 0; corner < 8; ++corner) {
+              const int di = blockOffset(i + (corner & 1)), dj = blockOffset(j + ((corner >> 1) & 1)),
+                        dk = blockOffset(k + ((corner >> 2) & 1));
               if (!di && !dj && !dk) {
                 mine = true;
                 break;
               }
-              if (around.crossed(di, dj, dk)) break;
+              if (b.neighbour[neighbourOf(di, dj, dk)] >= 0) break;
             }
             if (!mine) continue;
           }
-          const std::vector<uint8_t>& cases = table.tri[config];
+          const std::vector<uint8_t>& cases = table.tri[c];
           for (size_t t = 0; t < cases.size(); t += 3) {
             std::array<uint32_t, 3> tri{};
             bool whole = true;
@@ -267,6 +309,7 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
             if (whole) tris.push_back(tri);
           }
         }
+      }
   } catch (...) {
     failure.keep();
   }
