@@ -320,14 +320,18 @@ def test_a_killed_export_leaves_complete_frames_and_no_manifest(exported, tmp_pa
     assert not [p.name for p in out.iterdir() if p.name.startswith(".")]
 
 
-def test_a_2d_liquid_outline_in_svg(tmp_path):
+def test_a_2d_liquid_outline_in_svg_and_its_slab_and_area_in_ply(tmp_path):
     """The svg format, read with Python's own XML parser: closed loops around the resting 2D column
-    whose area is its particles' (N (2r)²) within a few percent; a 3D scene's svg is refused."""
+    whose area is its particles' (N (2r)²) within a few percent; the PLY mesh, read with plyfile, is a
+    closed slab thickness_2d thick enclosing that area times the thickness, and at thickness_2d 0 the
+    flat area itself, facing +z; a 3D scene's svg is refused."""
     import xml.etree.ElementTree as ET
 
     scene = ROOT / "scenes" / "hydrostatic2d.json"
     run("run", scene, "--frames", 2, "--quiet", "--export", tmp_path / "column.h5")
-    run("export", tmp_path / "column.h5", "--out", tmp_path / "svg", "--formats", "svg", "--quiet")
+    run("export", tmp_path / "column.h5", "--out", tmp_path / "svg", "--formats", "svg,ply", "--quiet")
+    run("export", tmp_path / "column.h5", "--out", tmp_path / "flat", "--formats", "ply", "--surface",
+        "thickness_2d=0", "--quiet")
     radius = json.loads(scene.read_text())["particle_radius"]
     root = ET.parse(tmp_path / "svg" / "column.0002.svg").getroot()
     assert root.tag == "{http://www.w3.org/2000/svg}svg"
@@ -339,5 +343,15 @@ def test_a_2d_liquid_outline_in_svg(tmp_path):
     area = 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)
     liquid = int(np.sum(frame_rows(tmp_path / "column.h5", 2)["kind"] == 0))
     assert abs(area / (liquid * 4 * radius**2) - 1) < 0.05
+    _, points, faces = read_mesh(tmp_path / "svg" / "column.0002.ply")
+    assert edges_closed(faces)
+    thickness = 2.3 * radius
+    assert np.allclose(np.abs(points[:, 2]), thickness / 2, atol=1e-7)
+    assert abs(enclosed_volume(points, faces) / (area * thickness) - 1) < 1e-4
+    _, points, faces = read_mesh(tmp_path / "flat" / "column.0002.ply")
+    assert np.all(points[:, 2] == 0)
+    a, b, c = points[faces[:, 0]], points[faces[:, 1]], points[faces[:, 2]]
+    facing = 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1]))
+    assert np.all(facing >= -1e-12) and abs(facing.sum() / area - 1) < 1e-4
     proc = run("run", SCENE, "--frames", 1, "--export-surface", tmp_path / "3d", "--formats", "svg", check=False)
     assert proc.returncode == 2 and "svg export: the outline of a 2D liquid" in proc.stderr
