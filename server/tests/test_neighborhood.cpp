@@ -213,6 +213,40 @@ TEST(NeighborhoodSearch, BoxQueryEqualsBruteForceInCellOrder2D) {
 // the build repeated) or shrink, the list still equals brute force, is the
 // same pair for pair on one, two and three threads, and holds no more than
 // its largest list and the regions' margins (no second copy of itself).
+TEST(NeighborhoodSearch, TheSortIntoCellsIsTheSameOnAnyThreadCount) {
+  // Enough points for the counting sort to count and scatter on every thread.
+  const AABB<3> box{Vec<3>::Zero(), Vec<3>::Ones()};
+  const Real r = Real(0.04);
+  const std::vector<Vec<3>> x = randomPoints<3>(90000, box, 5);
+  const int threadsBefore = omp_get_max_threads();
+  std::vector<uint32_t> offsets, indices;
+  for (int threads : {1, 2, 3}) {
+    omp_set_num_threads(threads);
+    NeighborhoodSearch<3> ns;
+    ns.setGrid(box, r);
+    ns.update(x);
+    const NeighborList& l = ns.dynamicNeighbors();
+    const std::vector<uint32_t> o(l.offsets.begin(), l.offsets.begin() + long(x.size()) + 1);
+    const std::vector<uint32_t> i(l.indices.begin(), l.indices.begin() + long(l.pairs()));
+    if (threads == 1) {
+      offsets = o, indices = i;
+      // The one-thread lists are right: brute force on a sample of points.
+      for (size_t p = 0; p < x.size(); p += 997) {
+        std::vector<uint32_t> want, got(l.begin(uint32_t(p)), l.end(uint32_t(p)));
+        for (size_t q = 0; q < x.size(); ++q)
+          if (q != p && (x[p] - x[q]).squaredNorm() <= r * r) want.push_back(uint32_t(q));
+        std::sort(got.begin(), got.end());
+        ASSERT_EQ(got, want) << "point " << p;
+      }
+    } else {
+      // The same lists in the same order: the cells hold their points in the points' order.
+      EXPECT_EQ(o, offsets) << threads << " threads";
+      EXPECT_EQ(i, indices) << threads << " threads";
+    }
+  }
+  omp_set_num_threads(threadsBefore);
+}
+
 TEST(NeighborhoodSearch, InPlaceListsFollowGrowthAndShrinkOnAnyThreadCount) {
   const AABB<3> box{Vec<3>::Zero(), Vec<3>::Ones()};
   const Real r = Real(0.1);
