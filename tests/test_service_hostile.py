@@ -269,10 +269,10 @@ def test_websocket_clients_that_never_read_are_dropped(server, client):
         silent.append(s)
     wait_until(lambda: _open_fds(server.proc.pid) >= before + 30, timeout=60, what="30 stream connections")
     client.play(sid)
-    wait_until(lambda: client.session(sid)["frame"] >= 30, timeout=120, what="frames streamed at the silent clients")
+    wait_until(lambda: client.session(sid)["frame"] >= 30, timeout=600, what="frames streamed at the silent clients")
     client.delete_session(sid)
     # Each connection is closed by the server: the descriptors return to what they were.
-    wait_until(lambda: _open_fds(server.proc.pid) <= before + 2, timeout=90, interval=0.5,
+    wait_until(lambda: _open_fds(server.proc.pid) <= before + 2, timeout=300, interval=0.5,
                what="the silent connections dropped")
     for s in silent:
         s.close()
