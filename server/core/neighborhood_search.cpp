@@ -59,44 +59,13 @@ void NeighborhoodSearch<D>::countingSort(const std::vector<Vec<D>>& x, std::vect
   start.assign(cellCount_ + 1, 0);
 #pragma omp parallel for schedule(static)
   for (size_t i = 0; i < n; ++i) cellOf[i] = uint32_t(linearCell(cellCoord(x[i])));
-  // Each thread counts and scatters a contiguous share of the particles;
-  // within a cell the shares follow each other in thread order, so the
-  // order is the particles' whatever the thread count.
-  const int threads = n >= 65536 && !omp_in_parallel() ? omp_get_max_threads() : 1;
-  if (threads == 1) {
-    for (size_t i = 0; i < n; ++i) ++start[cellOf[i] + 1];
-    std::partial_sum(start.begin(), start.end(), start.begin());
-    for (size_t i = 0; i < n; ++i) sortedIdx[start[cellOf[i]]++] = uint32_t(i);
-    // start[c] now holds the end of cell c: shift back by one cell.
-    for (size_t c = cellCount_; c > 0; --c) start[c] = start[c - 1];
-    start[0] = 0;
-  } else {
-    auto& counts = sortCounts_;
-    counts.resize(size_t(threads));
-#pragma omp parallel num_threads(threads)
-    {
-      const int t = omp_get_thread_num();
-      const size_t begin = n * size_t(t) / size_t(threads), end = n * size_t(t + 1) / size_t(threads);
-      std::vector<uint32_t>& mine = counts[size_t(t)];
-      mine.assign(cellCount_, 0);
-      for (size_t i = begin; i < end; ++i) ++mine[cellOf[i]];
-#pragma omp barrier
-      // Each cell's total, and where each thread's share of it begins (relative).
-#pragma omp for schedule(static)
-      for (size_t c = 0; c < cellCount_; ++c) {
-        uint32_t run = 0;
-        for (int s = 0; s < threads; ++s) {
-          const uint32_t k = counts[size_t(s)][c];
-          counts[size_t(s)][c] = run;
-          run += k;
-        }
-        start[c + 1] = run;
-      }
-#pragma omp single
-      std::partial_sum(start.begin(), start.end(), start.begin());
-      for (size_t i = begin; i < end; ++i) sortedIdx[start[cellOf[i]] + mine[cellOf[i]]++] = uint32_t(i);
-    }
-  }
+  for (size_t i = 0; i < n; ++i) ++start[cellOf[i] + 1];
+  std::partial_sum(start.begin(), start.end(), start.begin());
+  // Scatter in particle order, so the result is deterministic.
+  for (size_t i = 0; i < n; ++i) sortedIdx[start[cellOf[i]]++] = uint32_t(i);
+  // start[c] now holds the end of cell c: shift back by one cell.
+  for (size_t c = cellCount_; c > 0; --c) start[c] = start[c - 1];
+  start[0] = 0;
 #pragma omp parallel for schedule(static)
   for (size_t k = 0; k < n; ++k)
     for (int d = 0; d < D; ++d) sorted[d][k] = x[sortedIdx[k]][d];
@@ -287,7 +256,6 @@ size_t NeighborhoodSearch<D>::memoryBytes() const {
   for (int d = 0; d < D; ++d) b += bytes(dynSorted_[d]) + bytes(staticPos_[d]);
   for (const auto& v : threadBuf_) b += bytes(v);
   for (const auto& v : boxBuf_) b += bytes(v);
-  for (const auto& v : sortCounts_) b += bytes(v);
   return b;
 }
 

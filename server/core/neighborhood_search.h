@@ -167,7 +167,6 @@ class NeighborhoodSearch {
 
   NeighborList dyn_;
   mutable std::vector<std::pair<uint64_t, uint32_t>> mortonKeys_;  // zOrder's scratch
-  mutable std::vector<std::vector<uint32_t>> sortCounts_;         // countingSort's per-thread cell counts
   std::vector<std::vector<uint32_t>> threadBuf_;  // buildLists' per-thread scan of one particle's candidates
   mutable std::vector<std::vector<uint32_t>> boxBuf_;  // dynamicInBox's per-thread rows
   std::vector<size_t> threadCounts_, regionStart_, regionNeed_;

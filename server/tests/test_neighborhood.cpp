@@ -213,8 +213,8 @@ TEST(NeighborhoodSearch, BoxQueryEqualsBruteForceInCellOrder2D) {
 // the build repeated) or shrink, the list still equals brute force, is the
 // same pair for pair on one, two and three threads, and holds no more than
 // its largest list and the regions' margins (no second copy of itself).
-TEST(NeighborhoodSearch, TheSortIntoCellsIsTheSameOnAnyThreadCount) {
-  // Enough points for the counting sort to count and scatter on every thread.
+TEST(NeighborhoodSearch, ManyPointsGetTheSameListsOnAnyThreadCount) {
+  // Enough points for every thread to build lists for many regions.
   const AABB<3> box{Vec<3>::Zero(), Vec<3>::Ones()};
   const Real r = Real(0.04);
   const std::vector<Vec<3>> x = randomPoints<3>(90000, box, 5);
@@ -239,7 +239,7 @@ TEST(NeighborhoodSearch, TheSortIntoCellsIsTheSameOnAnyThreadCount) {
         ASSERT_EQ(got, want) << "point " << p;
       }
     } else {
-      // The same lists in the same order: the cells hold their points in the points' order.
+      // The same lists in the same order.
       EXPECT_EQ(o, offsets) << threads << " threads";
       EXPECT_EQ(i, indices) << threads << " threads";
     }
