@@ -25,26 +25,40 @@ inline uint64_t key(int64_t i, int64_t j, int64_t k) {
 }
 inline int64_t unkey(uint64_t k, int d) { return int64_t((k >> (42 - 21 * d)) & uint64_t(kKeyMask)) - kKeyOffset; }
 
+// How far from the origin (m) a point may lie for its cell (`cell` wide)
+// and its block (`block` wide) to keep a key of their own, with room for
+// the rings around them.
+inline double keyReach(double cell, double block) { return double(int64_t(1) << 19) * std::min(cell, block); }
+
 // The surface particles sorted into cubic cells of the kernel's radius.
 class Buckets {
  public:
   // trail (s): each particle also leaves samples along its last trail
   // seconds of motion, x - v t, at most `spacing` apart (and 16 of them).
-  Buckets(const ParticleFrame& f, double cell, double trail, double spacing) : inv_(1.0 / cell) {
+  // A point farther than `reach` from the origin on an axis is left out,
+  // as a non-finite one is: the grid has no place for it.
+  Buckets(const ParticleFrame& f, double cell, double trail, double spacing, double reach) : inv_(1.0 / cell) {
+    const auto placed = [reach](double a, double b, double c) {
+      return std::abs(a) < reach && std::abs(b) < reach && std::abs(c) < reach;
+    };
     std::vector<float> x, v;  // the particles and their trails' samples
     std::vector<uint8_t> isTrail;
     x.reserve(3 * f.count()), v.reserve(3 * f.count()), isTrail.reserve(f.count());
     for (size_t i = 0; i < f.count(); ++i) {
       const float* p = &f.position[3 * i];
       const float* u = &f.velocity[3 * i];
-      // A non-finite position has no place on the grid.
-      if (!formsSurface(f.kind[i]) || !std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) continue;
+      if (!formsSurface(f.kind[i]) || !placed(p[0], p[1], p[2])) continue;  // NaN fails the test too
       ++particles_;
       const double speed = std::sqrt(double(u[0]) * u[0] + double(u[1]) * u[1] + double(u[2]) * u[2]);
-      const int samples = trail > 0 && std::isfinite(speed) ? std::min(16, int(std::ceil(speed * trail / spacing))) : 0;
+      const int samples =
+          trail > 0 && std::isfinite(speed) ? int(std::min(16.0, std::ceil(speed * trail / spacing))) : 0;
       for (int m = 0; m <= samples; ++m) {
         const double t = samples ? trail * m / samples : 0.0;
-        for (int d = 0; d < 3; ++d) x.push_back(float(p[d] - u[d] * t)), v.push_back(u[d]);
+        double q[3] = {p[0], p[1], p[2]};
+        if (m > 0)
+          for (int d = 0; d < 3; ++d) q[d] -= u[d] * t;
+        if (m > 0 && !placed(q[0], q[1], q[2])) break;
+        for (int d = 0; d < 3; ++d) x.push_back(float(q[d])), v.push_back(std::isfinite(speed) ? u[d] : 0.0f);
         isTrail.push_back(m > 0);
       }
     }

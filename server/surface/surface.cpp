@@ -263,7 +263,7 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   const double R = s.kernelRadius * particleRadius;
   const double rs = s.surfaceRadius * particleRadius;
   const float rv = float(R / voxel);
-  const Buckets buckets(frame, R, s.trail, particleRadius);
+  const Buckets buckets(frame, R, s.trail, particleRadius, keyReach(R, kBlock * voxel));
 
   Surface out;
   out.particles = buckets.particles();

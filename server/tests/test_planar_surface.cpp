@@ -283,5 +283,33 @@ TEST(PlanarSurface, TheMeshDoesNotDependOnTheThreadCount) {
   EXPECT_EQ(one.outline, many.outline);
 }
 
+TEST(PlanarSurface, PointsOffTheGridAreLeftOutAndVelocitiesStayFinite) {
+  // A particle kilometres away, one at NaN, one whose velocity is not finite
+  // or huge: the surface is the one of the others, every velocity finite.
+  const double r = 0.01;
+  const ParticleFrame clean = blockWithHole(20, 12, 0, 0, r);
+  for (const int dim : {2, 3}) {
+    SCOPED_TRACE("dimension " + std::to_string(dim));
+    ParticleFrame f = clean;
+    add(f, 1e30, 0.1);
+    add(f, std::nan(""), 0.1);
+    add(f, 0.1, -3e9);
+    add(f, 0.1, 0.1, std::numeric_limits<float>::infinity(), 0.0f);
+    add(f, 0.12, 0.1, 3e38f, 3e38f);
+    SurfaceSettings settings = surfaceSettingsTable().defaults();
+    settings.trail = 0.01;
+    const Surface s = reconstructSurface(f, r, settings, true, dim);
+    ParticleFrame reference = clean;
+    add(reference, 0.1, 0.1, 0.0f, 0.0f);
+    add(reference, 0.12, 0.1, 0.0f, 0.0f);
+    const Surface want = reconstructSurface(reference, r, settings, true, dim);
+    EXPECT_EQ(s.particles, want.particles);
+    EXPECT_EQ(s.mesh.triangles.size(), want.mesh.triangles.size());
+    EXPECT_NEAR(enclosedVolume(s.mesh), enclosedVolume(want.mesh), 1e-12);
+    for (const auto& v : s.mesh.velocities)
+      ASSERT_TRUE(std::isfinite(v[0]) && std::isfinite(v[1]) && std::isfinite(v[2]));
+  }
+}
+
 }  // namespace
 }  // namespace fc
