@@ -377,6 +377,7 @@ size_t TemplateAccel<D>::templateBytes(const Template<D>& tpl) {
 }
 
 FC_INSTANTIATE_DIMS(TemplateFrameGrids)
-FC_INSTANTIATE_DIMS(TemplateAccel)
+template struct TemplateAccel<2>;
+template struct TemplateAccel<3>;
 
 }  // namespace fc
