@@ -251,11 +251,13 @@ void reconstructPlanar(const Buckets& buckets, double particleRadius, const Surf
   failure.rethrow();
   for (size_t c = 0; c < candidates.size(); ++c)
     if (keep[c]) {
+      if (tiles.keys.size() != c) fields[tiles.keys.size()] = fields[c];
       tiles.index.insert(candidates[c], uint32_t(tiles.keys.size()));
       tiles.keys.push_back(candidates[c]);
-      tiles.field.push_back(fields[c]);
     }
-  std::vector<TileField>().swap(fields);
+  fields.resize(tiles.keys.size());
+  fields.shrink_to_fit();
+  tiles.field = std::move(fields);
   const size_t nt = tiles.keys.size();
   out.fillMs = msSince(tFill);
 
@@ -449,7 +451,9 @@ void reconstructPlanar(const Buckets& buckets, double particleRadius, const Surf
           // Its first node is in another tile: this tile meshes it only when
           // that tile holds no values and this is the first corner's, in the
           // order (0,0), (1,0), (0,1), (1,1), whose tile does.
-          const auto tileOfNode = [&](int i, int j) { return around.tile[i < 0 ? 0 : i < kT ? 1 : 2][j < 0 ? 0 : j < kT ? 1 : 2]; };
+          const auto tileOfNode = [&](int i, int j) {
+            return around.tile[i < 0 ? 0 : i < kT ? 1 : 2][j < 0 ? 0 : j < kT ? 1 : 2];
+          };
           if (tileOfNode(ci, cj) >= 0) continue;
           int32_t owner = -1;
           for (const auto& c : {std::array<int, 2>{1, 0}, {0, 1}, {1, 1}})
