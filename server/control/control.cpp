@@ -803,7 +803,7 @@ void Control<D>::addAccelerations(Simulation<D>& sim) {
 }
 
 template <int D>
-void Control<D>::endFrame(Simulation<D>&, FrameStats& fs) {
+void Control<D>::endFrame(Simulation<D>& sim, FrameStats& fs) {
   fs.instances.resize(instances_.size());
   for (size_t i = 0; i < instances_.size(); ++i) {
     const State& s = state_[i];
@@ -827,7 +827,9 @@ void Control<D>::endFrame(Simulation<D>&, FrameStats& fs) {
   fs.seededParticles = seeded_;
   fs.removedParticles = removed_;
   fs.fadedParticles = faded_;
-  fs.controlMs = controlMs_;
+  // The frame-start neighbour refresh its first substep reused is the
+  // simulation's (FrameStats counts it there).
+  fs.controlMs = std::max(0.0, controlMs_ - sim.reusedRefreshMs());
 }
 
 template <int D>
