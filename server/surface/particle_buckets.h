@@ -16,7 +16,8 @@
 
 namespace fc::surface_detail {
 
-constexpr int kBlock = 8;  // voxels per block side, an OpenVDB leaf's
+constexpr int kBlock = 8;        // voxels per block side, an OpenVDB leaf's
+constexpr double kMaxSpeed = 1e6;  // m/s: a particle faster than this counts as at rest
 
 constexpr int64_t kKeyOffset = int64_t(1) << 20, kKeyMask = (int64_t(1) << 21) - 1;
 inline uint64_t key(int64_t i, int64_t j, int64_t k) {
@@ -49,16 +50,17 @@ class Buckets {
       const float* u = &f.velocity[3 * i];
       if (!formsSurface(f.kind[i]) || !placed(p[0], p[1], p[2])) continue;  // NaN fails the test too
       ++particles_;
+      // A speed no liquid has (or not a number) counts as rest: its sums would overflow.
       const double speed = std::sqrt(double(u[0]) * u[0] + double(u[1]) * u[1] + double(u[2]) * u[2]);
-      const int samples =
-          trail > 0 && std::isfinite(speed) ? int(std::min(16.0, std::ceil(speed * trail / spacing))) : 0;
+      const bool moving = speed < kMaxSpeed;
+      const int samples = trail > 0 && moving ? int(std::min(16.0, std::ceil(speed * trail / spacing))) : 0;
       for (int m = 0; m <= samples; ++m) {
         const double t = samples ? trail * m / samples : 0.0;
         double q[3] = {p[0], p[1], p[2]};
         if (m > 0)
           for (int d = 0; d < 3; ++d) q[d] -= u[d] * t;
         if (m > 0 && !placed(q[0], q[1], q[2])) break;
-        for (int d = 0; d < 3; ++d) x.push_back(float(q[d])), v.push_back(std::isfinite(speed) ? u[d] : 0.0f);
+        for (int d = 0; d < 3; ++d) x.push_back(float(q[d])), v.push_back(moving ? u[d] : 0.0f);
         isTrail.push_back(m > 0);
       }
     }

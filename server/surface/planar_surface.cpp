@@ -183,12 +183,12 @@ void reconstructPlanar(const Buckets& buckets, double particleRadius, const Surf
   const double tileSize = kT * voxel;
   const int ring = int(std::ceil(R / tileSize));
   const auto tileOf = [&](double x) { return int64_t(std::floor(x / tileSize + 0.5 / kT)); };
-  KeyMap candidateIndex(buckets.size() / 8 + 16);
+  KeyMap occupied(buckets.size() / 8 + 16), candidateIndex(buckets.size() / 8 + 16);
   std::vector<uint64_t> candidates;
   for (size_t n = 0; n < buckets.size(); ++n) {
     const float* p = buckets.pos(n);
     const int64_t ti = tileOf(p[0]), tj = tileOf(p[1]);
-    if (candidateIndex.contains(key(ti, tj, 0))) continue;
+    if (!occupied.insert(key(ti, tj, 0), 0).second) continue;  // its ring is in already
     for (int di = -ring; di <= ring; ++di)
       for (int dj = -ring; dj <= ring; ++dj)
         if (candidateIndex.insert(key(ti + di, tj + dj, 0), uint32_t(candidates.size())).second)

@@ -126,6 +126,30 @@ TEST(PlanarSurface, TheOutlineWrapsTheLiquidItsHoleAndALoneParticle) {
   }
 }
 
+TEST(PlanarSurface, LoneParticlesAreWholeCirclesWhereverTheTilesFall) {
+  // Particles 7.5 r apart (beyond each other's kernel), at every offset
+  // across a tile: each outline is a circle of surface_radius around its
+  // particle, none cut where a tile was missed; and the mesh does not depend
+  // on the particles' order.
+  const double r = 0.01;
+  ParticleFrame f;
+  for (int k = 0; k < 24; ++k) add(f, 0.075 * k + 0.0013 * k, 0.3 + 0.0007 * k);
+  const Surface s = reconstructSurface(f, r, withThickness(0), true, 2);
+  ASSERT_EQ(s.outline.size(), f.count());
+  for (const auto& l : s.outline)
+    for (const auto& p : l) {
+      double nearest = 1e30;
+      for (size_t i = 0; i < f.count(); ++i)
+        nearest = std::min(nearest, std::hypot(double(p[0]) - f.position[3 * i], double(p[1]) - f.position[3 * i + 1]));
+      ASSERT_NEAR(nearest, 1.15 * r, 0.25 * r) << "an outline point off its particle's circle: cut by a missing tile";
+    }
+  ParticleFrame reversed;
+  for (size_t i = f.count(); i-- > 0;) add(reversed, f.position[3 * i], f.position[3 * i + 1]);
+  const Surface t = reconstructSurface(reversed, r, withThickness(0), true, 2);
+  EXPECT_EQ(t.mesh.points, s.mesh.points);
+  EXPECT_EQ(t.mesh.triangles, s.mesh.triangles);
+}
+
 TEST(PlanarSurface, TheFlatAreaIsTheOutlinesInteriorWithoutTJunctions) {
   const double r = 0.01;
   for (const double voxel : {0.5, 0.37, 1.0}) {
@@ -296,12 +320,14 @@ TEST(PlanarSurface, PointsOffTheGridAreLeftOutAndVelocitiesStayFinite) {
     add(f, 0.1, -3e9);
     add(f, 0.1, 0.1, std::numeric_limits<float>::infinity(), 0.0f);
     add(f, 0.12, 0.1, 3e38f, 3e38f);
+    add(f, 0.14, 0.1, 3e38f, -3e38f);
     SurfaceSettings settings = surfaceSettingsTable().defaults();
     settings.trail = 0.01;
     const Surface s = reconstructSurface(f, r, settings, true, dim);
     ParticleFrame reference = clean;
     add(reference, 0.1, 0.1, 0.0f, 0.0f);
     add(reference, 0.12, 0.1, 0.0f, 0.0f);
+    add(reference, 0.14, 0.1, 0.0f, 0.0f);
     const Surface want = reconstructSurface(reference, r, settings, true, dim);
     EXPECT_EQ(s.particles, want.particles);
     EXPECT_EQ(s.mesh.triangles.size(), want.mesh.triangles.size());
