@@ -583,14 +583,7 @@ void reconstructPlanar(const Buckets& buckets, double particleRadius, const Surf
   if (withGrids && nt > 0) {
     const auto tGrids = std::chrono::steady_clock::now();
     const double h = std::max(0.5 * s.thickness2d * particleRadius, voxel);
-    auto sdf = openvdb::FloatGrid::create(band);
-    sdf->setTransform(openvdb::math::Transform::createLinearTransform(voxel));
-    sdf->setGridClass(openvdb::GRID_LEVEL_SET);
-    sdf->setName("surface");
-    auto velocity = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.0f));
-    velocity->setTransform(sdf->transform().copy());
-    velocity->setName("v");
-    velocity->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
+    SurfaceVolumes grids = emptySurfaceVolumes(voxel, band);
     using LeafT = openvdb::FloatTree::LeafNodeType;
     using VLeafT = openvdb::Vec3STree::LeafNodeType;
     const int64_t reach = int64_t(std::ceil((h + band) / voxel));
@@ -640,15 +633,13 @@ void reconstructPlanar(const Buckets& buckets, double particleRadius, const Surf
       if (kinds[n] == Inside) {
         const size_t t = n / layers;
         const openvdb::Coord o(int(tiles.ti(t) * kT), int(tiles.tj(t) * kT), int((kz0 + int64_t(n % layers)) * kT));
-        sdf->tree().addTile(1, o, -band, false);
+        grids.surface->tree().addTile(1, o, -band, false);
       } else if (kinds[n] == Leaf) {
-        sdf->tree().addLeaf(leaves[n].release());
-        velocity->tree().addLeaf(vleaves[n].release());
+        grids.surface->tree().addLeaf(leaves[n].release());
+        grids.velocity->tree().addLeaf(vleaves[n].release());
       }
     }
-    sdf->pruneGrid();
-    velocity->pruneGrid();
-    out.volumes = std::make_shared<SurfaceVolumes>(SurfaceVolumes{sdf, velocity});
+    out.volumes = prunedSurfaceVolumes(std::move(grids));
     out.smoothMs += msSince(tGrids);
   }
 }

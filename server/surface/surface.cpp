@@ -277,14 +277,9 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   // Narrow band: 3 voxels each side, no deeper than the inside's depth (the
   // field's floor), and never under 1.5 voxels (meshing needs neighbours).
   const float band = float(std::max(std::min(3.0 * voxel, rs), 1.5 * voxel));
-  auto sdf = openvdb::FloatGrid::create(band);
-  sdf->setTransform(openvdb::math::Transform::createLinearTransform(voxel));
-  sdf->setGridClass(openvdb::GRID_LEVEL_SET);
-  sdf->setName("surface");
-  auto velocity = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.0f));
-  velocity->setTransform(sdf->transform().copy());
-  velocity->setName("v");
-  velocity->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
+  SurfaceVolumes grids = emptySurfaceVolumes(voxel, band);
+  const auto sdf = grids.surface;
+  const auto velocity = grids.velocity;
 
   // Particles per block (voxel centres at multiples of the voxel).
   const double blockSize = kBlock * voxel;
@@ -493,9 +488,7 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
         velocity->tree().addLeaf(velocityLeaves[c].release());
       }
     }
-    sdf->pruneGrid();
-    velocity->pruneGrid();
-    out.volumes = std::make_shared<SurfaceVolumes>(SurfaceVolumes{sdf, velocity});
+    out.volumes = prunedSurfaceVolumes(grids);
   }
   out.smoothMs += msSince(tInsert);
 
