@@ -7,6 +7,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import pathlib
+import subprocess
 import sys
 
 import pytest
@@ -16,6 +17,8 @@ sys.path.insert(0, str(ROOT / "tools"))  # its helper module bench_report
 _spec = importlib.util.spec_from_file_location("bench_reference", ROOT / "tools" / "bench_reference.py")
 bench_reference = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(bench_reference)
+
+from repo_paths import FLOWCLIP_BIN  # noqa: E402  (tests/, beside this file)
 
 # The shape of SPlisHSPlasH's shipped dam breaks, with values unlike ours so
 # that a setting not carried over shows.
@@ -60,6 +63,24 @@ def test_reference_scene_carries_our_settings(name):
     assert shipped == SHIPPED
     # 3D scenes come from the 3D dam break, 2D from the 2D one.
     assert shipped_name == ("DamBreakModel_2D.json" if ours["dimension"] == 2 else "DamBreakModel.json")
+
+
+def test_subcycled_scene_sets_the_standard_viscosity_alone_and_parses(tmp_path):
+    ours = json.loads((ROOT / "scenes/bench/dambreak3d_r010.json").read_text())
+    ours["effects"] = ["viscosity_standard", {"name": "viscosity_xsph", "coefficient": 0.1},
+                       {"name": "viscosity_standard", "boundary_viscosity": 0.02}]
+    s = bench_reference.subcycled(ours)
+    assert s["effects"] == [{"name": "viscosity_standard", "subcycle": True},
+                            {"name": "viscosity_xsph", "coefficient": 0.1},
+                            {"name": "viscosity_standard", "boundary_viscosity": 0.02, "subcycle": True}]
+    assert ours["effects"][0] == "viscosity_standard"  # the caller's scene is not modified
+    # flowclip takes the changed scene (one standard viscosity: the shipped bench scene's).
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(bench_reference.subcycled(json.loads(
+        (ROOT / "scenes/bench/dambreak3d_r010.json").read_text()))))
+    out = subprocess.run([str(FLOWCLIP_BIN), "run", str(path), "--frames", "0", "--quiet"], capture_output=True,
+                         text=True)
+    assert out.returncode == 0, out.stdout + out.stderr
 
 
 def test_reference_refuses_a_scene_of_another_solver():

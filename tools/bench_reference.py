@@ -7,6 +7,7 @@ per simulated second with our share of SPlisHSPlasH's into a report
     build/venv/bin/python tools/bench_reference.py                 # all four scenes/bench scenes, once each, into bench/reference
     build/venv/bin/python tools/bench_reference.py --only 3d_r0125 --repeat 3 --out /tmp/ref
     build/venv/bin/python tools/bench_reference.py --only 3d_r005 --seconds 0.1 --out bench/reference-1m
+    build/venv/bin/python tools/bench_reference.py --only 3d_r005 --seconds 0.1 --subcycle-viscosity --out bench/reference-1m-subcycled
 
 Why: figures read on different machines, or on one virtual machine at
 different times, do not divide (the same executable ran up to 1.7x slower
@@ -184,10 +185,27 @@ def run_reference(py, scene, seconds, threads, workdir):
     return parse_reference_output(out)
 
 
-def run_ours(binary, scene, seconds, threads, radius=None):
+def subcycled(scene):
+    """`scene` (a dict) with its standard viscosity sub-cycled: its step is
+    then bounded by the velocity CFL alone, as SPlisHSPlasH's is."""
+    s = json.loads(json.dumps(scene))
+    s["effects"] = [{**(e if isinstance(e, dict) else {"name": e}), "subcycle": True}
+                    if (e if isinstance(e, str) else e.get("name")) == "viscosity_standard" else e
+                    for e in s.get("effects", [])]
+    return s
+
+
+def run_ours(binary, scene, seconds, threads, radius=None, subcycle=False):
     with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as f:
         stats = f.name
+    scene_file = None
     try:
+        if subcycle:
+            with open(os.path.join(ROOT, scene)) as fh:
+                changed = subcycled(json.load(fh))
+            with tempfile.NamedTemporaryFile("w", suffix=".json", delete=False) as fh:
+                json.dump(changed, fh)
+                scene = scene_file = fh.name
         subprocess.run([binary, "run", scene, "--seconds", str(seconds), "--threads", str(threads), "--stats", stats,
                         "--quiet"] + ([] if radius is None else ["--particle-radius", str(radius)]), check=True,
                        cwd=ROOT)
@@ -195,6 +213,8 @@ def run_ours(binary, scene, seconds, threads, radius=None):
             s = json.load(fh)
     finally:
         os.unlink(stats)
+        if scene_file:
+            os.unlink(scene_file)
     frames, summary = s["frames"], s["summary"]
     steps = summary["substeps"]
     return {
@@ -258,7 +278,9 @@ def write_report(out, report):
           f"- SPlisHSPlasH: {report['settings']['reference']} (its PyPI wheel); FlowClip: "
           f"`{report['settings']['flowclip']}` {report['settings']['flowclip_version']}",
           f"- {report['settings']['threads']} threads each, {report['settings']['seconds']:g} simulated s per run, "
-          f"{report['settings']['repeat']} alternating pair(s) of runs per scene", "",
+          f"{report['settings']['repeat']} alternating pair(s) of runs per scene"
+          + ("; FlowClip's standard viscosity sub-cycled (`subcycle`)"
+             if report["settings"].get("subcycle_viscosity") else ""), "",
           "Medians, with the range over the pairs in brackets; the last column divides each pair's figures.", ""]
     md += table(report["scenes_runs"])
     md += ["", f"Target: at most {TARGET_PCT:g} % of SPlisHSPlasH's µs per particle-step and wall time per "
@@ -280,6 +302,9 @@ def main():
     ap.add_argument("--repeat", type=int, default=1, help="alternating pairs of runs per scene")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--binary", default=os.path.join(ROOT, "build", "flowclip"))
+    ap.add_argument("--subcycle-viscosity", action="store_true",
+                    help="run our scenes' standard viscosity sub-cycled (its `subcycle` parameter), so that it does "
+                         "not bound the step, as SPlisHSPlasH's does not")
     ap.add_argument("--out", default=os.path.join(ROOT, "bench", "reference"),
                     help="report folder: reference.md and reference.json (default bench/reference)")
     args = ap.parse_args()
@@ -309,7 +334,8 @@ def main():
                     done += 1
                     print(f"[{done}/{total}] {name} {who} ({args.seconds:g} simulated s)", file=sys.stderr, flush=True)
                     r = (run_reference(py, ref_scene, args.seconds, args.threads, work) if who == "splishsplash"
-                         else run_ours(args.binary, ours_scene, args.seconds, args.threads, radius))
+                         else run_ours(args.binary, ours_scene, args.seconds, args.threads, radius,
+                                       args.subcycle_viscosity))
                     runs[who].append(r)
             results[name] = runs
 
@@ -323,6 +349,7 @@ def main():
     report = {"benchmark": "reference", "date": date, "command": command, "machine": started,
               "loadavg_at_end": loadavg(),
               "settings": {"threads": args.threads, "seconds": args.seconds, "repeat": args.repeat,
+                           "subcycle_viscosity": args.subcycle_viscosity,
                            "reference": WHEEL, "flowclip": os.path.relpath(args.binary, ROOT),
                            "flowclip_version": version},
               "target": {"max_pct_of_reference": TARGET_PCT, "met": met},

@@ -25,9 +25,9 @@ const ParamTable<ViscosityStandardParams>& viscosityStandardTable() {
   static const ParamTable<P> table = {
       {.name = "boundary_viscosity", .unit = "m^2/s", .min = 0, .max = 1000, .def = 0,
        .help = "kinematic viscosity against walls and obstacles (0: free slip)", .member = &P::boundaryViscosity},
-      {.name = "subcycle", .min = 0, .max = 1, .def = 1,
-       .help = "a step longer than the explicit operator's stability limit 0.4 r^2/nu applies it in as many "
-               "sub-steps as that limit needs, positions held; off: the step is shortened to the limit",
+      {.name = "subcycle", .min = 0, .max = 1, .def = 0,
+       .help = "let the step exceed the explicit operator's stability limit 0.4 r^2/nu and apply the operator in "
+               "as many sub-steps as the limit needs, positions held (off: the step is shortened to the limit)",
        .member = &P::subcycle},
   };
   return table;
