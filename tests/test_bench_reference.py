@@ -158,3 +158,25 @@ def test_report_divides_each_pair_and_writes_markdown_and_json(tmp_path):
     assert "0.350 (0.300–0.400) vs 1.000" in row and "35.0 (30.0–40.0) %, 35.0 (30.0–40.0) %" in row
     assert "**met** (worst pair 40.0 %)" in md
     assert not list(tmp_path.glob(".*.tmp")), "a temporary file was left"
+
+
+def test_paper_size_target_reads_the_large_scenes_wall_time_alone(tmp_path):
+    small = {"flowclip": [run_figures(0.3, 1.5)], "splishsplash": [run_figures(1.0, 2.0)]}  # 75 %, 5 476 particles
+    big = {"flowclip": [run_figures(0.3, 3.2, particles=117_649), run_figures(0.3, 3.6, particles=117_649)],
+           "splishsplash": [run_figures(1.0, 10.0, particles=117_649)] * 2}  # 32 % and 36 %
+    scenes = {name: {**runs, "ratios": bench_reference.ratios(runs)} for name, runs in
+              {"2d_r010": small, "3d_r010": big}.items()}
+    t = bench_reference.large_target(scenes)
+    assert t["scene"] == "3d_r010" and t["worst_pct"] == pytest.approx(36.0) and not t["met"]
+    assert bench_reference.large_target({"2d_r010": scenes["2d_r010"]}) is None
+    big_fast = {"flowclip": [run_figures(0.3, 2.5, particles=117_649)],
+                "splishsplash": [run_figures(1.0, 10.0, particles=117_649)]}
+    assert bench_reference.large_target({"3d_r010": {**big_fast, "ratios": bench_reference.ratios(big_fast)}})["met"]
+    report = report_of({"2d_r010": small, "3d_r010": big}, False)
+    report["target"]["large"] = t
+    bench_reference.write_report(tmp_path, report)
+    md = (tmp_path / "reference.md").read_text()
+    assert "Target at 100,000 particles and more: at most 30 % of SPlisHSPlasH's wall time per simulated second: " \
+           "**not met** (worst pair 36.0 %, 3d_r010)." in md
+    assert json.loads((tmp_path / "reference.json").read_text())["target"]["large"]["worst_pct"] == pytest.approx(36.0)
+
