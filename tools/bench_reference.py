@@ -203,7 +203,9 @@ def run_ours(binary, scene, seconds, threads, radius=None, subcycle=False):
         if subcycle:
             with open(os.path.join(ROOT, scene)) as fh:
                 changed = subcycled(json.load(fh))
-            with tempfile.NamedTemporaryFile("w", suffix=".json", delete=False) as fh:
+            # Beside the scene, so that its relative paths still resolve.
+            with tempfile.NamedTemporaryFile("w", suffix=".json", prefix=".subcycled-", delete=False,
+                                             dir=os.path.dirname(os.path.join(ROOT, scene))) as fh:
                 json.dump(changed, fh)
                 scene = scene_file = fh.name
         subprocess.run([binary, "run", scene, "--seconds", str(seconds), "--threads", str(threads), "--stats", stats,
