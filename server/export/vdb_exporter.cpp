@@ -38,15 +38,9 @@ class VdbExporter : public Exporter {
     } else {
       // A frame without liquid: empty grids, so that a sequence has every frame.
       const double voxel = 0.5 * info_.particleRadius;
-      auto sdf = openvdb::FloatGrid::create(float(1.5 * voxel));
-      sdf->setTransform(openvdb::math::Transform::createLinearTransform(voxel));
-      sdf->setGridClass(openvdb::GRID_LEVEL_SET);
-      sdf->setName("surface");
-      auto v = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.0f));
-      v->setTransform(sdf->transform().copy());
-      v->setName("v");
-      grids.push_back(sdf);
-      grids.push_back(v);
+      const SurfaceVolumes empty = emptySurfaceVolumes(voxel, float(1.5 * voxel));
+      grids.push_back(empty.surface);
+      grids.push_back(empty.velocity);
     }
     for (auto& g : grids) {
       g->setSaveFloatAsHalf(p_.half);

@@ -4,6 +4,8 @@
 #include "hdf5_test_util.h"
 
 #include <gtest/gtest.h>
+#include <openvdb/openvdb.h>
+#include <openvdb/io/File.h>
 
 #include <array>
 #include <filesystem>
@@ -184,6 +186,40 @@ TEST(SurfaceExport, ANewExportRemovesTheOldManifestUntilItCompletes) {
   again.writeFrame(droplet(0));
   again.close();
   EXPECT_TRUE(fs::exists(dir.file("drop.export.json")));
+}
+
+// A frame without liquid still has its two grids, set up as a liquid
+// frame's: a reader sees one kind of grid through the whole sequence.
+TEST(SurfaceExport, AnEmptyFramesGridsAreALiquidFramesKind) {
+  registerBuiltinExporters();
+  TempDir dir;
+  SurfaceExport e(info(dir.file("")), {"vdb"}, surfaceSettingsTable().defaults());
+  e.writeFrame(droplet(0));
+  ParticleFrame none;
+  none.index = 1;
+  none.time = 1 / 60.0;
+  e.writeFrame(none);
+  e.close();
+  openvdb::initialize();
+  std::vector<openvdb::GridPtrVecPtr> frames;
+  for (const char* name : {"drop.0000.vdb", "drop.0001.vdb"}) {
+    openvdb::io::File file(dir.file(name));
+    file.open();
+    frames.push_back(file.getGrids());
+    file.close();
+  }
+  ASSERT_EQ(frames[0]->size(), 2u);
+  ASSERT_EQ(frames[1]->size(), 2u);
+  EXPECT_FALSE((*frames[0])[0]->empty());
+  for (size_t g = 0; g < 2; ++g) {
+    const auto& full = (*frames[0])[g];
+    const auto& empty = (*frames[1])[g];
+    EXPECT_TRUE(empty->empty());
+    EXPECT_EQ(empty->getName(), full->getName());
+    EXPECT_EQ(empty->valueType(), full->valueType());
+    EXPECT_EQ(empty->getGridClass(), full->getGridClass());
+    EXPECT_EQ(empty->getVectorType(), full->getVectorType()) << full->getName();
+  }
 }
 
 TEST(SurfaceExport, RefusesANameThatIsNotAFileName) {
