@@ -225,4 +225,43 @@ Real latticeParticleVolume(const CubicSpline<D>& kernel, Real s) {
   return Real(1.0 / sum);
 }
 
+// Sums over the lattice points (spacing s) a flat wall removes from a
+// particle of the lattice one radius (s/2) from it: the rows below the
+// particle's own. `Visit` gets each point's offset from the particle.
+template <int D, class Visit>
+void forEachPointBelowRow(const CubicSpline<D>& kernel, Real s, bool below, Visit&& visit) {
+  const int n = int(std::ceil(kernel.radius() / s));
+  VecI<D> k = VecI<D>::Constant(-n);
+  while (true) {
+    if ((k[1] < 0) == below) visit(Vec<D>(s * k.template cast<Real>()));
+    int d = 0;
+    while (d < D && ++k[d] > n) k[d++] = -n;
+    if (d == D) break;
+  }
+}
+
+// What the flat wall takes from that particle: 1 - V Σ W over the points on
+// its side (V the lattice volume), the solids' Σ_b V_b W_ib that gives it
+// the rest density.
+template <int D>
+Real flatWallMissingVolume(const CubicSpline<D>& kernel, Real s, Real latticeVolume) {
+  double sum = 0;
+  forEachPointBelowRow<D>(kernel, s, false, [&](const Vec<D>& p) { sum += double(kernel.W(p)); });
+  return Real(1.0 - double(latticeVolume) * sum);
+}
+
+// The push the removed points gave it, along the wall's normal: V Σ ∂W/∂y
+// of its offset from each of them.
+template <int D>
+Real flatWallMissingPush(const CubicSpline<D>& kernel, Real s, Real latticeVolume) {
+  double sum = 0;
+  forEachPointBelowRow<D>(kernel, s, true, [&](const Vec<D>& p) {
+    Real w;
+    Vec<D> g;
+    kernel.evaluate(Vec<D>(-p), w, g);
+    sum += double(g[1]);
+  });
+  return Real(double(latticeVolume) * sum);
+}
+
 }  // namespace fc

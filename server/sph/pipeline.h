@@ -119,6 +119,13 @@ class BoundaryModel {
   // Whether samples carry the hydrostatic extrapolation Δp_b = ρ0_i (g - a_b)·(x_b - x_i).
   virtual bool extrapolatesPressure() const = 0;
   virtual bool mapsStaticSolids() const { return false; }
+  // With w = 2: whether the mirror enters the density the pressure solvers
+  // correct, as a term of its own that grows nearer than the rest distance
+  // (Simulation::boundaryExcess), so that the push and the density it
+  // corrects follow one gradient; and the depth, in particle radii, over
+  // which its push sets in.
+  virtual bool mirrorsInConstraint() const { return false; }
+  virtual Real mirrorRamp() const { return 1; }
   // Once, after the boundary is built; `latticeVolume` is a fluid particle's rest volume.
   virtual void setUp(const Simulation<D>&, Real /*latticeVolume*/) {}
   // The static solids' terms for a particle at x under gravity g; false: none (out of their reach).

@@ -73,6 +73,11 @@ Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
   boundaryWeight_ = boundaryModel_->pressureWeight();
   extrapolateBoundary_ = boundaryModel_->extrapolatesPressure();
   mapStaticSolids_ = boundaryModel_->mapsStaticSolids();
+  mirrorInConstraint_ = boundaryWeight_ == Real(2) && boundaryModel_->mirrorsInConstraint() && !mapStaticSolids_;
+  if (mirrorInConstraint_) {
+    boundaryWeight_ = 1;  // the mirror's push is in boundaryGradW, beside the samples' own
+    mirrorRamp_ = boundaryModel_->mirrorRamp();
+  }
 
   for (const auto& e : setup_.effects) {
     effects_.push_back(makeNamed(EffectRegistry<D>::instance(), e.name, e.values, "effect"));
@@ -82,6 +87,9 @@ Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
 
   search.setGrid(setup_.domain, kernel.radius());
   latticeVolume_ = latticeParticleVolume(kernel, 2 * radius_);
+  if (mirrorInConstraint_)
+    mirrorScale_ = radius_ * std::abs(flatWallMissingPush(kernel, 2 * radius_, latticeVolume_)) /
+                   flatWallMissingVolume(kernel, 2 * radius_, latticeVolume_);
   buildBoundary();
   {
     const auto t0 = std::chrono::steady_clock::now();
@@ -309,6 +317,35 @@ void Simulation<D>::buildBoundary() {
     search.forEachStaticNear(pts[b], kernel.radius(), [&](uint32_t, const Vec<D>& q) { sum += kernel.W(Vec<D>(pts[b] - q)); });
     boundary.volume[b] = sum > 0 ? std::min(latticeVolume_, Real(1) / sum) : latticeVolume_;
   }
+  // With the mirror in the constraint: each static sample's stretch of solid
+  // surface, from the signed distance Φ to the solids (positive in the
+  // liquid): the outward normal ∇Φ and the depth -Φ.
+  if (mirrorInConstraint_) {
+    const AABB<D>& domain = setup_.domain;
+    const auto phi = [&](const Vec<D>& x) {
+      Real d = std::numeric_limits<Real>::max();
+      for (int a = 0; a < D; ++a) d = std::min({d, x[a] - domain.min[a], domain.max[a] - x[a]});
+      for (const auto& o : setup_.obstacles) d = std::min(d, o.signedDistance(x));
+      return d;
+    };
+    surfaceNormal_.assign(pts.size(), Vec<D>::Zero());
+    surfaceDepth_.assign(pts.size(), 0);
+    const Real eps = Real(0.1) * radius_;
+#pragma omp parallel for schedule(static)
+    for (size_t b = 0; b < pts.size(); ++b) {
+      Vec<D> n;
+      for (int a = 0; a < D; ++a) {
+        Vec<D> hi = pts[b], lo = pts[b];
+        hi[a] += eps;
+        lo[a] -= eps;
+        n[a] = (phi(hi) - phi(lo)) / (2 * eps);
+      }
+      const Real len = n.norm();
+      if (!(len > Real(1e-6))) continue;  // no side to push from: the sample adds no mirror
+      surfaceNormal_[b] = n / len;
+      surfaceDepth_[b] = -phi(pts[b]);
+    }
+  }
   // Moving bodies follow the static solids in the boundary arrays.
   if (!setup_.bodies.empty()) {
     bodies_ = std::make_unique<RigidBodies<D>>(setup_.bodies, radius_, layers, kernel, latticeVolume_, boundary, gravity_);
@@ -402,8 +439,10 @@ void Simulation<D>::computeDensitiesWith() {
   boundaryFlux.resize(size_t(n));
   boundaryNeighbors.resize(size_t(n));
   boundaryExtrapolation.resize(extrapolateBoundary_ ? size_t(n) : 0);
+  boundaryExcess.resize(mirrorInConstraint_ ? size_t(n) : 0);
   const Real w0 = kernel.W0();
   const Real h = kernel.radius();
+  const Real ramp = mirrorRamp_;
   const uint32_t* nbr = nf.indices.data();
   const Real* xs = fluid.x.data()->data();  // Vec<D> is D packed Reals
   const Real* mass = fluid.mass.data();
@@ -437,7 +476,7 @@ void Simulation<D>::computeDensitiesWith() {
       if constexpr (NumberDensity) rho *= fluid.mass[i];
       Real w;
       Vec<D> g;
-      Real volume = 0, flux = 0;
+      Real volume = 0, flux = 0, excess = 0;
       Vec<D> gb = Vec<D>::Zero(), extrapolated = Vec<D>::Zero();
       unsigned count = 0;
       search.forEachStaticNear(xi, h, [&](uint32_t b, const Vec<D>& xb) {
@@ -447,6 +486,18 @@ void Simulation<D>::computeDensitiesWith() {
         volume += vb * w;
         gb += vb * g;
         flux += vb * boundary.v[b].dot(g);
+        if (mirrorInConstraint_ && b < staticSamples_) {
+          // The mirror's part: c V_b W_ib (r - d_ib)/r nearer than the rest distance, and its gradient.
+          const Real d = (xi - xb).dot(surfaceNormal_[b]) - surfaceDepth_[b];
+          if (d < radius_) {
+            // s(t) = t²/(2τ) up to τ, then t - τ/2: the push sets in smoothly over the first τ r.
+            const Real t = (radius_ - d) / radius_, cv = mirrorScale_ * vb;
+            const Real st = t < ramp ? t * t / (2 * ramp) : t - ramp / 2;
+            const Real ds = std::min(t / ramp, Real(1));
+            excess += cv * w * st;
+            gb += cv * (st * g - (w * ds / radius_) * surfaceNormal_[b]);
+          }
+        }
         // [AHA12]'s wall pressure, per pair: Δp_ib / ρ0_i = g·(x_b - x_i) (sph/boundary/adami2012.cpp).
         if (extrapolateBoundary_) extrapolated += (vb * gravity_.dot(xb - xi)) * g;
         ++count;
@@ -461,6 +512,7 @@ void Simulation<D>::computeDensitiesWith() {
         }
       }
       if (extrapolateBoundary_) boundaryExtrapolation[i] = extrapolated;
+      if (mirrorInConstraint_) boundaryExcess[i] = restDensity_[fluid.phase[i]] * excess;
       fluid.density[i] = rho + restDensity_[fluid.phase[i]] * volume;
       boundaryGradW[i] = gb;
       boundaryFlux[i] = flux;

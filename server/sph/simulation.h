@@ -237,6 +237,15 @@ class Simulation {
   // otherwise): Σ_b V_b (g·(x_b - x_i)) ∇W_ib, the hydrostatic part of the
   // samples' pressure force per unit mass with its sign reversed.
   std::vector<Vec<D>> boundaryExtrapolation;
+  // Only where the mirror enters the density constraint (empty otherwise):
+  // what the pressure solvers add to ρ_i, ρ0_i c Σ_b V_b W_ib max(0, r - d_ib)/r
+  // over the static samples, d_ib the particle's distance from sample b's
+  // own stretch of solid surface. It is zero at the rest distance and grows
+  // as the particle comes nearer; its gradient is in boundaryGradW, so the
+  // push and the density it corrects follow one function of the positions.
+  // c makes that push, at the rest distance from a flat wall, the wall's
+  // push once more, as the mirrored liquid of [AHA12] adds.
+  std::vector<Real> boundaryExcess;
   std::vector<Real> restDensity_;   // per phase
 
  private:
@@ -264,6 +273,11 @@ class Simulation {
   std::unique_ptr<BoundaryModel<D>> boundaryModel_;
   Real boundaryWeight_ = 1;
   bool extrapolateBoundary_ = false;
+  bool mirrorInConstraint_ = false;
+  Real mirrorScale_ = 0;     // c
+  Real mirrorRamp_ = 1;      // τ: the depth, in r, over which the mirror's push sets in
+  std::vector<Vec<D>> surfaceNormal_;  // per static sample: its solid's outward normal, the liquid's side
+  std::vector<Real> surfaceDepth_;     // per static sample: its depth below that surface
   bool mapStaticSolids_ = false;  // the boundary model stands in for the static samples
   size_t staticSamples_ = 0;      // boundary samples of static solids (the bodies' follow)
   double boundarySetupMs_ = 0;
