@@ -44,6 +44,7 @@ struct RunOptions {
   std::string templates = "templates";
   double templateMemoryMB = kDefaultTemplateMemoryMB;
   std::vector<std::string> controlSettings;  // KEY=VALUE, over the scene's "control" object
+  std::vector<std::string> boundarySettings;  // KEY=VALUE, over the boundary model's parameters
   double frameTimeout = 0;                    // s of wall time per frame (0: no limit)
   bool quiet = false;
 };
@@ -82,6 +83,12 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
       setup.boundary.name = boundaryName = opt.boundary;
       setup.boundary.values = ParamValues();
     }
+  }
+  const auto* boundaryEntry = BoundaryModelRegistry<D>::instance().find(boundaryName);
+  for (const auto& kv : opt.boundarySettings) {
+    if (!boundaryEntry) throw SceneError("boundary.method", "unknown boundary method '" + boundaryName + "'");
+    const ParamOverride o = parseParamOverride(boundaryEntry->params, kv, "--boundary-setting", "boundary");
+    setup.boundary.values.set(o.spec->name, o.value);
   }
   SceneControl<D> control = parseSceneControl<D>(sceneJson, setup.phases);
   overrideControlSettings(opt.controlSettings, control.settings);
@@ -128,20 +135,30 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
 
   // The solver's parameters as the run uses them (declared defaults, then
   // the scene's): a benchmark's figures mean little without its tolerances.
-  nlohmann::json solverParameters = nlohmann::json::object();
-  std::string solverText;
-  if (const auto* entry = PressureSolverRegistry<D>::instance().find(solverName))
-    for (const auto& spec : entry->params) {
-      const double v = setup.solver.values.has(spec.name) ? setup.solver.values.get(spec.name) : spec.def;
-      solverParameters[spec.name] = v;
-      char buf[96];
-      std::snprintf(buf, sizeof buf, "%s%s=%g", solverText.empty() ? "" : " ", spec.name.c_str(), v);
-      solverText += buf;
-    }
+  // The same for the boundary model.
+  const auto describe = [](const ParamSpecs* specs, const ParamValues& values, nlohmann::json& asJson) {
+    std::string text;
+    asJson = nlohmann::json::object();
+    if (specs)
+      for (const auto& spec : *specs) {
+        const double v = values.has(spec.name) ? values.get(spec.name) : spec.def;
+        asJson[spec.name] = v;
+        char buf[96];
+        std::snprintf(buf, sizeof buf, "%s%s=%g", text.empty() ? "" : " ", spec.name.c_str(), v);
+        text += buf;
+      }
+    return text;
+  };
+  nlohmann::json solverParameters, boundaryParameters;
+  const auto* solverEntry = PressureSolverRegistry<D>::instance().find(solverName);
+  const std::string solverText = describe(solverEntry ? &solverEntry->params : nullptr, setup.solver.values, solverParameters);
+  const std::string boundaryText =
+      describe(boundaryEntry ? &boundaryEntry->params : nullptr, setup.boundary.values, boundaryParameters);
   if (!opt.quiet)
-    std::fprintf(stderr, "%s: %dD, %zu liquid + %zu boundary particles, solver %s (%s), %d threads, Real=%s\n",
+    std::fprintf(stderr, "%s: %dD, %zu liquid + %zu boundary particles, solver %s (%s), boundary %s%s%s%s, %d threads, Real=%s\n",
                  setup.name.c_str(), D, sim.fluid.size(), sim.boundary.size(), solverName.c_str(), solverText.c_str(),
-                 omp_get_max_threads(), realName());
+                 boundaryName.c_str(), boundaryText.empty() ? "" : " (", boundaryText.c_str(),
+                 boundaryText.empty() ? "" : ")", omp_get_max_threads(), realName());
   if (!opt.quiet)
     for (size_t i = 0; i < setup.obstacles.size(); ++i)
       if (const auto& m = setup.obstacles[i].mesh)
@@ -226,6 +243,7 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
       {"solver", solverName},
       {"solver_parameters", solverParameters},
       {"boundary", boundaryName},
+      {"boundary_parameters", boundaryParameters},
       {"boundary_setup_ms", sim.boundarySetupMs()},
       {"boundary_model_bytes", sim.boundaryModelBytes()},
       {"real", realName()},
@@ -312,6 +330,8 @@ void addRunCommand(CLI::App& app) {
   run->add_option("--solver", opt->solver, "override the scene's pressure solver (a different one runs with its default parameters)");
   run->add_option("--boundary", opt->boundary,
                   "override the scene's boundary model (a different one runs with its default parameters)");
+  run->add_option("--boundary-setting", opt->boundarySettings,
+                  "set a parameter of the boundary model, KEY=VALUE (e.g. constraint=1); repeatable");
   run->add_option("--templates", opt->templates,
                   "template database directory (default: templates, or templates/NAME with --scale NAME)");
   addTemplateMemoryOption(run, opt->templateMemoryMB);

@@ -191,7 +191,16 @@ int benchSolver(const BenchOptions& opt) {
       for (const auto& boundary : boundaries) {
         std::vector<std::string> args{self,      "run",   scene, "--seconds", fmt(opt.seconds), "--solver",
                                       solver,    "--stats", tmp, "--threads", std::to_string(threads), "--quiet"};
-        if (!boundary.empty()) args.insert(args.end(), {"--boundary", boundary});
+        // NAME or NAME:KEY=VALUE:KEY=VALUE, a model with some of its parameters set.
+        if (!boundary.empty()) {
+          size_t at = boundary.find(':');
+          args.insert(args.end(), {"--boundary", boundary.substr(0, at)});
+          while (at != std::string::npos) {
+            const size_t next = boundary.find(':', at + 1);
+            args.insert(args.end(), {"--boundary-setting", boundary.substr(at + 1, next == std::string::npos ? next : next - at - 1)});
+            at = next;
+          }
+        }
         const std::string label = stem + " with " + solver + (boundary.empty() ? "" : " (" + boundary + ")");
         std::fprintf(stderr, "bench: %s ...\n", label.c_str());
         const int code = runChild(args);
@@ -203,7 +212,8 @@ int benchSolver(const BenchOptions& opt) {
           worst = Failure;
           continue;
         }
-        const json row = runRow(scene, solver, json::parse(f));
+        json row = runRow(scene, solver, json::parse(f));
+        if (!boundary.empty()) row["boundary"] = boundary;  // with the parameters it was given
         f.close();
         fs::remove(tmp);
         std::printf("%s: %ld particles, %.3f us per particle-step, %.2f wall s per simulated s, %.2f density "
@@ -229,7 +239,8 @@ void addBenchSolverCommand(CLI::App& bench) {
   CLI::App* solver = bench.add_subcommand("solver", "pressure solvers on the reference dam breaks (scenes/bench)");
   solver->add_option("--scenes", opt->scenes, "scene files (default: scenes/bench/*.json)")->delimiter(',');
   solver->add_option("--solvers", opt->solvers, "solvers to compare")->delimiter(',');
-  solver->add_option("--boundaries", opt->boundaries, "boundary models to compare (default: each scene's own)")
+  solver->add_option("--boundaries", opt->boundaries,
+                     "boundary models to compare, each NAME or NAME:KEY=VALUE[:KEY=VALUE] (default: each scene's own)")
       ->delimiter(',');
   solver->add_option("--seconds", opt->seconds, "simulated seconds per run")->check(CLI::PositiveNumber);
   solver->add_option("--threads", opt->threads, "OpenMP threads (default: all cores)")->check(CLI::PositiveNumber);

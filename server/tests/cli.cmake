@@ -133,6 +133,20 @@ fc_cli_expect(cli_bench_accuracy_no_templates 2 "--templates: '${FC_BAD_RECIPES}
 fc_cli_expect(cli_run_bad_control_setting 2 "control.forces_every_substep: '2' given by --control-setting"
   run ${FC_CLI_TESTS_DIR}/../../scenes/drop2d.json --frames 1 --control-setting forces_every_substep=2)
 
+# run --boundary-setting sets a parameter of the model the run uses, checked as the scene file's "boundary".
+fc_cli_expect(cli_run_boundary_setting 0 "boundary adami2012 (hydrostatic=1 constraint=1 ramp=0.25)"
+  run ${FC_CLI_TESTS_DIR}/../../scenes/hydrostatic2d.json --frames 1 --boundary-setting constraint=1
+  --boundary-setting ramp=0.25)
+fc_cli_expect(cli_run_bad_boundary_setting 2 "boundary.ramp: '2' given by --boundary-setting"
+  run ${FC_CLI_TESTS_DIR}/../../scenes/hydrostatic2d.json --frames 1 --boundary-setting ramp=2)
+fc_cli_expect(cli_run_unknown_boundary_setting 2 "expected KEY=VALUE with KEY one of: hydrostatic, constraint, ramp"
+  run ${FC_CLI_TESTS_DIR}/../../scenes/hydrostatic2d.json --frames 1 --boundary-setting map_spacing=1)
+
+# bench solver --boundaries NAME:KEY=VALUE runs the model with that parameter and labels its row so.
+fc_cli_expect(cli_bench_solver_boundary_setting 0 "dambreak2d_r010 with dfsph (adami2012:constraint=1): 5476 particles"
+  bench solver --scenes ${FC_CLI_TESTS_DIR}/../../scenes/bench/dambreak2d_r010.json --solvers dfsph
+  --boundaries adami2012:constraint=1 --seconds 0.02 --threads 1 --out ${CMAKE_BINARY_DIR}/cli-bench-solver)
+
 # --solver naming the scene's own solver keeps the scene's tolerances (the
 # reference benchmarks run at theirs); another solver runs at its defaults.
 fc_cli_expect(cli_solver_override_keeps_scene_tolerance 0 "solver dfsph (density_tolerance_pct=0.1 divergence_tolerance_pct=0.1"
