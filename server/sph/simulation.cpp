@@ -487,7 +487,7 @@ void Simulation<D>::computeDensitiesWith() {
         gb += vb * g;
         flux += vb * boundary.v[b].dot(g);
         if (mirrorInConstraint_ && b < staticSamples_) {
-          // The mirror's part: c V_b W_ib (r - d_ib)/r nearer than the rest distance, and its gradient.
+          // The mirror's part: c V_b W_ib s((r - d_ib)/r), zero beyond the rest distance, and its gradient.
           const Real d = (xi - xb).dot(surfaceNormal_[b]) - surfaceDepth_[b];
           if (d < radius_) {
             // s(t) = t²/(2τ) up to τ, then t - τ/2: the push sets in smoothly over the first τ r.

@@ -238,10 +238,10 @@ class Simulation {
   // samples' pressure force per unit mass with its sign reversed.
   std::vector<Vec<D>> boundaryExtrapolation;
   // Only where the mirror enters the density constraint (empty otherwise):
-  // what the pressure solvers add to ρ_i, ρ0_i c Σ_b V_b W_ib max(0, r - d_ib)/r
+  // what the pressure solvers add to ρ_i, ρ0_i c Σ_b V_b W_ib s((r - d_ib)/r)
   // over the static samples, d_ib the particle's distance from sample b's
-  // own stretch of solid surface. It is zero at the rest distance and grows
-  // as the particle comes nearer; its gradient is in boundaryGradW, so the
+  // own stretch of solid surface, s a ramp (computeDensities). It is zero at
+  // the rest distance and beyond, and grows as the particle comes nearer; its gradient is in boundaryGradW, so the
   // push and the density it corrects follow one function of the positions.
   // c makes that push, at the rest distance from a flat wall, the wall's
   // push once more, as the mirrored liquid of [AHA12] adds.
