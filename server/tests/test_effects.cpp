@@ -329,18 +329,6 @@ TEST(EffectsViscosity, TaylorGreenDecayRate) {
 // than twice its energy within 0.3 s); with the mirror in the density the
 // solver corrects (constraint), the push follows that density's gradient
 // and the vortex keeps its energy as with the particle's own term alone.
-TEST(Scratch, ViscousMirror) {
-  for (double ramp : {0.1, 0.5, 1.0}) {
-    const json mirror = {{"method", "adami2012"}, {"constraint", true}, {"ramp", ramp}};
-    const DecayRun r = taylorGreen(0.02, kViscosity, kSmallSteps, kTgFitTo, mirror);
-    printRun(("viscous mirror ramp " + std::to_string(ramp)).c_str(), 0.02, r);
-  }
-  const DecayRun r = taylorGreen(0.02, kViscosity, kSmallSteps, kTgFitTo, json{{"method", "adami2012"}});
-  printRun("viscous adami push", 0.02, r);
-  const DecayRun a = taylorGreen(0.02, kViscosity, kSmallSteps, kTgFitTo, json{{"method", "akinci2012"}});
-  printRun("viscous akinci", 0.02, a);
-}
-
 TEST(BoundaryModels, MirrorInTheConstraintKeepsAnInviscidVortexsEnergy) {
   const double nu = 0.02;  // the phase's, no viscosity effect named: inviscid
   const json mirror = {{"method", "adami2012"}, {"constraint", true}};
