@@ -206,6 +206,20 @@ class AdhesionKernel {
   Real h_ = 1, k_ = 0;
 };
 
+// Every point of a lattice of spacing s within the cube ±⌈h/s⌉ s about a
+// particle of it: `visit` gets the point's offset from the particle.
+template <int D, class Visit>
+void forEachLatticeOffset(const CubicSpline<D>& kernel, Real s, Visit&& visit) {
+  const int n = int(std::ceil(kernel.radius() / s));
+  VecI<D> k = VecI<D>::Constant(-n);
+  while (true) {
+    visit(Vec<D>(s * k.template cast<Real>()));
+    int d = 0;
+    while (d < D && ++k[d] > n) k[d++] = -n;
+    if (d == D) break;
+  }
+}
+
 // The volume a particle of the initial lattice (spacing s) stands for, such
 // that the lattice has exactly the rest density: 1 / Σ_k W(k s). It differs
 // from s^D by the discretisation error of the kernel sum (+0.09 % in 2D with
@@ -213,55 +227,38 @@ class AdhesionKernel {
 // tolerance).
 template <int D>
 Real latticeParticleVolume(const CubicSpline<D>& kernel, Real s) {
-  const int n = int(std::ceil(kernel.radius() / s));
   double sum = 0;
-  VecI<D> k = VecI<D>::Constant(-n);
-  while (true) {
-    sum += kernel.W(Vec<D>(s * k.template cast<Real>()));
-    int d = 0;
-    while (d < D && ++k[d] > n) k[d++] = -n;
-    if (d == D) break;
-  }
+  forEachLatticeOffset<D>(kernel, s, [&](const Vec<D>& p) { sum += kernel.W(p); });
   return Real(1.0 / sum);
 }
 
-// Sums over the lattice points (spacing s) a flat wall removes from a
-// particle of the lattice one radius (s/2) from it: the rows below the
-// particle's own. `Visit` gets each point's offset from the particle.
-template <int D, class Visit>
-void forEachPointBelowRow(const CubicSpline<D>& kernel, Real s, bool below, Visit&& visit) {
-  const int n = int(std::ceil(kernel.radius() / s));
-  VecI<D> k = VecI<D>::Constant(-n);
-  while (true) {
-    if ((k[1] < 0) == below) visit(Vec<D>(s * k.template cast<Real>()));
-    int d = 0;
-    while (d < D && ++k[d] > n) k[d++] = -n;
-    if (d == D) break;
-  }
-}
-
-// What the flat wall takes from that particle: 1 - V Σ W over the points on
-// its side (V the lattice volume), the solids' Σ_b V_b W_ib that gives it
-// the rest density.
+// A particle of that lattice one radius (s/2) from a flat wall, the wall
+// along its rows (normal y): the wall takes the rows below the particle's
+// own. What it takes from its density, 1 - V Σ W over the points on its
+// side (V the lattice volume): the solids' Σ_b V_b W_ib that gives it the
+// rest density.
 template <int D>
-Real flatWallMissingVolume(const CubicSpline<D>& kernel, Real s, Real latticeVolume) {
+double flatWallMissingVolume(const CubicSpline<D>& kernel, Real s, Real latticeVolume) {
   double sum = 0;
-  forEachPointBelowRow<D>(kernel, s, false, [&](const Vec<D>& p) { sum += double(kernel.W(p)); });
-  return Real(1.0 - double(latticeVolume) * sum);
+  forEachLatticeOffset<D>(kernel, s, [&](const Vec<D>& p) {
+    if (p[1] >= 0) sum += double(kernel.W(p));
+  });
+  return 1.0 - double(latticeVolume) * sum;
 }
 
 // The push the removed points gave it, along the wall's normal: V Σ ∂W/∂y
 // of its offset from each of them.
 template <int D>
-Real flatWallMissingPush(const CubicSpline<D>& kernel, Real s, Real latticeVolume) {
+double flatWallMissingPush(const CubicSpline<D>& kernel, Real s, Real latticeVolume) {
   double sum = 0;
-  forEachPointBelowRow<D>(kernel, s, true, [&](const Vec<D>& p) {
+  forEachLatticeOffset<D>(kernel, s, [&](const Vec<D>& p) {
+    if (p[1] >= 0) return;
     Real w;
     Vec<D> g;
     kernel.evaluate(Vec<D>(-p), w, g);
     sum += double(g[1]);
   });
-  return Real(double(latticeVolume) * sum);
+  return double(latticeVolume) * sum;
 }
 
 }  // namespace fc

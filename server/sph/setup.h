@@ -6,6 +6,7 @@
 #include "sph/parameters.h"
 #include "sph/phase.h"
 #include "sph/settings.h"
+#include <algorithm>
 #include <array>
 #include <limits>
 #include <map>
@@ -57,6 +58,38 @@ struct Obstacle {
     return outside + inside;
   }
 };
+
+// Φ, the signed distance to the static solids, positive in the liquid: the
+// domain's walls alone (the nearest face of the box the liquid is in), and
+// with the obstacles.
+template <int D>
+Real wallDistance(const AABB<D>& domain, const Vec<D>& x) {
+  Real phi = std::numeric_limits<Real>::max();
+  for (int d = 0; d < D; ++d) phi = std::min({phi, x[d] - domain.min[d], domain.max[d] - x[d]});
+  return phi;
+}
+
+template <int D>
+Real solidDistance(const AABB<D>& domain, const std::vector<Obstacle<D>>& obstacles, const Vec<D>& x) {
+  Real phi = wallDistance(domain, x);
+  for (const auto& o : obstacles) phi = std::min(phi, o.signedDistance(x));
+  return phi;
+}
+
+// ∇Φ by central differences over ±eps, not normalised: smooth across the
+// kinks of Φ at edges and corners.
+template <int D>
+Vec<D> solidDistanceGradient(const AABB<D>& domain, const std::vector<Obstacle<D>>& obstacles, const Vec<D>& x,
+                             Real eps) {
+  Vec<D> n;
+  for (int d = 0; d < D; ++d) {
+    Vec<D> a = x, b = x;
+    a[d] += eps;
+    b[d] -= eps;
+    n[d] = (solidDistance(domain, obstacles, a) - solidDistance(domain, obstacles, b)) / (2 * eps);
+  }
+  return n;
+}
 
 // A rigid body (Akinci et al. 2012 [AIA*12] boundary particles on its surface):
 // kinematic (its motion is given) or dynamic (two-way coupled: the liquid's

@@ -88,8 +88,8 @@ Simulation<D>::Simulation(const SimulationSetup<D>& setup) : setup_(setup) {
   search.setGrid(setup_.domain, kernel.radius());
   latticeVolume_ = latticeParticleVolume(kernel, 2 * radius_);
   if (mirrorInConstraint_)
-    mirrorScale_ = radius_ * std::abs(flatWallMissingPush(kernel, 2 * radius_, latticeVolume_)) /
-                   flatWallMissingVolume(kernel, 2 * radius_, latticeVolume_);
+    mirrorScale_ = radius_ * std::abs(Real(flatWallMissingPush(kernel, 2 * radius_, latticeVolume_))) /
+                   Real(flatWallMissingVolume(kernel, 2 * radius_, latticeVolume_));
   buildBoundary();
   {
     const auto t0 = std::chrono::steady_clock::now();
@@ -321,29 +321,15 @@ void Simulation<D>::buildBoundary() {
   // surface, from the signed distance Φ to the solids (positive in the
   // liquid): the outward normal ∇Φ and the depth -Φ.
   if (mirrorInConstraint_) {
-    const AABB<D>& domain = setup_.domain;
-    const auto phi = [&](const Vec<D>& x) {
-      Real d = std::numeric_limits<Real>::max();
-      for (int a = 0; a < D; ++a) d = std::min({d, x[a] - domain.min[a], domain.max[a] - x[a]});
-      for (const auto& o : setup_.obstacles) d = std::min(d, o.signedDistance(x));
-      return d;
-    };
     surfaceNormal_.assign(pts.size(), Vec<D>::Zero());
     surfaceDepth_.assign(pts.size(), 0);
-    const Real eps = Real(0.1) * radius_;
 #pragma omp parallel for schedule(static)
     for (size_t b = 0; b < pts.size(); ++b) {
-      Vec<D> n;
-      for (int a = 0; a < D; ++a) {
-        Vec<D> hi = pts[b], lo = pts[b];
-        hi[a] += eps;
-        lo[a] -= eps;
-        n[a] = (phi(hi) - phi(lo)) / (2 * eps);
-      }
+      const Vec<D> n = solidDistanceGradient(setup_.domain, setup_.obstacles, pts[b], Real(0.1) * radius_);
       const Real len = n.norm();
       if (!(len > Real(1e-6))) continue;  // no side to push from: the sample adds no mirror
       surfaceNormal_[b] = n / len;
-      surfaceDepth_[b] = -phi(pts[b]);
+      surfaceDepth_[b] = -solidDistance(setup_.domain, setup_.obstacles, pts[b]);
     }
   }
   // Moving bodies follow the static solids in the boundary arrays.

@@ -246,6 +246,8 @@ class Simulation {
   // c makes that push, at the rest distance from a flat wall, the wall's
   // push once more, as the mirrored liquid of [AHA12] adds.
   std::vector<Real> boundaryExcess;
+  // The density the pressure solvers correct: ρ_i, plus boundaryExcess where there is one.
+  Real constrainedDensity(size_t i) const { return fluid.density[i] + (boundaryExcess.empty() ? Real(0) : boundaryExcess[i]); }
   std::vector<Real> restDensity_;   // per phase
 
  private:

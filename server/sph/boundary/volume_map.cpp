@@ -53,25 +53,10 @@ VolumeMap<D>::VolumeMap(const AABB<D>& domain, const std::vector<Obstacle<D>>& o
   // integral over the flat wall; together 1.
   {
     const Real s = 2 * r_;
-    const int n = int(std::ceil(h_ / s));
-    double sum = 0, below = 0, missingGrad = 0;
-    VecI<D> j = VecI<D>::Constant(-n);
-    while (true) {
-      const Vec<D> p = s * j.template cast<Real>();
-      if (j[1] >= 0) {
-        sum += double(kernel_.W(p));
-      } else if (p.norm() < h_) {
-        below += 1;
-        Real w;
-        Vec<D> g;
-        kernel_.evaluate(Vec<D>(-p), w, g);
-        missingGrad += double(latticeVolume) * double(g[1]);
-      }
-      int d = 0;
-      while (d < D && ++j[d] > n) j[d++] = -n;
-      if (d == D) break;
-    }
-    const double missing = 1.0 - double(latticeVolume) * sum;
+    const double missing = flatWallMissingVolume(kernel_, s, latticeVolume);
+    const double missingGrad = flatWallMissingPush(kernel_, s, latticeVolume);
+    double below = 0;  // the lattice points the wall removes from the particle's support
+    forEachLatticeOffset<D>(kernel_, s, [&](const Vec<D>& p) { below += p[1] < 0 && p.norm() < h_ ? 1 : 0; });
     missing_ = Real(missing);
     missingSamples_ = Real(below);
     if (density_) {
@@ -277,16 +262,12 @@ double VolumeMap<D>::integral(const Vec<D>& x) const {
 
 template <int D>
 Real VolumeMap<D>::wallDistance(const Vec<D>& x) const {
-  Real phi = std::numeric_limits<Real>::max();
-  for (int d = 0; d < D; ++d) phi = std::min({phi, x[d] - domain_.min[d], domain_.max[d] - x[d]});
-  return phi;
+  return fc::wallDistance(domain_, x);
 }
 
 template <int D>
 Real VolumeMap<D>::distance(const Vec<D>& x) const {
-  Real phi = wallDistance(x);
-  for (const auto& o : obstacles_) phi = std::min(phi, o.signedDistance(x));
-  return phi;
+  return solidDistance(domain_, obstacles_, x);
 }
 
 template <int D>
@@ -324,17 +305,8 @@ Real VolumeMap<D>::volume(const Vec<D>& x) const {
 
 template <int D>
 Vec<D> VolumeMap<D>::normal(const Vec<D>& x) const {
-  // Central differences over a tenth of the support, as SPlisHSPlasH's
-  // approximateNormal: smooth across the kinks of Φ at edges and corners.
-  const Real eps = Real(0.1) * h_;
-  Vec<D> n;
-  for (int d = 0; d < D; ++d) {
-    Vec<D> a = x, b = x;
-    a[d] += eps;
-    b[d] -= eps;
-    n[d] = (distance(a) - distance(b)) / (2 * eps);
-  }
-  return n;
+  // Over a tenth of the support, as SPlisHSPlasH's approximateNormal.
+  return solidDistanceGradient(domain_, obstacles_, x, Real(0.1) * h_);
 }
 
 template <int D>

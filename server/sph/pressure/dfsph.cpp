@@ -390,8 +390,7 @@ class DFSPH final : public PressureSolver<D> {
       const auto [first, last] = sim.threadParticles();
       for (long i = first; i < last; ++i) {
         const Real rho0 = sim.restDensity_[f.phase[i]];
-        // Plus, where the wall's mirror is in the constraint, the density its near samples add (Simulation::boundaryExcess).
-        const Real rho = f.density[i] + (sim.boundaryExcess.empty() ? Real(0) : sim.boundaryExcess[size_t(i)]);
+        const Real rho = sim.constrainedDensity(size_t(i));
         const Real predicted = rho - deferred * std::max(rho - rho0, Real(0)) + dt * rateOfDensity<ND>(sim, i, rho0);
         const Real err = std::max(predicted - rho0, Real(0));
         residual_[i] = err / dt;

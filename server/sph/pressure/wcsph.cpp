@@ -46,8 +46,7 @@ class WCSPH final : public PressureSolver<D> {
 #pragma omp parallel for schedule(static) reduction(+ : sum) reduction(max : mx)
     for (long i = 0; i < n; ++i) {
       const Real rho0 = sim.restDensity_[f.phase[i]];
-      const Real excess = sim.boundaryExcess.empty() ? Real(0) : sim.boundaryExcess[size_t(i)];  // Simulation::boundaryExcess
-      const Real ratio = std::max((f.density[i] + excess) / rho0, Real(1));
+      const Real ratio = std::max(sim.constrainedDensity(size_t(i)) / rho0, Real(1));
       f.pressure[i] = stiffness_ * (std::pow(ratio, exponent_) - Real(1));
       const Real err = ratio - Real(1);
       sum += double(err);
