@@ -65,6 +65,46 @@ def test_reference_scene_carries_our_settings(name):
     assert shipped_name == ("DamBreakModel_2D.json" if ours["dimension"] == 2 else "DamBreakModel.json")
 
 
+# The tank and block of SPlisHSPlasH 2.19's DamBreakModel.json and DamBreakModel_2D.json.
+SHIPPED_TANKS = {
+    3: {"RigidBodies": [{"translation": [0, 1.5, 0], "scale": [4, 3, 1.5], "isWall": True}],
+        "FluidBlocks": [{"start": [-0.5, 0.0, -0.5], "end": [0.5, 1.0, 0.5], "translation": [-1.45, 0.05, 0.0],
+                         "scale": [1, 1, 1]}]},
+    2: {"RigidBodies": [{"translation": [0, 2.0, 0], "scale": [4, 4, 1], "isWall": True}],
+        "FluidBlocks": [{"start": [-2.0, 0.0, -1], "end": [-0.5, 1.5, 1], "translation": [0.025, 0.025, 0.0],
+                         "scale": [1, 1, 1]}]},
+}
+
+
+@pytest.mark.parametrize("name", sorted(bench_reference.SCENES))
+def test_our_block_stands_particle_on_particle_where_its_block_does(name):
+    ours = bench_reference.our_scene(name)
+    shipped = SHIPPED_TANKS[ours["dimension"]]
+    moved = bench_reference.at_reference_block(ours, shipped)
+    assert ours == bench_reference.our_scene(name), "the caller's scene is not modified"
+    r, dim = ours["particle_radius"], ours["dimension"]
+    (theirs,) = shipped["FluidBlocks"]
+    (block,) = moved["fluid_blocks"]
+    (tank,) = shipped["RigidBodies"]
+    tank_min = [t - k / 2 for t, k in zip(tank["translation"], tank["scale"])]
+    for d in range(dim):
+        # Its sampling rule (SimulatorBase::createFluidBlocks) and ours, from each one's lower corner.
+        lo, hi = (theirs[k][d] + theirs["translation"][d] for k in ("start", "end"))
+        steps = round((hi - lo) / (2 * r)) - 1
+        its = [lo + 2 * r + 2 * r * j - tank_min[d] for j in range(steps)]
+        mine = [block["min"][d] + r + 2 * r * i - moved["domain"]["min"][d]
+                for i in range(round((block["max"][d] - block["min"][d]) / (2 * r)))]
+        assert mine == pytest.approx(its, abs=1e-9), d
+        assert moved["domain"]["min"][d] < block["min"][d] < block["max"][d] < moved["domain"]["max"][d]
+    # A block that would leave our domain is refused.
+    far = json.loads(json.dumps(shipped))
+    far["FluidBlocks"][0]["translation"][0] += 10
+    with pytest.raises(ValueError, match="outside"):
+        bench_reference.at_reference_block(ours, far)
+    assert {k: v for k, v in moved.items() if k != "fluid_blocks"} == {k: v for k, v in ours.items()
+                                                                       if k != "fluid_blocks"}
+
+
 def test_subcycled_scene_sets_the_standard_viscosity_alone_and_parses(tmp_path):
     ours = json.loads((ROOT / "scenes/bench/dambreak3d_r010.json").read_text())
     ours["effects"] = ["viscosity_standard", {"name": "viscosity_xsph", "coefficient": 0.1},
@@ -180,3 +220,43 @@ def test_paper_size_target_reads_the_large_scenes_wall_time_alone(tmp_path):
            "**not met** (worst pair 36.0 %, 3d_r010)." in md
     assert json.loads((tmp_path / "reference.json").read_text())["target"]["large"]["worst_pct"] == pytest.approx(36.0)
 
+
+
+def test_reference_mass_comes_from_the_driver_line():
+    out = OUTPUT.replace('"peak_rss_mb": 97.4}', '"peak_rss_mb": 97.4, "mass": 0.008}')
+    assert bench_reference.parse_reference_output(out)["mass"] == pytest.approx(0.008)
+    assert bench_reference.parse_reference_output(OUTPUT)["mass"] is None
+
+
+def test_an_audit_scene_exports_its_liquid_and_a_timed_one_does_not(tmp_path):
+    (tmp_path / "Scenes").mkdir()
+    (tmp_path / "Scenes" / "DamBreakModel.json").write_text(json.dumps(SHIPPED))
+    timed, audited = tmp_path / "timed.json", tmp_path / "audited.json"
+    bench_reference.write_reference_scene(str(tmp_path), "3d_r010", str(timed))
+    bench_reference.write_reference_scene(str(tmp_path), "3d_r010", str(audited), export_fps=2.5)
+    t = json.loads(timed.read_text())["Configuration"]
+    a = json.loads(audited.read_text())["Configuration"]
+    assert "enableVTKExport" not in t and "dataExportFPS" not in t
+    assert a["enableVTKExport"] is True and a["dataExportFPS"] == 2.5
+    assert {k: v for k, v in a.items() if k not in ("enableVTKExport", "dataExportFPS")} == t
+
+
+def audit_summary(share, deviation, compression, p99, worst):
+    return {"frames": [{}] * 5, "interior_share": share, "mean_deviation_pct": deviation,
+            "mean_compression_pct": compression, "p99_compression_pct": p99, "max_mean_compression_pct": worst}
+
+
+def test_report_shows_both_codes_density_measured_from_their_frames(tmp_path):
+    results = {"3d_r010": {"flowclip": [run_figures(0.3, 1.5)], "splishsplash": [run_figures(1.0, 5.0)]}}
+    report = report_of(results, True)
+    report["density_audit"] = {"3d_r010": {"density_tolerance_pct": 0.05,
+                                           "flowclip": audit_summary(0.78, -0.044, 0.046, 0.357, 0.051),
+                                           "splishsplash": audit_summary(0.82, 0.068, 0.076, 0.313, 0.120)}}
+    bench_reference.write_report(tmp_path, report)
+    md = (tmp_path / "reference.md").read_text()
+    assert "## The density each code holds, measured from its exported frames" in md
+    row = [line for line in md.splitlines() if line.startswith("| 3d_r010 |")][-1]
+    assert row == ("| 3d_r010 | 0.05 % | 5 / 5 | 0.78 / 0.82 | -0.044 % / 0.068 % | 0.046 % / 0.076 % "
+                   "| 0.357 % / 0.313 % | 0.051 % / 0.120 % |")
+    assert json.loads((tmp_path / "reference.json").read_text())["density_audit"]["3d_r010"]["flowclip"][
+        "mean_compression_pct"] == pytest.approx(0.046)

@@ -8,6 +8,7 @@ per simulated second with our share of SPlisHSPlasH's into a report
     build/venv/bin/python tools/bench_reference.py --only 3d_r0125 --repeat 3 --out /tmp/ref
     build/venv/bin/python tools/bench_reference.py --only 3d_r005 --seconds 0.1 --out bench/reference-1m
     build/venv/bin/python tools/bench_reference.py --only 3d_r005 --seconds 0.1 --subcycle-viscosity --out bench/reference-1m-subcycled
+    build/venv/bin/python tools/bench_reference.py --audit-frames 0    # no density audit
 
 Why: figures read on different machines, or on one virtual machine at
 different times, do not divide (the same executable ran up to 1.7x slower
@@ -24,10 +25,19 @@ settings read from our reference scenes (scenes/bench/): particle radius,
 DFSPH density and divergence tolerances, CFL factor, step limit, gravity,
 rest density and standard viscosity (`reference_scene`); its tank, block
 and volume-map boundaries stay its own, and the 2D scene's micropolar
-vorticity is switched off, since ours has none.
+vorticity is switched off, since ours has none. Our block of liquid is
+moved to where its shipped block stands (`at_reference_block`: our
+particles on its particles; its block starts a few centimetres above the
+floor and from the back wall, and falls first), so that both simulate the
+same dam break.
 Both run 2 threads. SPlisHSPlasH's time is the sum of its own SimStep
 timer (initialisation excluded, as ours); its steps are counted by a
 per-step callback.
+
+The density each code holds is then measured from its own exported frames
+by tools/density_audit.py (its own SPH sums over the liquid's positions,
+neither solver's estimate): one more, untimed run of each per scene, with
+FlowClip's HDF5 export and SPlisHSPlasH's VTK one at the same times.
 """
 import argparse
 import datetime
@@ -40,7 +50,8 @@ import subprocess
 import sys
 import tempfile
 
-from bench_report import loadavg, machine  # tools/, beside this script
+import density_audit  # tools/, beside this script
+from bench_report import loadavg, machine
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 WHEEL = "pysplishsplash==2.19.0"
@@ -68,7 +79,9 @@ base.init(["splash", "--no-gui", "--no-cache", "--no-initial-pause", "--output-d
 state = {"steps": 0, "particles": 0}
 def step():
     if state["steps"] == 0:
-        state["particles"] = sph.Simulation.getCurrent().getFluidModel(0).numActiveParticles()
+        model = sph.Simulation.getCurrent().getFluidModel(0)
+        state["particles"] = model.numActiveParticles()
+        state["mass"] = model.getMass(0)
     state["steps"] += 1
 base.setTimeStepCB(step)
 base.run()
@@ -128,6 +141,31 @@ def reference_scene(ours, shipped):
     return s
 
 
+def at_reference_block(ours, shipped):
+    """Our scene `ours` (a dict; a copy is returned) with its block of
+    liquid where SPlisHSPlasH's `shipped` scene puts its own, particle on
+    particle: its particles sit at start + 2r + 2r j (j below round((end -
+    start) / 2r) - 1, the block scaled and translated) in its tank (the
+    wall: a unit box scaled and translated), whose lower corner is our
+    domain's; ours at min + r + 2r i."""
+    s = json.loads(json.dumps(ours))
+    r, dim = s["particle_radius"], s["dimension"]
+    (block,) = s["fluid_blocks"]
+    (tank,) = [b for b in shipped["RigidBodies"] if b.get("isWall")]
+    tank_min = [t - 0.5 * k for t, k in zip(tank.get("translation", [0, 0, 0]), tank["scale"])]
+    (theirs,) = shipped["FluidBlocks"]
+    scale, move = theirs.get("scale", [1, 1, 1]), theirs.get("translation", [0, 0, 0])
+    for d in range(dim):
+        lo, hi = (theirs[k][d] * scale[d] + move[d] for k in ("start", "end"))
+        steps = round((hi - lo) / (2 * r)) - 1
+        first = lo + 2 * r - tank_min[d] + s["domain"]["min"][d]
+        block["min"][d] = first - r
+        block["max"][d] = first - r + steps * 2 * r
+        if not s["domain"]["min"][d] <= block["min"][d] < block["max"][d] <= s["domain"]["max"][d]:
+            raise ValueError(f"{s.get('name')}: SPlisHSPlasH's block lies outside our domain on axis {d}")
+    return s
+
+
 def our_scene(name):
     """Our scene of SCENES[name] (a dict), at its particle radius."""
     ours_path, _, radius = SCENES[name]
@@ -138,11 +176,17 @@ def our_scene(name):
     return ours
 
 
-def write_reference_scene(data, name, path):
-    ours, shipped_name = our_scene(name), SCENES[name][1]
-    with open(os.path.join(data, "Scenes", shipped_name)) as fh:
-        shipped = json.load(fh)
-    s = reference_scene(ours, shipped)
+def shipped_scene(data, name):
+    with open(os.path.join(data, "Scenes", SCENES[name][1])) as fh:
+        return json.load(fh)
+
+
+def write_reference_scene(data, name, path, export_fps=None):
+    """SPlisHSPlasH's scene for SCENES[name] into `path`; with `export_fps`,
+    exporting its liquid's positions (VTK) at that rate."""
+    s = reference_scene(our_scene(name), shipped_scene(data, name))
+    if export_fps:
+        s["Configuration"].update({"enableVTKExport": True, "dataExportFPS": export_fps})
     for b in s["RigidBodies"]:
         b["geometryFile"] = os.path.join(data, "models", os.path.basename(b["geometryFile"]))
     with open(path, "w") as fh:
@@ -175,6 +219,7 @@ def parse_reference_output(out):
         "density_iterations_per_step": number("Average number: DFSPH - iterations"),
         "divergence_iterations_per_step": number("Average number: DFSPH - iterationsV"),
         "peak_rss_mb": state["peak_rss_mb"],
+        "mass": state.get("mass"),
     }
 
 
@@ -195,28 +240,31 @@ def subcycled(scene):
     return s
 
 
-def run_ours(binary, scene, seconds, threads, radius=None, subcycle=False):
+def our_run_scene(data, name, subcycle=False):
+    """Our scene of SCENES[name] as it runs beside SPlisHSPlasH (a dict): at
+    its radius, the block where SPlisHSPlasH's stands, the viscosity
+    sub-cycled if asked."""
+    s = at_reference_block(our_scene(name), shipped_scene(data, name))
+    return subcycled(s) if subcycle else s
+
+
+def run_ours(binary, name, scene, seconds, threads, export=None):
+    """`flowclip run` of the scene dict `scene`, written beside SCENES[name]'s
+    file (so that its relative paths still resolve)."""
     with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as f:
         stats = f.name
-    scene_file = None
+    with tempfile.NamedTemporaryFile("w", suffix=".json", prefix=".reference-", delete=False,
+                                     dir=os.path.dirname(os.path.join(ROOT, SCENES[name][0]))) as fh:
+        json.dump(scene, fh)
+        scene_file = fh.name
     try:
-        if subcycle:
-            with open(os.path.join(ROOT, scene)) as fh:
-                changed = subcycled(json.load(fh))
-            # Beside the scene, so that its relative paths still resolve.
-            with tempfile.NamedTemporaryFile("w", suffix=".json", prefix=".subcycled-", delete=False,
-                                             dir=os.path.dirname(os.path.join(ROOT, scene))) as fh:
-                json.dump(changed, fh)
-                scene = scene_file = fh.name
-        subprocess.run([binary, "run", scene, "--seconds", str(seconds), "--threads", str(threads), "--stats", stats,
-                        "--quiet"] + ([] if radius is None else ["--particle-radius", str(radius)]), check=True,
-                       cwd=ROOT)
+        subprocess.run([binary, "run", scene_file, "--seconds", str(seconds), "--threads", str(threads), "--stats",
+                        stats, "--quiet"] + ([] if export is None else ["--export", export]), check=True, cwd=ROOT)
         with open(stats) as fh:
             s = json.load(fh)
     finally:
         os.unlink(stats)
-        if scene_file:
-            os.unlink(scene_file)
+        os.unlink(scene_file)
     frames, summary = s["frames"], s["summary"]
     steps = summary["substeps"]
     return {
@@ -229,6 +277,52 @@ def run_ours(binary, scene, seconds, threads, radius=None, subcycle=False):
         "divergence_iterations_per_step": sum(f["divergence_iterations"] for f in frames) / steps,
         "peak_rss_mb": summary["peak_rss_mb"],
     }
+
+
+def audit_scene(py, data, name, seconds, threads, binary, frames, work, subcycle=False):
+    """One untimed run of each code on SCENES[name], exporting about `frames`
+    frames at the same times, measured by tools/density_audit.py:
+    {"flowclip": summary, "splishsplash": summary, "density_tolerance_pct"}."""
+    ours = our_run_scene(data, name, subcycle)
+    fps = frames / seconds
+    every = max(1, round(ours["settings"]["frame_rate"] / fps))
+    fps = ours["settings"]["frame_rate"] / every  # both at the times of our every-th frame
+    out = {"density_tolerance_pct": ours["solver"]["density_tolerance_pct"]}
+    h5 = os.path.join(work, name + "-audit.h5")
+    try:
+        run_ours(binary, name, ours, seconds, threads, export=h5)
+        r, dim, rest, ours_frames = density_audit.read_h5(h5, every)
+    finally:
+        if os.path.exists(h5):
+            os.unlink(h5)
+    out["flowclip"] = density_audit.summarise(ours_frames, r, rest * density_audit.lattice_volume(r, dim), rest)
+    ref_dir = os.path.join(work, name + "-audit")
+    os.makedirs(ref_dir, exist_ok=True)
+    scene = os.path.join(ref_dir, "scene.json")
+    write_reference_scene(data, name, scene, export_fps=fps)
+    figures = run_reference(py, scene, seconds, threads, ref_dir)
+    files = [os.path.join(ref_dir, "vtk", f) for f in os.listdir(os.path.join(ref_dir, "vtk"))]
+    # Its first file is the state at t = 0, which ours does not export.
+    ref_frames = [(t, x) for t, x in density_audit.vtk_frames(files, fps, dim) if t > 0]
+    out["splishsplash"] = density_audit.summarise(ref_frames, r, figures["mass"], rest)
+    for f in files:
+        os.unlink(f)
+    return out
+
+
+def audit_table(audits):
+    lines = ["| scene | tolerance | frames (FlowClip / SPlisHSPlasH) | interior share | mean deviation | "
+             "mean compression | 99th percentile | worst frame's mean compression |",
+             "|---|---:|---|---|---|---|---|---|"]
+    for name, a in audits.items():
+        o, r = a["flowclip"], a["splishsplash"]
+        def both(key, fmt="{:.3f} %"):
+            return f"{fmt.format(o[key])} / {fmt.format(r[key])}"
+        lines.append(f"| {name} | {a['density_tolerance_pct']:g} % | {len(o['frames'])} / {len(r['frames'])} "
+                     f"| {both('interior_share', '{:.2f}')} | {both('mean_deviation_pct')} "
+                     f"| {both('mean_compression_pct')} | {both('p99_compression_pct')} "
+                     f"| {both('max_mean_compression_pct')} |")
+    return lines
 
 
 def spread(values, fmt):
@@ -303,6 +397,17 @@ def write_report(out, report):
     md += table(report["scenes_runs"])
     md += ["", f"Target: at most {TARGET_PCT:g} % of SPlisHSPlasH's µs per particle-step and wall time per "
            f"simulated second on every scene: **{'met' if met else 'not met'}** (worst pair {worst:.1f} %)."]
+    audits = report.get("density_audit")
+    if audits:
+        md += ["", "## The density each code holds, measured from its exported frames", "",
+               "Each scene run once more by each code, untimed, exporting its liquid's positions at the same times "
+               "(FlowClip's HDF5, SPlisHSPlasH's VTK); `tools/density_audit.py` sums the density of every particle "
+               "from those positions alone (cubic spline of support 4r, each code's particle mass) and keeps the "
+               f"interior ones: those whose kernel-weighted neighbour centroid is within "
+               f"{density_audit.CENTROID_LIMIT:g} r of them (the walls' share is in neither file). Figures are the "
+               "mean over the frames, FlowClip / SPlisHSPlasH; compression is the positive part of the deviation "
+               "from the rest density, as DFSPH's tolerance bounds it.", ""]
+        md += audit_table(audits)
     large = report["target"].get("large")
     if large:
         md += ["", f"Target at {large['min_particles']:,} particles and more: at most {large['max_wall_pct']:g} % of "
@@ -328,11 +433,14 @@ def main():
     ap.add_argument("--subcycle-viscosity", action="store_true",
                     help="run our scenes' standard viscosity sub-cycled (its `subcycle` parameter), so that it does "
                          "not bound the step, as SPlisHSPlasH's does not")
+    ap.add_argument("--audit-frames", type=int, default=5,
+                    help="measure each code's density from this many exported frames per scene, in one more untimed "
+                         "run of each (tools/density_audit.py; 0: none)")
     ap.add_argument("--out", default=os.path.join(ROOT, "bench", "reference"),
                     help="report folder: reference.md and reference.json (default bench/reference)")
     args = ap.parse_args()
-    if args.repeat < 1 or args.seconds <= 0:
-        ap.error("--repeat must be >= 1 and --seconds > 0")
+    if args.repeat < 1 or args.seconds <= 0 or args.audit_frames < 0:
+        ap.error("--repeat must be >= 1, --seconds > 0 and --audit-frames >= 0")
 
     command = "build/venv/bin/python tools/bench_reference.py" + "".join(" " + shlex.quote(a) for a in sys.argv[1:])
     started = machine()
@@ -340,12 +448,12 @@ def main():
     version = subprocess.run([args.binary, "--version"], capture_output=True, text=True, check=True).stdout.strip()
     py, data = venv_python(os.path.join(ROOT, "build"))
     names = args.only or DEFAULT
-    results = {}
+    results, audits = {}, {}
     with tempfile.TemporaryDirectory() as work:
-        total = len(names) * args.repeat * 2
+        total = len(names) * (args.repeat * 2 + (1 if args.audit_frames else 0))
         done = 0
         for name in names:
-            ours_scene, _, radius = SCENES[name]
+            ours_scene = our_run_scene(data, name, args.subcycle_viscosity)
             ref_scene = os.path.join(work, name + ".json")
             write_reference_scene(data, name, ref_scene)
             runs = {"splishsplash": [], "flowclip": []}
@@ -357,10 +465,15 @@ def main():
                     done += 1
                     print(f"[{done}/{total}] {name} {who} ({args.seconds:g} simulated s)", file=sys.stderr, flush=True)
                     r = (run_reference(py, ref_scene, args.seconds, args.threads, work) if who == "splishsplash"
-                         else run_ours(args.binary, ours_scene, args.seconds, args.threads, radius,
-                                       args.subcycle_viscosity))
+                         else run_ours(args.binary, name, ours_scene, args.seconds, args.threads))
                     runs[who].append(r)
             results[name] = runs
+            if args.audit_frames:
+                done += 1
+                print(f"[{done}/{total}] {name} density audit: both codes, {args.audit_frames} exported frames",
+                      file=sys.stderr, flush=True)
+                audits[name] = audit_scene(py, data, name, args.seconds, args.threads, args.binary,
+                                           args.audit_frames, work, args.subcycle_viscosity)
 
     sys.stderr.flush()
     print("\n".join(table(results)))
@@ -372,11 +485,11 @@ def main():
     report = {"benchmark": "reference", "date": date, "command": command, "machine": started,
               "loadavg_at_end": loadavg(),
               "settings": {"threads": args.threads, "seconds": args.seconds, "repeat": args.repeat,
-                           "subcycle_viscosity": args.subcycle_viscosity,
+                           "subcycle_viscosity": args.subcycle_viscosity, "audit_frames": args.audit_frames,
                            "reference": WHEEL, "flowclip": os.path.relpath(args.binary, ROOT),
                            "flowclip_version": version},
               "target": {"max_pct_of_reference": TARGET_PCT, "met": met, "large": large_target(scenes)},
-              "scenes": scenes, "scenes_runs": results}
+              "scenes": scenes, "scenes_runs": results, "density_audit": audits}
     write_report(args.out, report)
     print(f"report: {os.path.join(args.out, 'reference.md')}", file=sys.stderr)
 
