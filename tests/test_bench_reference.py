@@ -197,6 +197,7 @@ def test_report_divides_each_pair_and_writes_markdown_and_json(tmp_path):
     # Medians with ranges, both figures divided pair by pair.
     assert "0.350 (0.300–0.400) vs 1.000" in row and "35.0 (30.0–40.0) %, 35.0 (30.0–40.0) %" in row
     assert "**met** (worst pair 40.0 %)" in md
+    assert "moved onto SPlisHSPlasH's shipped one, particle on particle" in md
     assert not list(tmp_path.glob(".*.tmp")), "a temporary file was left"
 
 

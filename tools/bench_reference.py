@@ -389,6 +389,8 @@ def write_report(out, report):
           f"- command: `{report['command']}`",
           f"- SPlisHSPlasH: {report['settings']['reference']} (its PyPI wheel); FlowClip: "
           f"`{report['settings']['flowclip']}` {report['settings']['flowclip_version']}",
+          "- the same dam break: FlowClip's block of liquid moved onto SPlisHSPlasH's shipped one, particle on "
+          "particle (`at_reference_block`)",
           f"- {report['settings']['threads']} threads each, {report['settings']['seconds']:g} simulated s per run, "
           f"{report['settings']['repeat']} alternating pair(s) of runs per scene"
           + ("; FlowClip's standard viscosity sub-cycled (`subcycle`)"
