@@ -49,7 +49,7 @@ def test_the_kernel_integrates_to_one(dim):
 @pytest.mark.parametrize("dim,n", [(2, 30), (3, 14)])
 def test_a_resting_lattice_reads_the_rest_density_inside_and_keeps_only_the_inside(dim, n):
     x = lattice(n, dim)
-    mass = 1000.0 * density_audit.lattice_volume(R, dim)
+    mass = density_audit.flowclip_mass(R, dim, 1000.0)
     a = density_audit.audit(x, R, mass, 1000.0)
     # The outer layer sees neighbours on one side only; the next one already
     # has all of its neighbours (the kernel reaches one lattice step).
@@ -62,7 +62,7 @@ def test_a_resting_lattice_reads_the_rest_density_inside_and_keeps_only_the_insi
 def test_a_compressed_lattice_reads_its_compression(dim, n):
     s = 0.99  # spacing, of 2r
     x = lattice(n, dim, spacing=2 * R * s)
-    mass = 1000.0 * density_audit.lattice_volume(R, dim)
+    mass = density_audit.flowclip_mass(R, dim, 1000.0)
     # The expected density: one particle's sum over its lattice, by hand.
     h = density_audit.SUPPORT * R
     offsets = lattice(5, dim, spacing=2 * R * s) - 2 * (2 * R * s)
@@ -116,7 +116,7 @@ def test_flowclips_resting_column_holds_its_tolerance_measured_from_its_export(t
                     "--export", str(out), "--quiet", "--threads", "2"], check=True, cwd=ROOT, timeout=900)
     r, dim, rest, frames = density_audit.read_h5(str(out), every=10)
     assert dim == 2 and len(frames) == 3
-    s = density_audit.summarise(frames, r, rest * density_audit.lattice_volume(r, dim), rest)
+    s = density_audit.summarise(frames, r, density_audit.flowclip_mass(r, dim, rest), rest)
     # Most of a column is interior. DFSPH bounds the mean compression over
     # all particles, those by the surface and walls included, which read
     # less: read independently the interior holds about its tolerance

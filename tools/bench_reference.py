@@ -295,7 +295,7 @@ def audit_scene(py, data, name, seconds, threads, binary, frames, work, subcycle
     finally:
         if os.path.exists(h5):
             os.unlink(h5)
-    out["flowclip"] = density_audit.summarise(ours_frames, r, rest * density_audit.lattice_volume(r, dim), rest)
+    out["flowclip"] = density_audit.summarise(ours_frames, r, density_audit.flowclip_mass(r, dim, rest), rest)
     ref_dir = os.path.join(work, name + "-audit")
     os.makedirs(ref_dir, exist_ok=True)
     scene = os.path.join(ref_dir, "scene.json")

@@ -10,7 +10,7 @@ frames are measured by one piece of code (tools/bench_reference.py).
 Each particle's density is rho_i = m sum_j W(|x_i - x_j|) over the liquid's
 particles with the cubic spline of support 4r (both codes' kernel and
 support). Its mass is the code's own: FlowClip's makes its initial lattice
-(spacing 2r) read exactly the rest density (`lattice_volume`); SPlisHSPlasH's
+(spacing 2r) read exactly the rest density (`flowclip_mass`); SPlisHSPlasH's
 is what it reports (2.19: (2r)^D rho0, within 0.003 % of FlowClip's), given
 with --mass. Only interior particles are counted: those whose
 kernel-weighted neighbour centroid lies within `CENTROID_LIMIT` radii of
@@ -27,7 +27,6 @@ import argparse
 import glob
 import json
 import math
-import os
 import re
 import sys
 
@@ -55,6 +54,11 @@ def lattice_volume(radius, dim):
     axes = [np.arange(-n, n + 1) * s] * dim
     offsets = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, dim)
     return 1.0 / float(cubic_spline(np.linalg.norm(offsets, axis=1), h, dim).sum())
+
+
+def flowclip_mass(radius, dim, rest_density):
+    """FlowClip's particle mass: the rest density times the lattice volume."""
+    return rest_density * lattice_volume(radius, dim)
 
 
 def sums(x, h):
@@ -89,7 +93,6 @@ def sums(x, h):
 
 def audit(x, radius, mass, rest_density):
     """The figures of one frame's liquid positions x (N x D)."""
-    dim = x.shape[1]
     w, c = sums(np.asarray(x, dtype=np.float64), SUPPORT * radius)
     rho = mass * w
     centroid = np.linalg.norm(c / w[:, None], axis=1) / radius
@@ -170,7 +173,7 @@ def main():
             ap.error("VTK files need --radius")
         radius, dim, rest = args.radius, args.dimension, args.rest_density
         frames = vtk_frames([f for p in args.files for f in glob.glob(p)], args.fps, dim)
-    mass = args.mass if args.mass is not None else rest * lattice_volume(radius, dim)
+    mass = args.mass if args.mass is not None else flowclip_mass(radius, dim, rest)
     if not frames:
         ap.error("no frames in " + " ".join(args.files))
     print(json.dumps(summarise(frames, radius, mass, rest), indent=1))
