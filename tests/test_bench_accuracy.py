@@ -23,13 +23,15 @@ from repo_paths import FLOWCLIP_BIN, ROOT
 
 KNOBS = ["particle_radius", "density_tolerance_pct", "divergence_tolerance_pct", "stiffness", "cfl_factor",
          "forces_every_substep", "repulsion", "temporary_particles", "falloff_width"]
+REST = ["floor_row_gap_r", "side_row_gap_r", "closest_approach_r", "surface_change_r", "max_speed_after_1s",
+        "floor_row_pressure_ratio", "band_pressure_error_pct", "band_pressure_std_pct"]
 CONTROL_KNOBS = ["forces_every_substep", "repulsion", "temporary_particles", "falloff_width"]
 COLUMNS = (["id", "group", "scene", "method", "boundary", "real"] + KNOBS +
            ["status", "particles", "frames", "simulated_s", "substeps_per_frame", "solver_iterations_per_frame",
             "unconverged_frames", "wall_s_per_sim_s", "ms_per_frame", "us_per_particle_step", "cpu_s_per_sim_s",
             "avg_density_error_pct", "max_density_error_pct", "solver_avg_density_error_pct",
             "solver_max_density_error_pct", "volume_drift_pct", "max_speed", "surge_front_rms", "surge_front_bias",
-            "fidelity_iou", "front_avg_density_error", "front_max_density_error", "front_volume_drift",
+            "fidelity_iou"] + REST + ["front_avg_density_error", "front_max_density_error", "front_volume_drift",
             "front_surge_front_rms", "front_fidelity", "preset", "load_avg"])
 TEXT = {"id", "group", "scene", "method", "boundary", "real", "status", "preset"}
 TOLERANCES = ["density_tolerance_pct", "divergence_tolerance_pct"]
@@ -72,6 +74,7 @@ def test_every_row_has_every_column(study):
     for row in study["rows"]:
         assert row["status"] == "ok", row
         dam = row["scene"] == "dambreak2d"
+        rest = row["group"] == "rest"
         for col in COLUMNS:
             v = row[col]
             assert v != "", (col, row)
@@ -80,9 +83,10 @@ def test_every_row_has_every_column(study):
             # "n/a" exactly where the knob or the measure does not apply.
             not_applicable = ((col in ("density_tolerance_pct", "divergence_tolerance_pct") and row["method"] != "dfsph")
                               or (col == "stiffness" and row["method"] != "wcsph")
-                              or (col in CONTROL_KNOBS and dam)
+                              or (col in CONTROL_KNOBS and (dam or rest))
                               or (col in ("surge_front_rms", "surge_front_bias") and not dam)
-                              or (col == "fidelity_iou" and dam)
+                              or (col == "fidelity_iou" and (dam or rest))
+                              or (col in REST and not rest)
                               or (col in ("front_avg_density_error", "front_max_density_error", "front_volume_drift",
                                           "front_surge_front_rms") and not dam)
                               or (col == "front_fidelity" and row["scene"] != "drop2d"))
@@ -194,6 +198,8 @@ def test_every_boundary_model_is_priced_on_the_same_dam_break(study):
     models = [r["boundary"] for r in group]
     assert len(set(models)) == len(models) >= 4, models
     assert {"akinci2012", "adami2012", "bender2019", "koschier2017"} <= set(models)
+    # The opt-in form of a model is priced beside it, named by its parameter.
+    assert "adami2012 constraint=1" in models, models
     # The same point but for the model.
     same = KNOBS + ["scene", "method", "real"]
     assert all(r[k] == group[0][k] for r in group for k in same), group
@@ -209,3 +215,29 @@ def test_every_boundary_model_is_priced_on_the_same_dam_break(study):
     for col in ("avg_density_error_pct", "max_density_error_pct", "volume_drift_pct", "surge_front_rms",
                 "substeps_per_frame", "solver_iterations_per_frame"):
         assert twin[col] == default[col], col
+
+
+def test_every_boundary_model_holds_a_resting_column_as_measured_from_its_frames(study):
+    """The `rest` group: each model and variant on hydrostatic2d, measured from
+    the exported frames (rows, surface, speed, pressure against ρ0 g h)."""
+    rows = {r["boundary"]: r for r in study["rows"] if r["group"] == "rest" and r["scene"] == "hydrostatic2d"}
+    boundary = {r["boundary"] for r in study["rows"] if r["group"] == "boundary"}
+    assert set(rows) == boundary, (set(rows), boundary)
+    value = {name: {c: float(r[c]) for c in REST} for name, r in rows.items()}
+    akinci, adami, mirror = value["akinci2012"], value["adami2012"], value["adami2012 constraint=1"]
+    # The extrapolated wall pressure keeps the rows at their rest distance and
+    # carries the floor row's pressure; the particle term alone lets them sink
+    # and overloads that row.
+    assert adami["floor_row_gap_r"] >= 0.9 and adami["side_row_gap_r"] >= 0.9, adami
+    assert akinci["floor_row_gap_r"] < adami["floor_row_gap_r"] - 0.2, akinci
+    assert abs(adami["floor_row_pressure_ratio"] - 1) < 0.05, adami
+    assert akinci["floor_row_pressure_ratio"] > 1.3, akinci
+    # The mirror in the constraint also keeps every single particle off the walls.
+    assert mirror["closest_approach_r"] >= 0.5, mirror
+    assert mirror["closest_approach_r"] > akinci["closest_approach_r"] + 0.3, (mirror, akinci)
+    for name in ("akinci2012", "adami2012", "adami2012 constraint=1"):
+        v = value[name]
+        assert abs(v["surface_change_r"]) <= 1.0, (name, v)
+        assert v["band_pressure_std_pct"] <= 5.0, (name, v)
+        assert v["band_pressure_error_pct"] <= 15.0, (name, v)
+        assert 0 < v["closest_approach_r"] <= min(v["floor_row_gap_r"], v["side_row_gap_r"]), (name, v)

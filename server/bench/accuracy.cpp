@@ -105,10 +105,15 @@ const ParamSpec* knobSpec(const Knob& k) {
 std::string sceneMethod(const json& scene) {
   return scene.contains("solver") ? scene["solver"].value("method", std::string("dfsph")) : "dfsph";
 }
-// The scene's boundary model (the default where the file names none).
+// The scene's boundary model (the default where the file names none) and
+// the parameters the file sets, "adami2012 constraint=1".
 std::string sceneBoundary(const json& scene) {
   const json* b = scene.contains("boundary") ? &scene["boundary"] : nullptr;
-  return b && b->contains("method") ? (*b)["method"].get<std::string>() : std::string(kDefaultBoundaryModel);
+  std::string s = b && b->contains("method") ? (*b)["method"].get<std::string>() : std::string(kDefaultBoundaryModel);
+  if (b)
+    for (const auto& [key, value] : b->items())
+      if (key != "method") s += " " + key + "=" + fmt(value.is_boolean() ? double(value.get<bool>()) : value.get<double>());
+  return s;
 }
 bool hasInstances(const json& scene) { return scene.contains("instances") && !scene["instances"].empty(); }
 
@@ -158,6 +163,7 @@ struct Reference {
   const char* scene;   // stem of scenes/<scene>.json
   bool surge;          // Martin & Moyce surge front (a column of width a, height 2a, at the left wall)
   bool fidelity;       // template instances: control fidelity IoU
+  bool rest = false;   // a column resting in a box: its distance from the walls, surface, speed and pressure
 };
 
 const std::vector<Reference>& references() {
@@ -169,6 +175,8 @@ const std::vector<Reference>& references() {
       {"waterjet2d", false, true},
       {"doubledam2d", false, true},
       {"blade2d", false, true},
+      {"hydrostatic2d", false, false, true},
+      {"hydrostatic3d", false, false, true},
   };
   return r;
 }
@@ -189,8 +197,15 @@ struct Point {
   std::string real = "float";
   std::vector<std::pair<std::string, double>> set;  // knob overrides
   double seconds = 0;  // simulated
-  std::string boundary;  // boundary model; empty: the scene's
+  json boundary;         // the scene's boundary section; null: the scene's
 };
+
+// Opt-in forms of a registered boundary model, priced beside the models'
+// defaults: each a boundary section of a scene.
+const std::vector<json>& boundaryVariants() {
+  static const std::vector<json> variants = {{{"method", "adami2012"}, {"constraint", true}}};
+  return variants;
+}
 
 struct Sweep {
   double damSeconds;                 // the dam break: long enough for Martin & Moyce's last point (T = 3.33)
@@ -201,21 +216,25 @@ struct Sweep {
   double controlRadius;              // drop2d's resolution in the control sweep (0: the scene's)
   std::vector<double> falloffWidths;
   bool templateScenes;               // the other 2D template scenes at their defaults
+  std::vector<std::string> restScenes;  // resting columns, each with every boundary model
 };
+
+// A resting column's run: settled over its last half second, its speed from 1 s on.
+constexpr double kRestSeconds = 2.0, kRestSettledFrom = 1.5, kRestSpeedFrom = 1.0;
 
 // Full: at the scenes' own resolutions, the tolerance x CFL grid complete.
 // Quick (`make test`'s smoke run, minutes): coarse, short, one knob at a time.
 Sweep sweepFor(bool quick) {
   if (quick) return {0.6, 0.8, 0.02, 0, {1, 0.1, 0.01}, {1, 0.1, 0.01}, {0.5, 1, 1.5}, {50000}, false, 0.006, {0.1},
-                     false};
+                     false, {"hydrostatic2d"}};
   return {0.8, 1.2, 0.01, 0.0035, {1, 0.1, 0.01}, {1, 0.1, 0.01}, {0.5, 1, 1.5}, {50000}, true, 0, {0.02, 0.1},
-          true};
+          true, {"hydrostatic2d", "hydrostatic3d"}};
 }
 
 std::vector<Point> sweepPoints(const Sweep& s, bool quick, bool withDouble) {
   std::vector<Point> pts;
   const auto dfsph = [&](const std::string& group, double dens, double div, double cfl, double radius,
-                         const std::string& real, const std::string& boundary = "") {
+                         const std::string& real, const json& boundary = nullptr) {
     Point p{group, "dambreak2d", "dfsph", real, {{"density_tolerance_pct", dens}, {"divergence_tolerance_pct", div},
                                                 {"cfl_factor", cfl}}, s.damSeconds, boundary};
     if (radius > 0) p.set.push_back({"particle_radius", radius});
@@ -223,7 +242,7 @@ std::vector<Point> sweepPoints(const Sweep& s, bool quick, bool withDouble) {
   };
   const auto wcsph = [&](const std::string& group, double stiffness, double cfl, double radius,
                          const std::string& real) {
-    Point p{group, "dambreak2d", "wcsph", real, {{"stiffness", stiffness}, {"cfl_factor", cfl}}, s.damSeconds, ""};
+    Point p{group, "dambreak2d", "wcsph", real, {{"stiffness", stiffness}, {"cfl_factor", cfl}}, s.damSeconds, nullptr};
     if (radius > 0) p.set.push_back({"particle_radius", radius});
     pts.push_back(p);
   };
@@ -244,9 +263,17 @@ std::vector<Point> sweepPoints(const Sweep& s, bool quick, bool withDouble) {
     for (double cfl : s.fullGrid ? s.cflFactors : std::vector<double>{1})
       wcsph("solver", k, cfl, solverRadius, "float");
 
-  // Boundary models: every registered one on the dam break at 0.1/0.1 %, CFL 1.
+  // Boundary models: every registered one and the opt-in variants on the
+  // dam break at 0.1/0.1 %, CFL 1.
   for (const std::string& model : BoundaryModelRegistry<2>::instance().names())
-    dfsph("boundary", 0.1, 0.1, 1, solverRadius, "float", model);
+    dfsph("boundary", 0.1, 0.1, 1, solverRadius, "float", json{{"method", model}});
+  for (const json& variant : boundaryVariants()) dfsph("boundary", 0.1, 0.1, 1, solverRadius, "float", variant);
+  // The same models holding a column at rest, at the scenes' own settings.
+  std::vector<json> models;
+  for (const std::string& model : BoundaryModelRegistry<2>::instance().names()) models.push_back({{"method", model}});
+  models.insert(models.end(), boundaryVariants().begin(), boundaryVariants().end());
+  for (const std::string& scene : s.restScenes)
+    for (const json& model : models) pts.push_back({"rest", scene, "", "float", {}, kRestSeconds, model});
 
   // Resolution and precision: the tolerance diagonal and WCSPH, at CFL 1.
   const std::vector<double> diagonal = quick ? std::vector<double>{0.1} : s.densityTolerances;
@@ -264,7 +291,7 @@ std::vector<Point> sweepPoints(const Sweep& s, bool quick, bool withDouble) {
   // the scene's solver at the ends of the tolerance range.
   const auto drop = [&](std::vector<std::pair<std::string, double>> set, const std::string& method = "") {
     if (s.controlRadius > 0) set.push_back({"particle_radius", s.controlRadius});
-    pts.push_back({"control", "drop2d", method, "float", set, s.templateSeconds, ""});
+    pts.push_back({"control", "drop2d", method, "float", set, s.templateSeconds, nullptr});
   };
   drop({});
   drop({{"forces_every_substep", 1}});
@@ -278,7 +305,7 @@ std::vector<Point> sweepPoints(const Sweep& s, bool quick, bool withDouble) {
   if (s.templateScenes) {
     for (const Reference& r : references()) {
       if (!r.fidelity || std::string(r.scene) == "drop2d") continue;
-      pts.push_back({"templates", r.scene, "", "float", {}, s.templateSeconds, ""});
+      pts.push_back({"templates", r.scene, "", "float", {}, s.templateSeconds, nullptr});
     }
   }
   return pts;
@@ -319,6 +346,7 @@ struct Result {
   double maxSpeed = 0;            // m/s, largest over the frames: a run that blew up shows it here
   double iterationsPerFrame = 0;  // divergence + density solver iterations: work that does not depend on load
   Cell surgeRms, surgeBias, fidelity;
+  std::optional<RestingColumnMeasure> rest;  // resting columns
   SurgeCurve surge;      // the run's Z(T) (dam break)
   double load = 0;
   std::map<std::string, bool> front;  // per error metric
@@ -337,7 +365,7 @@ struct Context {
 json pointScene(const Context& ctx, const Point& p) {
   json scene = loadSceneJson((ctx.source / "scenes" / (p.scene + ".json")).string());
   if (!p.method.empty() && sceneMethod(scene) != p.method) scene["solver"] = {{"method", p.method}};
-  if (!p.boundary.empty()) scene["boundary"] = {{"method", p.boundary}};
+  if (!p.boundary.is_null()) scene["boundary"] = p.boundary;
   for (const auto& [name, v] : p.set) setKnob(scene, knob(name), v);
   return scene;
 }
@@ -512,6 +540,19 @@ void measurePoint(const Context& ctx, Result& r, const std::function<Run(int)>& 
   }
   r.avgErr /= double(e.frames() - 1);
   r.volumeDrift = 100 * (last / first - 1);
+  if (ref.rest) {
+    const json& dom = r.scene["domain"];
+    const std::vector<double> lo = dom["min"].get<std::vector<double>>(), hi = dom["max"].get<std::vector<double>>();
+    const std::vector<double> gravity = r.scene["gravity"].get<std::vector<double>>();
+    for (size_t d = 0; d < gravity.size(); ++d)
+      if (d != 1 && gravity[d] != 0) throw std::runtime_error(p.scene + ": a resting column needs gravity along -y");
+    try {
+      r.rest = measureRestingColumn(e, lo.data(), hi.data(), -gravity[1], kRestSettledFrom, kRestSpeedFrom);
+    } catch (const std::invalid_argument& ex) {
+      r.error = std::string("resting column not measurable: ") + ex.what();
+      return;
+    }
+  }
   if (ref.surge) {
     try {
       r.surgeRms = surgeRms(r.surge, ctx.martinMoyce);
@@ -614,6 +655,29 @@ PresetPick choosePresets(std::vector<Result>& results) {
 
 std::string cell(const Cell& c, const char* f = "%.6g") { return c ? fmt(*c, f) : "n/a"; }
 
+// A resting column's measures: CSV column, markdown heading and format.
+struct RestColumn {
+  const char* csv;
+  const char* heading;
+  const char* format;
+  double (*value)(const RestingColumnMeasure&);
+};
+
+const std::vector<RestColumn>& restColumns() {
+  using M = RestingColumnMeasure;
+  static const std::vector<RestColumn> c = {
+      {"floor_row_gap_r", "floor row (r)", "%.2f", [](const M& m) { return m.floorRowGap; }},
+      {"side_row_gap_r", "side rows (r)", "%.2f", [](const M& m) { return m.sideRowGap; }},
+      {"closest_approach_r", "closest approach (r)", "%.2f", [](const M& m) { return m.closestApproach; }},
+      {"surface_change_r", "surface change (r)", "%+.2f", [](const M& m) { return m.surfaceChange; }},
+      {"max_speed_after_1s", "max speed after 1 s (m/s)", "%.3f", [](const M& m) { return m.maxSpeedAfter; }},
+      {"floor_row_pressure_ratio", "floor-row p / ρ0gh", "%.3f", [](const M& m) { return m.floorRowPressure; }},
+      {"band_pressure_error_pct", "worst band p vs ρ0gh (%)", "%.1f", [](const M& m) { return m.bandPressureErrorPct; }},
+      {"band_pressure_std_pct", "worst band std (%)", "%.1f", [](const M& m) { return m.bandPressureStdPct; }},
+  };
+  return c;
+}
+
 std::vector<std::string> csvHeader() {
   std::vector<std::string> h = {"id", "group", "scene", "method", "boundary", "real"};
   for (const Knob& k : knobs()) h.push_back(k.name);
@@ -622,6 +686,7 @@ std::vector<std::string> csvHeader() {
                         "max_density_error_pct", "solver_avg_density_error_pct", "solver_max_density_error_pct",
                         "volume_drift_pct", "max_speed", "surge_front_rms", "surge_front_bias", "fidelity_iou"})
     h.push_back(c);
+  for (const RestColumn& c : restColumns()) h.push_back(c.csv);
   for (const ErrorMetric& m : errorMetrics()) h.push_back(std::string("front_") + m.column);
   h.push_back("preset");
   h.push_back("load_avg");
@@ -644,6 +709,7 @@ std::vector<std::string> csvRow(size_t id, const Result& r) {
   row.push_back(r.ok() ? cell(r.surgeRms) : "n/a");
   row.push_back(r.ok() ? cell(r.surgeBias) : "n/a");
   row.push_back(r.ok() ? cell(r.fidelity) : "n/a");
+  for (const RestColumn& c : restColumns()) row.push_back(r.ok() && r.rest ? fmt(c.value(*r.rest)) : "n/a");
   for (const ErrorMetric& m : errorMetrics()) {
     const auto it = r.front.find(m.column);
     row.push_back(it == r.front.end() ? "n/a" : it->second ? "1" : "0");
@@ -664,7 +730,7 @@ std::string describe(const Result& r) {
   std::ostringstream o;
   const std::string method = sceneMethod(r.scene);
   o << r.point.scene << " " << method;
-  if (!r.point.boundary.empty()) o << " " << r.point.boundary;
+  if (!r.point.boundary.is_null()) o << " " << sceneBoundary(r.scene);
   if (method == "dfsph")
     o << " tol " << fmt(*knobValue(r.scene, knob("density_tolerance_pct"))) << "/"
       << fmt(*knobValue(r.scene, knob("divergence_tolerance_pct"))) << "%";
@@ -710,6 +776,35 @@ struct Options {
   bool cluster() const { return local > 0 || !scheduler.empty(); }
 };
 
+// The `rest` group's row: its cost and how the column rests (restColumns).
+void writeRestRow(std::ostream& md, size_t i, const Result& r, bool first) {
+  if (first) {
+    md << "\n## rest\n\nEach boundary model holding a column at rest for " << fmt(kRestSeconds)
+       << " s at the scene's own settings. Rows: the liquid within 2 r of the floor, of a side wall; surface: the "
+          "highest centre plus r, against the first frame's; pressure: Σ p / Σ ρ0 g (H − y), the floor row's and the "
+          "interior's in bands 4 r deep (4 r from the side walls), each band's mean and standard deviation over the "
+          "frames; all settled over the last "
+       << fmt(kRestSeconds - kRestSettledFrom) << " s. Rest: rows at 1 r, change 0, p / ρ0gh 1.\n\n";
+    md << "| id | point | particles | wall s / sim s | µs / particle-step | substeps / frame | solver iterations / frame "
+          "| unconverged frames |";
+    for (const RestColumn& c : restColumns()) md << " " << c.heading << " |";
+    md << "\n|---:|---|---:|---:|---:|---:|---:|---:|";
+    for (size_t k = 0; k < restColumns().size(); ++k) md << "---:|";
+    md << "\n";
+  }
+  md << "| " << i << " | " << describe(r) << " | ";
+  if (!r.ok() || !r.rest) {
+    md << r.status << ": " << r.error << " |";
+    for (size_t k = 0; k < 5 + restColumns().size(); ++k) md << " |";
+    md << "\n";
+    return;
+  }
+  md << r.particles << " | " << fmt(r.wallPerSimS, "%.2f") << " | " << fmt(r.usPerParticleStep, "%.3f") << " | "
+     << fmt(r.substepsPerFrame, "%.1f") << " | " << fmt(r.iterationsPerFrame, "%.0f") << " | " << r.unconverged << " |";
+  for (const RestColumn& c : restColumns()) md << " " << fmt(c.value(*r.rest), c.format) << " |";
+  md << "\n";
+}
+
 void writeMarkdown(const fs::path& path, const Options& opt, const std::vector<Result>& results,
                    const Report& report, double meanLoad, const PresetPick& pick) {
   std::ofstream md(path);
@@ -743,6 +838,11 @@ void writeMarkdown(const fs::path& path, const Options& opt, const std::vector<R
   std::string group;
   for (size_t i = 0; i < results.size(); ++i) {
     const Result& r = results[i];
+    if (r.point.group == "rest") {
+      writeRestRow(md, i, r, r.point.group != group);
+      group = r.point.group;
+      continue;
+    }
     if (r.point.group != group) {
       group = r.point.group;
       md << "\n## " << group << "\n\n";

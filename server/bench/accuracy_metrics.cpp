@@ -66,6 +66,86 @@ LiquidFrame measureLiquidFrame(const ExportedFrames& e, size_t frame, double wal
   return m;
 }
 
+RestingColumnMeasure measureRestingColumn(const ExportedFrames& e, const double* lo, const double* hi, double g,
+                                          double settledFrom, double speedFrom) {
+  const int D = e.dimension;
+  const double r = e.particleRadius;
+  if (e.velocity.empty() || e.pressure.empty())
+    throw std::invalid_argument("the export has no velocity or pressure (a resting column is measured from both)");
+  if (!(r > 0) || !(g > 0) || D < 2) throw std::invalid_argument("no particle radius, gravity or dimension");
+  const auto liquid = [&](uint64_t k) { return e.kind[k] != uint8_t(ParticleKind::Boundary); };
+  const auto surfaceOf = [&](size_t f) {
+    double top = -std::numeric_limits<double>::infinity();
+    for (uint64_t k = e.offset[f]; k < e.offset[f + 1]; ++k)
+      if (liquid(k)) top = std::max(top, double(e.position[k * size_t(D) + 1]));
+    return top + r;
+  };
+  if (e.frames() < 2) throw std::invalid_argument("the export has no simulated frame");
+  const double H0 = surfaceOf(0);
+  RestingColumnMeasure m;
+  m.closestApproach = std::numeric_limits<double>::infinity();
+  const double band = 4 * r;
+  std::vector<std::vector<double>> bandRatios;  // per band, its ratio in each settled frame
+  size_t settled = 0, speedFrames = 0;
+  for (size_t f = 1; f < e.frames(); ++f) {
+    const double H = surfaceOf(f), t = e.time[f];
+    const bool inWindow = t >= settledFrom - 1e-9;
+    double floorGap = 0, sideGap = 0, pFloor = 0, hFloor = 0;
+    size_t nFloor = 0, nSide = 0;
+    std::vector<double> p, h;  // per band: Σ p and Σ ρ0 g depth
+    for (uint64_t k = e.offset[f]; k < e.offset[f + 1]; ++k) {
+      if (!liquid(k)) continue;
+      const float* x = &e.position[k * size_t(D)];
+      double wallGap = std::numeric_limits<double>::infinity(), sideWall = wallGap;
+      for (int d = 0; d < D; ++d) {
+        const double gap = std::min(x[d] - lo[d], hi[d] - x[d]);
+        wallGap = std::min(wallGap, gap);
+        if (d != 1) sideWall = std::min(sideWall, gap);
+      }
+      m.closestApproach = std::min(m.closestApproach, wallGap / r);
+      if (t >= speedFrom - 1e-9) {
+        double v2 = 0;
+        for (int d = 0; d < D; ++d) v2 += double(e.velocity[k * size_t(D) + d]) * e.velocity[k * size_t(D) + d];
+        m.maxSpeedAfter = std::max(m.maxSpeedAfter, std::sqrt(v2));
+      }
+      if (!inWindow) continue;
+      const double y = x[1] - lo[1], depth = H - x[1];
+      const double hydrostatic = e.phaseRestDensity[e.phase[k]] * g * depth;
+      if (y < 2 * r) floorGap += y / r, ++nFloor, pFloor += e.pressure[k], hFloor += hydrostatic;
+      else if (y > 4 * r && depth > 4 * r && sideWall < 2 * r) sideGap += sideWall / r, ++nSide;
+      if (y >= 2 * r && depth >= band && sideWall >= 4 * r) {
+        const size_t b = size_t(depth / band) - 1;
+        if (b >= p.size()) p.resize(b + 1, 0.0), h.resize(b + 1, 0.0);
+        p[b] += e.pressure[k], h[b] += hydrostatic;
+      }
+    }
+    if (t >= speedFrom - 1e-9) ++speedFrames;
+    if (!inWindow) continue;
+    ++settled;
+    m.floorRowGap += nFloor ? floorGap / double(nFloor) : 0.0;
+    m.sideRowGap += nSide ? sideGap / double(nSide) : 0.0;
+    m.surfaceChange += (H - H0) / r;
+    m.floorRowPressure += hFloor > 0 ? pFloor / hFloor : 0.0;
+    if (bandRatios.size() < p.size()) bandRatios.resize(p.size());
+    for (size_t b = 0; b < p.size(); ++b)
+      if (h[b] > 0) bandRatios[b].push_back(p[b] / h[b]);
+  }
+  if (settled == 0 || speedFrames == 0)
+    throw std::invalid_argument("the export ends before the settled window or the speed's start");
+  const double k = 1.0 / double(settled);
+  m.floorRowGap *= k, m.sideRowGap *= k, m.surfaceChange *= k, m.floorRowPressure *= k;
+  for (const std::vector<double>& ratios : bandRatios) {
+    if (ratios.empty()) continue;
+    double mean = 0, var = 0;
+    for (double v : ratios) mean += v / double(ratios.size());
+    for (double v : ratios) var += (v - mean) * (v - mean) / double(ratios.size());
+    m.bandPressureErrorPct = std::max(m.bandPressureErrorPct, 100 * std::abs(mean - 1));
+    m.bandPressureStdPct = std::max(m.bandPressureStdPct, 100 * std::sqrt(var));
+    ++m.bands;
+  }
+  return m;
+}
+
 std::vector<double> interpolateAt(const std::vector<double>& x, const std::vector<double>& y,
                                   const std::vector<double>& at) {
   if (x.size() != y.size() || x.size() < 2) throw std::invalid_argument("interpolation needs two or more points");

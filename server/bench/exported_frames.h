@@ -23,6 +23,8 @@ struct ExportedFrames {
   std::vector<uint64_t> offset;          // frame f = rows offset[f]..offset[f+1]
   std::vector<float> position;           // rows × dimension
   std::vector<float> density;            // rows
+  std::vector<float> velocity;           // rows × dimension, m/s; empty where the file has none
+  std::vector<float> pressure;           // rows, Pa; empty where the file has none
   std::vector<uint8_t> phase;            // rows
   std::vector<uint8_t> kind;             // rows (ParticleKind)
 

@@ -5,6 +5,7 @@
 #include "bench/accuracy_metrics.h"
 #include "bench/exported_frames.h"
 #include "io/frame_export.h"
+#include "sph/phase.h"
 #include "tests/hdf5_test_util.h"
 
 #include <gtest/gtest.h>
@@ -166,6 +167,88 @@ TEST(ExportedFrames, RefusesWhatIsNotAFramesFile) {
     EXPECT_NE(std::string(e.what()).find(dir.file("x.h5")), std::string::npos) << e.what();
   }
   EXPECT_THROW(readExportedFrames(dir.file("missing.h5")), ExportReadError);
+}
+
+// A column of 10 × 20 particles on the lattice in a 2D box 20 r wide, at
+// times 0, 0.5, 1 and 2 s, its pressure ρ0 g (H - y) below the highest
+// centre plus r. A particle moves at 3 m/s in the frame at 0.5 s and at
+// 0.02 m/s in the frame at 1 s. In the last frame the column is `sink`
+// radii lower (its pressure kept) and the pressure of the two rows 5 and
+// 7 r deep is `shallowScale` times its own.
+ExportedFrames restingColumnExport(double sink, double shallowScale) {
+  const double r = 0.01, g = 9.81;
+  ExportedFrames e;
+  e.dimension = 2;
+  e.particleRadius = r;
+  e.phaseRestDensity = {1000};
+  e.time = {0, 0.5, 1, 2};
+  e.offset = {0};
+  for (size_t f = 0; f < e.time.size(); ++f) {
+    const bool last = f + 1 == e.time.size();
+    const double H = 40 * r;
+    for (int i = 0; i < 10; ++i)
+      for (int j = 0; j < 20; ++j) {
+        const double x = r + 2 * r * i, y = r + 2 * r * j;
+        e.position.push_back(float(x));
+        e.position.push_back(float(last ? y - sink * r : y));
+        e.pressure.push_back(float(1000 * g * (H - y) * (last && j >= 16 && j <= 17 ? shallowScale : 1.0)));
+        const bool mover = i == 5 && j == 10;
+        e.velocity.push_back(mover && f == 1 ? 3.0f : mover && f == 2 ? 0.02f : 0.0f);
+        e.velocity.push_back(0.0f);
+        e.density.push_back(1000);
+        e.phase.push_back(0);
+        e.kind.push_back(uint8_t(ParticleKind::Liquid));
+      }
+    e.offset.push_back(e.offset.back() + 200);
+  }
+  return e;
+}
+
+const double kColumnMin[2] = {0, 0}, kColumnMax[2] = {0.2, 0.6};
+
+TEST(RestingColumn, ALatticeAtRestReadsItsRestDistanceAndItsHydrostaticPressure) {
+  const RestingColumnMeasure m =
+      measureRestingColumn(restingColumnExport(0, 1), kColumnMin, kColumnMax, 9.81, 1.5, 1.0);
+  EXPECT_NEAR(m.floorRowGap, 1.0, 1e-5);
+  EXPECT_NEAR(m.sideRowGap, 1.0, 1e-5);
+  EXPECT_NEAR(m.closestApproach, 1.0, 1e-5);
+  EXPECT_NEAR(m.surfaceChange, 0.0, 1e-4);
+  EXPECT_NEAR(m.maxSpeedAfter, 0.02, 1e-7) << "the 3 m/s before 1 s is not counted";
+  EXPECT_NEAR(m.floorRowPressure, 1.0, 1e-5);
+  // Centres 5 to 37 r deep, two rows to a band of 4 r (the deepest alone); the floor row and the two columns
+  // at each side wall are left out.
+  EXPECT_EQ(m.bands, 9u);
+  EXPECT_NEAR(m.bandPressureErrorPct, 0.0, 1e-3);
+  EXPECT_NEAR(m.bandPressureStdPct, 0.0, 1e-3);
+}
+
+TEST(RestingColumn, ASunkColumnReadsItsDistanceAndAWrongBandItsError) {
+  // Settled over the last frame alone: the rows 0.6 r from the floor and the surface 0.4 r down; the
+  // pressure is read against the frame's own surface, so a column that sank whole keeps its ratio.
+  const RestingColumnMeasure sunk =
+      measureRestingColumn(restingColumnExport(0.4, 1), kColumnMin, kColumnMax, 9.81, 1.5, 1.0);
+  EXPECT_NEAR(sunk.floorRowGap, 0.6, 1e-4);
+  EXPECT_NEAR(sunk.sideRowGap, 1.0, 1e-5);
+  EXPECT_NEAR(sunk.closestApproach, 0.6, 1e-4);
+  EXPECT_NEAR(sunk.surfaceChange, -0.4, 1e-4);
+  EXPECT_NEAR(sunk.floorRowPressure, 1.0, 1e-5);
+  // The shallowest band 10 % high in the last frame: 10 % over it; over the last two frames a mean 5 % high
+  // that moves by 5 % from frame to frame.
+  const ExportedFrames wrong = restingColumnExport(0, 1.1);
+  const RestingColumnMeasure last = measureRestingColumn(wrong, kColumnMin, kColumnMax, 9.81, 1.5, 1.0);
+  EXPECT_NEAR(last.bandPressureErrorPct, 10.0, 1e-3);
+  EXPECT_NEAR(last.bandPressureStdPct, 0.0, 1e-3);
+  const RestingColumnMeasure two = measureRestingColumn(wrong, kColumnMin, kColumnMax, 9.81, 1.0, 1.0);
+  EXPECT_NEAR(two.bandPressureErrorPct, 5.0, 1e-3);
+  EXPECT_NEAR(two.bandPressureStdPct, 5.0, 1e-3);
+  EXPECT_NEAR(two.floorRowPressure, 1.0, 1e-5);
+}
+
+TEST(RestingColumn, RefusesAnExportWithoutPressureOrThatEndsBeforeItSettles) {
+  ExportedFrames e = restingColumnExport(0, 1);
+  EXPECT_THROW(measureRestingColumn(e, kColumnMin, kColumnMax, 9.81, 2.5, 1.0), std::invalid_argument);
+  e.pressure.clear();
+  EXPECT_THROW(measureRestingColumn(e, kColumnMin, kColumnMax, 9.81, 1.5, 1.0), std::invalid_argument);
 }
 
 TEST(Pareto, KeepsExactlyTheUndominatedPoints) {
