@@ -232,6 +232,10 @@ def test_every_boundary_model_holds_a_resting_column_as_measured_from_its_frames
     assert akinci["floor_row_gap_r"] < adami["floor_row_gap_r"] - 0.2, akinci
     assert abs(adami["floor_row_pressure_ratio"] - 1) < 0.05, adami
     assert akinci["floor_row_pressure_ratio"] > 1.3, akinci
+    # Every band of the interior at rho0 g depth within 3 % (the readable
+    # pressure's target), where the particle term alone reads a band high.
+    assert adami["band_pressure_error_pct"] <= 3.0, adami
+    assert akinci["band_pressure_error_pct"] > adami["band_pressure_error_pct"] + 3, (akinci, adami)
     # The mirror in the constraint also keeps every single particle off the walls.
     assert mirror["closest_approach_r"] >= 0.5, mirror
     assert mirror["closest_approach_r"] > akinci["closest_approach_r"] + 0.3, (mirror, akinci)
@@ -239,5 +243,5 @@ def test_every_boundary_model_holds_a_resting_column_as_measured_from_its_frames
         v = value[name]
         assert abs(v["surface_change_r"]) <= 1.0, (name, v)
         assert v["band_pressure_std_pct"] <= 5.0, (name, v)
-        assert v["band_pressure_error_pct"] <= 15.0, (name, v)
+        assert v["band_pressure_error_pct"] <= 20.0, (name, v)
         assert 0 < v["closest_approach_r"] <= min(v["floor_row_gap_r"], v["side_row_gap_r"]), (name, v)

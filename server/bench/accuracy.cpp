@@ -780,11 +780,14 @@ struct Options {
 void writeRestRow(std::ostream& md, size_t i, const Result& r, bool first) {
   if (first) {
     md << "\n## rest\n\nEach boundary model holding a column at rest for " << fmt(kRestSeconds)
-       << " s at the scene's own settings. Rows: the liquid within 2 r of the floor, of a side wall; surface: the "
-          "highest centre plus r, against the first frame's; pressure: Σ p / Σ ρ0 g (H − y), the floor row's and the "
-          "interior's in bands 4 r deep (4 r from the side walls), each band's mean and standard deviation over the "
-          "frames; all settled over the last "
-       << fmt(kRestSeconds - kRestSettledFrom) << " s. Rest: rows at 1 r, change 0, p / ρ0gh 1.\n\n";
+       << " s at the scene's own settings, measured from its exported frames. Rows: the liquid within 2 r of the "
+          "floor, of a side wall (rest: 1 r); closest approach: of any centre to a wall, every frame; surface change: "
+          "the highest centre plus r against the first frame's; max speed from 1 s on; pressure: the exported "
+          "pressure against ρ0 g (H − y), H the surface the liquid's volume defines, Σ p / Σ ρ0gh of the floor row, "
+          "and the interior (over 6 r from the side walls, up to 8 r below H) in up to twelve bands from the floor: "
+          "the worst band's mean error and the largest frame-to-frame standard deviation. Rows, surface and pressure "
+          "settled over the last "
+       << fmt(kRestSeconds - kRestSettledFrom) << " s.\n\n";
     md << "| id | point | particles | wall s / sim s | µs / particle-step | substeps / frame | solver iterations / frame "
           "| unconverged frames |";
     for (const RestColumn& c : restColumns()) md << " " << c.heading << " |";

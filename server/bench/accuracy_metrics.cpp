@@ -73,26 +73,42 @@ RestingColumnMeasure measureRestingColumn(const ExportedFrames& e, const double*
   if (e.velocity.empty() || e.pressure.empty())
     throw std::invalid_argument("the export has no velocity or pressure (a resting column is measured from both)");
   if (!(r > 0) || !(g > 0) || D < 2) throw std::invalid_argument("no particle radius, gravity or dimension");
+  if (e.frames() < 2) throw std::invalid_argument("the export has no simulated frame");
   const auto liquid = [&](uint64_t k) { return e.kind[k] != uint8_t(ParticleKind::Boundary); };
-  const auto surfaceOf = [&](size_t f) {
+  const auto topOf = [&](size_t f) {
     double top = -std::numeric_limits<double>::infinity();
     for (uint64_t k = e.offset[f]; k < e.offset[f + 1]; ++k)
       if (liquid(k)) top = std::max(top, double(e.position[k * size_t(D) + 1]));
     return top + r;
   };
-  if (e.frames() < 2) throw std::invalid_argument("the export has no simulated frame");
-  const double H0 = surfaceOf(0);
+  // The depth counts from the surface the liquid's volume defines (each particle a lattice cell, (2r)^D, over the
+  // floor's area): no single particle's height gives it, the top row's centres ride up and down.
+  double floorArea = 1, cell = 1;
+  for (int d = 0; d < D; ++d) {
+    cell *= 2 * r;
+    if (d != 1) floorArea *= hi[d] - lo[d];
+  }
+  size_t liquidRows = 0;
+  for (uint64_t k = e.offset[0]; k < e.offset[1]; ++k) liquidRows += liquid(k) ? 1 : 0;
+  const double H = lo[1] + double(liquidRows) * cell / floorArea;
+  // Interior: three diameters from the side walls, four below the surface, in up to twelve bands from the floor.
+  const double interiorTop = H - 8 * r;
+  const int nBands = std::min(12, int((interiorTop - lo[1]) / (2 * r)));
+  if (nBands < 1) throw std::invalid_argument("the column is too shallow for an interior");
+  const double bandWidth = (interiorTop - lo[1]) / nBands;
+
+  const double top0 = topOf(0);
   RestingColumnMeasure m;
   m.closestApproach = std::numeric_limits<double>::infinity();
-  const double band = 4 * r;
-  std::vector<std::vector<double>> bandRatios;  // per band, its ratio in each settled frame
+  std::vector<std::vector<double>> bandRatios(static_cast<size_t>(nBands));  // per band, its mean ratio in each settled frame
   size_t settled = 0, speedFrames = 0;
   for (size_t f = 1; f < e.frames(); ++f) {
-    const double H = surfaceOf(f), t = e.time[f];
-    const bool inWindow = t >= settledFrom - 1e-9;
+    const double top = topOf(f), t = e.time[f];
+    const bool inWindow = t >= settledFrom - 1e-9, timed = t >= speedFrom - 1e-9;
     double floorGap = 0, sideGap = 0, pFloor = 0, hFloor = 0;
     size_t nFloor = 0, nSide = 0;
-    std::vector<double> p, h;  // per band: Σ p and Σ ρ0 g depth
+    std::vector<double> band(static_cast<size_t>(nBands), 0.0);
+    std::vector<size_t> inBand(static_cast<size_t>(nBands), 0);
     for (uint64_t k = e.offset[f]; k < e.offset[f + 1]; ++k) {
       if (!liquid(k)) continue;
       const float* x = &e.position[k * size_t(D)];
@@ -103,32 +119,31 @@ RestingColumnMeasure measureRestingColumn(const ExportedFrames& e, const double*
         if (d != 1) sideWall = std::min(sideWall, gap);
       }
       m.closestApproach = std::min(m.closestApproach, wallGap / r);
-      if (t >= speedFrom - 1e-9) {
+      if (timed) {
         double v2 = 0;
         for (int d = 0; d < D; ++d) v2 += double(e.velocity[k * size_t(D) + d]) * e.velocity[k * size_t(D) + d];
         m.maxSpeedAfter = std::max(m.maxSpeedAfter, std::sqrt(v2));
       }
       if (!inWindow) continue;
-      const double y = x[1] - lo[1], depth = H - x[1];
-      const double hydrostatic = e.phaseRestDensity[e.phase[k]] * g * depth;
+      const double y = x[1] - lo[1];
+      const double hydrostatic = e.phaseRestDensity[e.phase[k]] * g * (H - x[1]);
       if (y < 2 * r) floorGap += y / r, ++nFloor, pFloor += e.pressure[k], hFloor += hydrostatic;
-      else if (y > 4 * r && depth > 4 * r && sideWall < 2 * r) sideGap += sideWall / r, ++nSide;
-      if (y >= 2 * r && depth >= band && sideWall >= 4 * r) {
-        const size_t b = size_t(depth / band) - 1;
-        if (b >= p.size()) p.resize(b + 1, 0.0), h.resize(b + 1, 0.0);
-        p[b] += e.pressure[k], h[b] += hydrostatic;
+      else if (y > 4 * r && x[1] < top - 4 * r && sideWall < 2 * r) sideGap += sideWall / r, ++nSide;
+      if (x[1] < interiorTop && sideWall > 6 * r) {
+        const size_t b = size_t(std::clamp(int(y / bandWidth), 0, nBands - 1));
+        band[b] += e.pressure[k] / hydrostatic;
+        ++inBand[b];
       }
     }
-    if (t >= speedFrom - 1e-9) ++speedFrames;
+    if (timed) ++speedFrames;
     if (!inWindow) continue;
     ++settled;
     m.floorRowGap += nFloor ? floorGap / double(nFloor) : 0.0;
     m.sideRowGap += nSide ? sideGap / double(nSide) : 0.0;
-    m.surfaceChange += (H - H0) / r;
+    m.surfaceChange += (top - top0) / r;
     m.floorRowPressure += hFloor > 0 ? pFloor / hFloor : 0.0;
-    if (bandRatios.size() < p.size()) bandRatios.resize(p.size());
-    for (size_t b = 0; b < p.size(); ++b)
-      if (h[b] > 0) bandRatios[b].push_back(p[b] / h[b]);
+    for (size_t b = 0; b < band.size(); ++b)
+      if (inBand[b]) bandRatios[b].push_back(band[b] / double(inBand[b]));
   }
   if (settled == 0 || speedFrames == 0)
     throw std::invalid_argument("the export ends before the settled window or the speed's start");
@@ -138,7 +153,8 @@ RestingColumnMeasure measureRestingColumn(const ExportedFrames& e, const double*
     if (ratios.empty()) continue;
     double mean = 0, var = 0;
     for (double v : ratios) mean += v / double(ratios.size());
-    for (double v : ratios) var += (v - mean) * (v - mean) / double(ratios.size());
+    for (double v : ratios) var += (v - mean) * (v - mean);
+    if (ratios.size() > 1) var /= double(ratios.size() - 1);
     m.bandPressureErrorPct = std::max(m.bandPressureErrorPct, 100 * std::abs(mean - 1));
     m.bandPressureStdPct = std::max(m.bandPressureStdPct, 100 * std::sqrt(var));
     ++m.bands;

@@ -45,28 +45,32 @@ struct LiquidFrame {
 LiquidFrame measureLiquidFrame(const ExportedFrames& frames, size_t frame, double wallX);
 
 // How a column of liquid resting in a box sits against its walls, from an
-// export of it (docs/benchmarks/accuracy.md, the `rest` group). Gravity
-// along -y; distances in particle radii r. Rows: the liquid within 2 r of
-// the floor, and within 2 r of a side wall between 4 r above the floor and
-// 4 r below the surface. Surface: the highest centre plus r. Settled: the
+// export of it (docs/benchmarks/accuracy.md, the `rest` group), as the
+// tests of the boundary models and of the readable pressure measure it.
+// Gravity along -y; distances in particle radii r. Rows: the liquid within
+// 2 r of the floor, and within 2 r of a side wall between 4 r above the
+// floor and 4 r below the top. Top: the highest centre plus r. Pressure
+// against ρ0 g (H - y), H the surface the liquid's volume defines (each
+// particle a lattice cell (2r)^D, over the floor's area). Settled: the
 // frames from `settledFrom` s on.
 struct RestingColumnMeasure {
   double floorRowGap = 0;       // the floor row's mean distance from the floor, settled (rest: 1)
   double sideRowGap = 0;        // the side rows' mean distance from their walls, settled (rest: 1)
   double closestApproach = 0;   // the nearest any centre came to a wall, every frame after the first
-  double surfaceChange = 0;     // settled surface height minus the first frame's (+: risen)
+  double surfaceChange = 0;     // settled top minus the first frame's (+: risen)
   double maxSpeedAfter = 0;     // fastest particle in the frames from `speedFrom` s on, m/s
   double floorRowPressure = 0;  // Σ p / Σ ρ0 g (H - y) of the floor row, settled mean (rest: 1)
-  // The interior (4 r from the side walls, above the floor row, 4 r below the surface) in depth
-  // bands 4 r deep: each band's Σ p / Σ ρ0 g (H - y) per settled frame. The worst band's
-  // |mean - 1| and its standard deviation over the frames, in percent of ρ0 g h.
+  // The interior (over 6 r from the side walls, up to 8 r below H) in up to twelve bands from the floor
+  // up, each band's mean p / ρ0 g (H - y) per settled frame. The worst band's |mean over the frames - 1| and
+  // the largest frame-to-frame standard deviation, in percent.
   double bandPressureErrorPct = 0;
   double bandPressureStdPct = 0;
   size_t bands = 0;
 };
 
 // Throws std::invalid_argument where the export lacks velocity or pressure,
-// has no frame at or after `settledFrom`/`speedFrom`, or the box is not one.
+// has no frame at or after `settledFrom`/`speedFrom`, or the column is too
+// shallow for an interior.
 RestingColumnMeasure measureRestingColumn(const ExportedFrames& frames, const double* domainMin,
                                           const double* domainMax, double gravity, double settledFrom,
                                           double speedFrom);

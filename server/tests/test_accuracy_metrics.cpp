@@ -173,8 +173,8 @@ TEST(ExportedFrames, RefusesWhatIsNotAFramesFile) {
 // times 0, 0.5, 1 and 2 s, its pressure ρ0 g (H - y) below the highest
 // centre plus r. A particle moves at 3 m/s in the frame at 0.5 s and at
 // 0.02 m/s in the frame at 1 s. In the last frame the column is `sink`
-// radii lower (its pressure kept) and the pressure of the two rows 5 and
-// 7 r deep is `shallowScale` times its own.
+// radii lower (its pressure kept) and the pressure of the row 9 r deep (the
+// interior's top band) is `shallowScale` times its own.
 ExportedFrames restingColumnExport(double sink, double shallowScale) {
   const double r = 0.01, g = 9.81;
   ExportedFrames e;
@@ -191,7 +191,7 @@ ExportedFrames restingColumnExport(double sink, double shallowScale) {
         const double x = r + 2 * r * i, y = r + 2 * r * j;
         e.position.push_back(float(x));
         e.position.push_back(float(last ? y - sink * r : y));
-        e.pressure.push_back(float(1000 * g * (H - y) * (last && j >= 16 && j <= 17 ? shallowScale : 1.0)));
+        e.pressure.push_back(float(1000 * g * (H - y) * (last && j == 15 ? shallowScale : 1.0)));
         const bool mover = i == 5 && j == 10;
         e.velocity.push_back(mover && f == 1 ? 3.0f : mover && f == 2 ? 0.02f : 0.0f);
         e.velocity.push_back(0.0f);
@@ -215,32 +215,32 @@ TEST(RestingColumn, ALatticeAtRestReadsItsRestDistanceAndItsHydrostaticPressure)
   EXPECT_NEAR(m.surfaceChange, 0.0, 1e-4);
   EXPECT_NEAR(m.maxSpeedAfter, 0.02, 1e-7) << "the 3 m/s before 1 s is not counted";
   EXPECT_NEAR(m.floorRowPressure, 1.0, 1e-5);
-  // Centres 5 to 37 r deep, two rows to a band of 4 r (the deepest alone); the floor row and the two columns
-  // at each side wall are left out.
-  EXPECT_EQ(m.bands, 9u);
+  // The surface from the volume, 200 cells of (2r)² over 20 r: 40 r. The interior, up to 8 r below it and over
+  // 6 r from the side walls, in twelve bands of 32 r / 12 from the floor up.
+  EXPECT_EQ(m.bands, 12u);
   EXPECT_NEAR(m.bandPressureErrorPct, 0.0, 1e-3);
   EXPECT_NEAR(m.bandPressureStdPct, 0.0, 1e-3);
 }
 
 TEST(RestingColumn, ASunkColumnReadsItsDistanceAndAWrongBandItsError) {
-  // Settled over the last frame alone: the rows 0.6 r from the floor and the surface 0.4 r down; the
-  // pressure is read against the frame's own surface, so a column that sank whole keeps its ratio.
+  // Settled over the last frame alone: the rows 0.6 r from the floor and the top 0.4 r down. The pressure is
+  // read against the surface the volume defines, which stays: the floor row, 39 r below it before, is now 39.4 r.
   const RestingColumnMeasure sunk =
       measureRestingColumn(restingColumnExport(0.4, 1), kColumnMin, kColumnMax, 9.81, 1.5, 1.0);
   EXPECT_NEAR(sunk.floorRowGap, 0.6, 1e-4);
   EXPECT_NEAR(sunk.sideRowGap, 1.0, 1e-5);
   EXPECT_NEAR(sunk.closestApproach, 0.6, 1e-4);
   EXPECT_NEAR(sunk.surfaceChange, -0.4, 1e-4);
-  EXPECT_NEAR(sunk.floorRowPressure, 1.0, 1e-5);
-  // The shallowest band 10 % high in the last frame: 10 % over it; over the last two frames a mean 5 % high
-  // that moves by 5 % from frame to frame.
+  EXPECT_NEAR(sunk.floorRowPressure, 39.0 / 39.4, 1e-5);
+  // The top band 10 % high in the last frame: 10 % over it; over the last two frames a mean 5 % high whose
+  // frame-to-frame standard deviation (1 and 1.1) is 5 √2 %.
   const ExportedFrames wrong = restingColumnExport(0, 1.1);
   const RestingColumnMeasure last = measureRestingColumn(wrong, kColumnMin, kColumnMax, 9.81, 1.5, 1.0);
   EXPECT_NEAR(last.bandPressureErrorPct, 10.0, 1e-3);
   EXPECT_NEAR(last.bandPressureStdPct, 0.0, 1e-3);
   const RestingColumnMeasure two = measureRestingColumn(wrong, kColumnMin, kColumnMax, 9.81, 1.0, 1.0);
   EXPECT_NEAR(two.bandPressureErrorPct, 5.0, 1e-3);
-  EXPECT_NEAR(two.bandPressureStdPct, 5.0, 1e-3);
+  EXPECT_NEAR(two.bandPressureStdPct, 5.0 * std::sqrt(2.0), 1e-3);
   EXPECT_NEAR(two.floorRowPressure, 1.0, 1e-5);
 }
 
