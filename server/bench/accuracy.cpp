@@ -12,7 +12,9 @@
 //   - the 2D dam break's surge front against Martin & Moyce (1952) [MM52], RMS of
 //     Z = x/a over their points T = t sqrt(2g/a) (bench/data);
 //   - the template scenes' control fidelity (IoU), averaged over the frames
-//     where an instance plays.
+//     where an instance plays;
+//   - the resting columns' rows, closest approach, top, speed after 1 s and
+//     pressure against ρ0 g h, per boundary model (measureRestingColumn).
 // Writes accuracy.csv, accuracy.md, surge_fronts.csv, presets.json and the
 // plots (tools/plot_accuracy.py). With --local N or --scheduler ADDR the
 // children run as tasks of a Dask cluster (`flowclip-batch commands`, the
@@ -112,7 +114,9 @@ std::string sceneBoundary(const json& scene) {
   std::string s = b && b->contains("method") ? (*b)["method"].get<std::string>() : std::string(kDefaultBoundaryModel);
   if (b)
     for (const auto& [key, value] : b->items())
-      if (key != "method") s += " " + key + "=" + fmt(value.is_boolean() ? double(value.get<bool>()) : value.get<double>());
+      if (key != "method")
+        s += " " + key + "=" +
+             (value.is_boolean() ? fmt(double(value.get<bool>())) : value.is_number() ? fmt(value.get<double>()) : value.dump());
   return s;
 }
 bool hasInstances(const json& scene) { return scene.contains("instances") && !scene["instances"].empty(); }
@@ -264,14 +268,12 @@ std::vector<Point> sweepPoints(const Sweep& s, bool quick, bool withDouble) {
       wcsph("solver", k, cfl, solverRadius, "float");
 
   // Boundary models: every registered one and the opt-in variants on the
-  // dam break at 0.1/0.1 %, CFL 1.
-  for (const std::string& model : BoundaryModelRegistry<2>::instance().names())
-    dfsph("boundary", 0.1, 0.1, 1, solverRadius, "float", json{{"method", model}});
-  for (const json& variant : boundaryVariants()) dfsph("boundary", 0.1, 0.1, 1, solverRadius, "float", variant);
-  // The same models holding a column at rest, at the scenes' own settings.
+  // dam break at 0.1/0.1 %, CFL 1, then holding a column at rest at the
+  // scenes' own settings.
   std::vector<json> models;
   for (const std::string& model : BoundaryModelRegistry<2>::instance().names()) models.push_back({{"method", model}});
   models.insert(models.end(), boundaryVariants().begin(), boundaryVariants().end());
+  for (const json& model : models) dfsph("boundary", 0.1, 0.1, 1, solverRadius, "float", model);
   for (const std::string& scene : s.restScenes)
     for (const json& model : models) pts.push_back({"rest", scene, "", "float", {}, kRestSeconds, model});
 
