@@ -214,7 +214,7 @@ MartinMoyce againstMartinMoyce(const DamRun& run) {
 // maxVolumeLoss: bound on 1 - V/V0 over every frame.
 template <int D>
 void damBreakTest(const std::string& sceneFile, double radiusOverride, const std::string& solver,
-                  double maxVolumeLoss) {
+                  double maxVolumeLoss, double heightRmsBound = kHeightRmsBound) {
   FrameChecks checks;
   const DamRun run = runDamBreak<D>(sceneFile, radiusOverride, solver, 1.2, checks);
   checks.finish(int(run.frames.size()));
@@ -279,7 +279,7 @@ void damBreakTest(const std::string& sceneFile, double radiusOverride, const std
               sceneFile.c_str(), solver.c_str(), surgeError, mmSurge.T.size(), surgeLead, heightError,
               mmHeight.T.size(), mmHeight.T.back());
   EXPECT_LT(surgeError, kSurgeRmsBound) << "surge front RMS in Z against Martin & Moyce, T <= 3";
-  EXPECT_LT(heightError, kHeightRmsBound) << "residual column height RMS against Martin & Moyce";
+  EXPECT_LT(heightError, heightRmsBound) << "residual column height RMS against Martin & Moyce";
 }
 
 // Measured (before the contact model existed, particles did cross walls:
@@ -399,6 +399,56 @@ TEST(DamBreak, NoSlipWallsHoldTheSurgeBackAndTheColumnAtTheWall) {
   const MartinMoyce waterNoSlip = damBreakWithWalls<2>("dambreak2d.json", 0.005, true, 1e-6);
   EXPECT_NEAR(waterNoSlip.surgeLead, water.surgeLead, 0.02);
   EXPECT_GT(water.surgeLead, 0.15) << "the lead at water's viscosity";
+}
+
+// Martin & Moyce's own scale (scenes/validation/martin_moyce2d.json and
+// 3d: a = 2.25 in = 5.715 cm, water's viscosity and surface tension, the
+// Akinci 2013 coefficient set for 0.0728 N/m at each scene's radius). The
+// shipped dam breaks are nine times larger, where surface tension does
+// nothing; at the experiment's scale it holds the thin surge tip back and
+// takes away most of the lead the larger scenes show.
+// Measured, lead (surge RMS) without -> with surface tension: 2D (5 000
+// particles) +0.24 -> +0.12 (0.13), residual height RMS 0.045; 3D (6 750)
+// +0.26 -> +0.15 (0.16), height RMS 0.023. The column then falls a little
+// slower than the experiment's (its height RMS against the 0.013 of the
+// larger scenes), so its bound here is 0.06.
+constexpr double kTensionHeightRmsBound = 0.06;
+template <int D>
+void surfaceTensionAtTheExperimentsScale(const std::string& sceneFile, double rmsBound) {
+  const auto measure = [&](bool tension) {
+    FrameChecks checks;
+    const auto edit = [&](nlohmann::json& j) {
+      if (!tension) j["effects"] = nlohmann::json::array({"viscosity_standard"});
+    };
+    const DamRun run = runDamBreak<D>(sceneFile, 0, "dfsph", 1.2, checks, edit);
+    checks.finish(int(run.frames.size()));
+    const MartinMoyce mm = againstMartinMoyce(run);
+    std::printf("[ measured ] %s (%zu particles, r = %g m), %s surface tension: surge front RMS %.3f in Z against "
+                "Martin & Moyce, mean lead %+.3f; residual column height RMS %.3f\n",
+                sceneFile.c_str(), run.particles, run.r, tension ? "with" : "without", mm.surgeRms, mm.surgeLead,
+                mm.heightRms);
+    EXPECT_GE(mm.surge.T.size(), 10u) << "the run must cover Martin & Moyce's surge up to T = 3";
+    return mm;
+  };
+  const MartinMoyce without = measure(false), with = measure(true);
+  EXPECT_LT(with.surgeLead, without.surgeLead - 0.08) << "surface tension must hold the surge back at this scale";
+  EXPECT_LT(with.surgeRms, rmsBound) << "surge front RMS against Martin & Moyce, T <= 3";
+  EXPECT_LT(with.heightRms, kTensionHeightRmsBound) << "residual column height RMS against Martin & Moyce";
+}
+
+TEST(DamBreak, AtTheExperimentsScaleSurfaceTensionHoldsTheSurgeBack2D) {
+  surfaceTensionAtTheExperimentsScale<2>("validation/martin_moyce2d.json", 0.16);
+}
+TEST(DamBreak, AtTheExperimentsScaleSurfaceTensionHoldsTheSurgeBack3D) {
+  surfaceTensionAtTheExperimentsScale<3>("validation/martin_moyce3d.json", 0.2);
+}
+
+// The same checks as the shipped dam breaks' (front, volume, walls).
+TEST(DamBreak, AtTheExperimentsScale2D) {
+  damBreakTest<2>("validation/martin_moyce2d.json", 0, "dfsph", 0.005, kTensionHeightRmsBound);
+}
+TEST(DamBreak, AtTheExperimentsScale3D) {
+  damBreakTest<3>("validation/martin_moyce3d.json", 0, "dfsph", 0.005, kTensionHeightRmsBound);
 }
 
 }  // namespace
