@@ -357,9 +357,9 @@ TEST(DamBreak, AGateLiftedAtFiniteSpeedHoldsTheSurgeBack) {
 // residual heights record: at the scenes' viscosity (ν = 0.001 m²/s, a
 // thousand times water's) the wall's layer is far thicker than the
 // experiment's. The figures are printed per resolution
-// (docs/physics/pressure-solvers.md).
+// (docs/physics/pressure-solvers.md). viscosity: the liquid's, m^2/s (0:
+// the scene's).
 template <int D>
-// viscosity: the liquid's, m^2/s (0: the scene's).
 MartinMoyce damBreakWithWalls(const std::string& sceneFile, double radius, bool noSlip, double viscosity = 0) {
   double nu = 0;
   const auto walls = [&](nlohmann::json& j) {
@@ -394,7 +394,7 @@ TEST(DamBreak, NoSlipWallsHoldTheSurgeBackAndTheColumnAtTheWall) {
   const MartinMoyce freeSlip3D = damBreakWithWalls<3>("dambreak3d.json", 1.0 / 60, false);
   expectFriction(freeSlip3D, damBreakWithWalls<3>("dambreak3d.json", 1.0 / 60, true));
   // At water's viscosity the wall's layer is far thinner than a particle:
-  // no-slip walls change nothing (measured: lead +0.26 either way).
+  // no-slip walls change nothing (measured: lead +0.243 and +0.238).
   const MartinMoyce water = damBreakWithWalls<2>("dambreak2d.json", 0.005, false, 1e-6);
   const MartinMoyce waterNoSlip = damBreakWithWalls<2>("dambreak2d.json", 0.005, true, 1e-6);
   EXPECT_NEAR(waterNoSlip.surgeLead, water.surgeLead, 0.02);
@@ -406,12 +406,12 @@ TEST(DamBreak, NoSlipWallsHoldTheSurgeBackAndTheColumnAtTheWall) {
 // Akinci 2013 coefficient set for 0.0728 N/m at each scene's radius). The
 // shipped dam breaks are nine times larger, where surface tension does
 // nothing; at the experiment's scale it holds the thin surge tip back and
-// takes away most of the lead the larger scenes show.
+// takes away about half the lead the larger scenes show.
 // Measured, lead (surge RMS) without -> with surface tension: 2D (5 000
 // particles) +0.24 -> +0.12 (0.13), residual height RMS 0.045; 3D (6 750)
-// +0.26 -> +0.15 (0.16), height RMS 0.023. The column then falls a little
-// slower than the experiment's (its height RMS against the 0.013 of the
-// larger scenes), so its bound here is 0.06.
+// +0.26 -> +0.15 (0.16), height RMS 0.023. The column's residual height
+// then differs more from the experiment's (RMS 0.045 in 2D against the
+// larger scenes' 0.013), so its bound here is 0.06.
 constexpr double kTensionHeightRmsBound = 0.06;
 template <int D>
 void surfaceTensionAtTheExperimentsScale(const std::string& sceneFile, double rmsBound) {
