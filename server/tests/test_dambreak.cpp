@@ -402,15 +402,15 @@ TEST(DamBreak, NoSlipWallsHoldTheSurgeBackAndTheColumnAtTheWall) {
 }
 
 // Martin & Moyce's own scale (scenes/validation/martin_moyce2d.json and
-// 3d: a = 2.25 in = 5.715 cm, water's viscosity and surface tension, the
-// Akinci 2013 coefficient set for 0.0728 N/m at each scene's radius). The
+// 3d: a = 2.25 in = 5.715 cm, water's viscosity and surface tension,
+// `sigma` 0.0728 N/m). The
 // shipped dam breaks are nine times larger, where surface tension does
 // nothing; at the experiment's scale it holds the thin surge tip back and
 // takes away about half the lead the larger scenes show.
 // Measured, lead (surge RMS) without -> with surface tension: 2D (5 000
-// particles) +0.24 -> +0.12 (0.13), residual height RMS 0.045; 3D (6 750)
-// +0.26 -> +0.15 (0.16), height RMS 0.023. The column's residual height
-// then differs more from the experiment's (RMS 0.045 in 2D against the
+// particles) +0.24 -> +0.11 (0.13), residual height RMS 0.046; 3D (6 750)
+// +0.26 -> +0.15 (0.16), height RMS 0.024. The column's residual height
+// then differs more from the experiment's (RMS 0.046 in 2D against the
 // larger scenes' 0.013), so its bound here is 0.06.
 constexpr double kTensionHeightRmsBound = 0.06;
 template <int D>

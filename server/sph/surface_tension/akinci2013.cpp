@@ -20,6 +20,8 @@
 // terms do not even share a unit). The cohesion term alone corresponds to the
 // continuum surface tension sigma = (21/7040) gamma rho0^2 h^2 (see
 // CohesionKernel), 0.24 N/m at the default with rho0 = 1000, r = 0.01 m.
+// `sigma` (N/m) sets gamma from that relation instead, per phase, so that a
+// scene keeps its liquid's surface tension at any resolution.
 //
 // The term is explicit: a particle in the cohesion well oscillates with
 // omega^2 ~ gamma rho0 / h, so the step is capped at
@@ -37,6 +39,7 @@ namespace fc {
 struct Akinci2013Params {
   double surfaceTension;
   double adhesion;
+  double sigma;
 };
 
 const ParamTable<Akinci2013Params>& akinci2013Table() {
@@ -51,6 +54,10 @@ const ParamTable<Akinci2013Params>& akinci2013Table() {
        .help = "beta of Akinci et al. 2013 (SPlisHSPlasH's surfaceTensionBoundary): pull of walls and obstacles on "
                "the liquid (0: off)",
        .member = &P::adhesion},
+      {.name = "sigma", .unit = "N/m", .min = 0, .max = 10, .def = 0,
+       .help = "the liquid's surface tension (water: 0.0728); when set, gamma follows it at any resolution, "
+               "gamma = sigma / (0.003 rho0^2 h^2) for each phase (0: surface_tension gives gamma)",
+       .member = &P::sigma},
   };
   return table;
 }
@@ -69,14 +76,21 @@ template <int D>
 class SurfaceTensionAkinci2013 final : public Effect<D> {
  public:
   explicit SurfaceTensionAkinci2013(const Akinci2013Params& p)
-      : gamma_(Real(p.surfaceTension)), beta_(Real(p.adhesion)) {}
+      : gamma_(Real(p.surfaceTension)), beta_(Real(p.adhesion)), sigma_(p.sigma) {}
   unsigned stages() const override { return AddAccelerations; }
 
   void init(Simulation<D>& sim) override {
     cohesion_.setRadius(sim.supportRadius());
     adhesion_.setRadius(sim.supportRadius());
     rho0Max_ = 0;
-    for (const auto& ph : sim.setup().phases) rho0Max_ = std::max(rho0Max_, ph.restDensity);
+    gammaOfPhase_.clear();
+    const double h = sim.supportRadius();
+    for (const auto& ph : sim.setup().phases) {
+      rho0Max_ = std::max(rho0Max_, ph.restDensity);
+      const double rho0 = ph.restDensity;
+      gammaOfPhase_.push_back(
+          sigma_ > 0 ? Real(sigma_ / (CohesionKernel<D>::sigmaPerGammaRho2H2() * rho0 * rho0 * h * h)) : gamma_);
+    }
     resize(sim.fluid.size());
   }
   void resize(size_t n) override {
@@ -93,7 +107,8 @@ class SurfaceTensionAkinci2013 final : public Effect<D> {
   // cohesion's sigma) and not measured separately; the larger of the two
   // coefficients sets the bound.
   Real maxTimeStep(const Simulation<D>& sim) const override {
-    const double g = std::max(gamma_, beta_);
+    double g = std::max(beta_, gammaOfPhase_.empty() ? gamma_ : Real(0));
+    for (Real gp : gammaOfPhase_) g = std::max(g, double(gp));
     if (!(g > 0) || !(rho0Max_ > 0)) return Real(1e30);
     const double r = sim.particleRadius(), h = sim.supportRadius();
     const double sigma = CohesionKernel<D>::sigmaPerGammaRho2H2() * g * double(rho0Max_) * rho0Max_ * h * h;
@@ -155,7 +170,8 @@ class SurfaceTensionAkinci2013 final : public Effect<D> {
       if constexpr (D == 3) n2[i] = s2;
     }
 
-    const Real gamma = gamma_, beta = beta_;
+    const Real* gammaOf = gammaOfPhase_.data();
+    const Real beta = beta_;
     const Real* rho0 = sim.restDensity_.data();
     const Real eps = Real(1e-6) * h;
     const CohesionKernel<D> cohesion = cohesion_;
@@ -189,6 +205,7 @@ class SurfaceTensionAkinci2013 final : public Effect<D> {
       }
       const Real acc[3] = {s0, s1, s2};
       Vec<D> a;
+      const Real gamma = gammaOf[phase[i]];
       for (int d = 0; d < D; ++d) a[d] = -gamma * acc[d];
       // equations (6) and (7) in [AAT13]: adhesion to the boundary particles, Ψ_b = ρ0 V_b
       if (beta > 0) {
@@ -208,6 +225,8 @@ class SurfaceTensionAkinci2013 final : public Effect<D> {
   }
 
   Real gamma_, beta_;
+  double sigma_;                    // N/m; 0: gamma_ for every phase
+  std::vector<Real> gammaOfPhase_;  // gamma per phase, set by init
   Real rho0Max_ = 0;
   CohesionKernel<D> cohesion_;
   AdhesionKernel<D> adhesion_;
