@@ -4,7 +4,6 @@ read from both codes' files, and the report says what it measured."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import pathlib
 import sys
@@ -15,9 +14,8 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tools"))
-_spec = importlib.util.spec_from_file_location("pool_reference", ROOT / "tools" / "pool_reference.py")
-pool_reference = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(pool_reference)
+import density_audit  # noqa: E402  (tools/)
+import pool_reference  # noqa: E402
 
 # The shape of SPlisHSPlasH's shipped 2D dam break (its tank 4 m square on the floor y = 0).
 SHIPPED = {
@@ -99,11 +97,16 @@ def test_velocities_are_read_from_both_codes_files(tmp_path):
     vtk.write_bytes(b"# vtk DataFile Version 4.1\nSPlisHSPlasH particle data\nBINARY\nDATASET UNSTRUCTURED_GRID\n"
                     + f"POINTS {n} float\n".encode() + np.zeros((n, 3), ">f4").tobytes()
                     + f"\nPOINT_DATA {n}\nFIELD FieldData 1\nvelocity 3 {n} float\n".encode() + v.tobytes())
-    np.testing.assert_array_equal(pool_reference.read_vtk_velocities(str(vtk)), v.astype(float))
+    np.testing.assert_array_equal(density_audit.read_vtk_field(str(vtk), "velocity"), v.astype(float))
+    # The file's time from its number, frame 1 at t = 0, as for the positions.
+    ((t, read),) = density_audit.vtk_frames([str(vtk)], 10, 3,
+                                            read=lambda f: density_audit.read_vtk_field(f, "velocity"))
+    assert t == pytest.approx(0.1)
+    np.testing.assert_array_equal(read, v.astype(float))
     bare = tmp_path / "bare.vtk"
     bare.write_bytes(f"POINTS {n} float\n".encode() + np.zeros((n, 3), ">f4").tobytes())
     with pytest.raises(ValueError, match="velocity"):
-        pool_reference.read_vtk_velocities(str(bare))
+        density_audit.read_vtk_field(str(bare), "velocity")
     h5 = tmp_path / "ours.h5"
     with h5py.File(h5, "w") as f:
         f["frames/time"] = np.array([0.0, 0.5, 1.0, 1.5])
@@ -114,7 +117,7 @@ def test_velocities_are_read_from_both_codes_files(tmp_path):
     np.testing.assert_array_equal(vels[1], [[8, 9], [10, 11]])
 
 
-def test_report_writes_each_case_with_both_codes(tmp_path):
+def test_report_writes_each_case_with_both_codes():
     frames = [{"time": 1.0, "rms": 0.02, "max": 0.07}, {"time": 1.1, "rms": 0.019, "max": 0.06}]
     case = {"viscosity": 0.01, "boundary": "adami2012", "reference_boundary": "volume-maps",
             "flowclip": {"frames": frames, "max_after": 0.07, "rms_at_end": 0.019, "particles": 9751},
@@ -122,8 +125,6 @@ def test_report_writes_each_case_with_both_codes(tmp_path):
     report = {"date": "2026-12-07T00:00:00Z", "command": "build/venv/bin/python tools/pool_reference.py",
               "machine": {"cpu": "cpu", "cores": 2, "loadavg_at_start": "1 1 1"}, "loadavg_at_end": "1 1 1",
               "settings": {"reference": "pysplishsplash==2.19.0", "flowclip_version": "0.1.0"}, "cases": [case]}
-    pool_reference.write_report(str(tmp_path), report)
-    md = (tmp_path / "pool.md").read_text()
+    md = pool_reference.markdown(report)
     assert "| 0.01 | `adami2012` | volume-maps | 9751 / 9751 | 70.0 | 19.0 | 100.0 | 12.0 |" in md
     assert "| 1.0 | 20.0 | 70.0 | 20.0 | 70.0 |" in md and "| 1.1 | 19.0 | 60.0 | - | - |" in md
-    assert json.loads((tmp_path / "pool.json").read_text())["cases"][0]["boundary"] == "adami2012"

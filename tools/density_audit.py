@@ -122,25 +122,37 @@ def read_h5(path, every=1):
     return radius, dim, rest, frames
 
 
-def read_vtk(path):
-    """The POINTS of a legacy binary VTK file (SPlisHSPlasH's particle export: big-endian)."""
+def _vtk_vectors(path, header, what):
+    """The 3-vectors that follow the line `header` (a regex whose groups are the count and float|double) in a
+    legacy binary VTK file (SPlisHSPlasH's particle export: big-endian)."""
     with open(path, "rb") as fh:
         data = fh.read()
-    m = re.search(rb"POINTS (\d+) (float|double)\n", data)
+    m = re.search(header, data)
     if not m:
-        raise ValueError(f"{path}: no POINTS in this VTK file")
+        raise ValueError(f"{path}: no {what} in this VTK file")
     n, kind = int(m.group(1)), m.group(2)
     dtype = ">f4" if kind == b"float" else ">f8"
     return np.frombuffer(data, dtype=dtype, count=3 * n, offset=m.end()).reshape(n, 3).astype(np.float64)
 
 
-def vtk_frames(files, fps, dim):
-    """[(time, positions)] of SPlisHSPlasH's files ParticleData_<model>_<frame>.vtk, frame 1 at t = 0."""
+def read_vtk(path):
+    """The POINTS of a legacy binary VTK file (SPlisHSPlasH's particle export: big-endian)."""
+    return _vtk_vectors(path, rb"POINTS (\d+) (float|double)\n", "POINTS")
+
+
+def read_vtk_field(path, name):
+    """A 3-component array of the file's FIELD data (SPlisHSPlasH's `particleAttributes`, e.g. velocity)."""
+    return _vtk_vectors(path, rb"\n" + re.escape(name.encode()) + rb" 3 (\d+) (float|double)\n",
+                        f"{name} array (export with particleAttributes {name})")
+
+
+def vtk_frames(files, fps, dim, read=read_vtk):
+    """[(time, read(file)[:, :dim])] of SPlisHSPlasH's files ParticleData_<model>_<frame>.vtk, frame 1 at t = 0."""
     def number(p):
         return int(re.search(r"_(\d+)\.vtk$", p).group(1))
     out = []
     for p in sorted(files, key=number):
-        x = read_vtk(p)
+        x = read(p)
         out.append(((number(p) - 1) / fps, x[:, :dim]))
     return out
 

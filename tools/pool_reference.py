@@ -21,20 +21,19 @@ figure beside the reference implementation's
 (docs/physics/boundaries.md#what-still-moves-in-a-resting-pool).
 """
 import argparse
-import datetime
 import json
 import os
-import re
-import shlex
 import subprocess
 import sys
 import tempfile
+from pathlib import Path
 
 import h5py
 import numpy as np
 
 import bench_reference  # tools/, beside this script
-from bench_report import loadavg, machine
+import density_audit
+from bench_report import report_start, write_report
 
 ROOT = bench_reference.ROOT
 SCENE = "scenes/hydrostatic2d.json"
@@ -98,17 +97,6 @@ def speeds(times, velocities, first=SETTLED):
     return {"frames": rows, "max_after": max(settled), "rms_at_end": rows[-1]["rms"]}
 
 
-def read_vtk_velocities(path):
-    """The `velocity` array of a SPlisHSPlasH particle file (legacy binary VTK, big-endian)."""
-    with open(path, "rb") as fh:
-        data = fh.read()
-    m = re.search(rb"\nvelocity 3 (\d+) (float|double)\n", data)
-    if not m:
-        raise ValueError(f"{path}: no velocity array (export with particleAttributes velocity)")
-    n, dtype = int(m.group(1)), (">f4" if m.group(2) == b"float" else ">f8")
-    return np.frombuffer(data, dtype=dtype, count=3 * n, offset=m.end()).reshape(n, 3)
-
-
 def our_frames(path, every):
     """(times, velocities) of every `every`-th frame of a FlowClip export."""
     with h5py.File(path, "r") as f:
@@ -138,19 +126,15 @@ def run_case(py, data, binary, viscosity, boundary, reference_boundary, seconds,
     flowclip["particles"] = len(velocities[0])
     bench_reference.run_reference(py, ref_scene, seconds, threads, case)
     files = [os.path.join(case, "vtk", f) for f in os.listdir(os.path.join(case, "vtk"))]
-    number = {f: int(re.search(r"_(\d+)\.vtk$", f).group(1)) for f in files}
-    files.sort(key=number.get)
-    # Its first file is the state at t = 0 (tools/density_audit.py's vtk_frames).
-    reference = speeds([(number[f] - 1) * SAMPLE for f in files], [read_vtk_velocities(f) for f in files])
-    reference["particles"] = len(read_vtk_velocities(files[0]))
+    frames = density_audit.vtk_frames(files, 1 / SAMPLE, 3, read=lambda f: density_audit.read_vtk_field(f, "velocity"))
+    reference = speeds([t for t, _ in frames], [v for _, v in frames])
+    reference["particles"] = len(frames[0][1])
     return {"viscosity": viscosity, "boundary": ours["boundary"]["method"], "reference_boundary": reference_boundary,
             "flowclip": flowclip, "splishsplash": reference}
 
 
-def write_report(out, report):
-    os.makedirs(out, exist_ok=True)
-    with open(os.path.join(out, "pool.json"), "w") as fh:
-        json.dump(report, fh, indent=1)
+def markdown(report):
+    """The report's pool.md."""
     m = report["machine"]
     lines = ["# A resting pool: what still moves, FlowClip beside SPlisHSPlasH", "",
              f"- date: {report['date']}", f"- command: `{report['command']}`",
@@ -179,8 +163,7 @@ def write_report(out, report):
             o = theirs.get(round(r["time"], 6))
             tail = f"{1e3 * o['rms']:.1f} | {1e3 * o['max']:.1f}" if o else "- | -"
             lines.append(f"| {r['time']:.1f} | {1e3 * r['rms']:.1f} | {1e3 * r['max']:.1f} | {tail} |")
-    with open(os.path.join(out, "pool.md"), "w") as fh:
-        fh.write("\n".join(lines) + "\n")
+    return "\n".join(lines) + "\n"
 
 
 def main():
@@ -203,25 +186,21 @@ def main():
     pairs = [p.split(":", 1) for p in args.pairs]
     if any(len(p) != 2 or p[1] not in REFERENCE_BOUNDARIES or not p[0] for p in pairs):
         ap.error("--pairs takes OURS:THEIRS, THEIRS one of " + ", ".join(sorted(REFERENCE_BOUNDARIES)))
-    command = "build/venv/bin/python tools/pool_reference.py" + "".join(" " + shlex.quote(a) for a in sys.argv[1:])
-    started = machine()
-    date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    report = report_start("tools/pool_reference.py", sys.argv[1:])
     version = subprocess.run([args.binary, "--version"], capture_output=True, text=True, check=True).stdout.strip()
     py, data = bench_reference.venv_python(os.path.join(ROOT, "build"))
     cases = []
     with tempfile.TemporaryDirectory() as work:
-        todo = [(ours, theirs, v) for ours, theirs in pairs for v in viscosities]
-        for k, (ours, theirs, v) in enumerate(todo):
-            print(f"[{k + 1}/{len(todo)}] {ours} beside {theirs}, viscosity {v:g}: both codes, {args.seconds:g} "
+        runs = [(ours, theirs, v) for ours, theirs in pairs for v in viscosities]
+        for k, (ours, theirs, v) in enumerate(runs):
+            print(f"[{k + 1}/{len(runs)}] {ours} beside {theirs}, viscosity {v:g}: both codes, {args.seconds:g} "
                   "simulated s", file=sys.stderr, flush=True)
             cases.append(run_case(py, data, args.binary, v, ours, theirs, args.seconds, args.threads, work))
-    report = {"benchmark": "pool-reference", "date": date, "command": command, "machine": started,
-              "loadavg_at_end": loadavg(),
-              "settings": {"seconds": args.seconds, "threads": args.threads, "reference": bench_reference.WHEEL,
-                           "flowclip_version": version, "scene": SCENE, "depth_m": DEPTH},
-              "cases": cases}
-    write_report(args.out, report)
-    print(f"report: {os.path.join(args.out, 'pool.md')}", file=sys.stderr)
+    report.update({"benchmark": "pool-reference",
+                   "settings": {"seconds": args.seconds, "threads": args.threads, "reference": bench_reference.WHEEL,
+                                "flowclip_version": version, "scene": SCENE, "depth_m": DEPTH},
+                   "cases": cases})
+    write_report(Path(args.out), "pool", report, markdown)
 
 
 if __name__ == "__main__":
