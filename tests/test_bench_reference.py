@@ -4,7 +4,6 @@ summary becomes its figures, and the report divides them pair by pair."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import pathlib
 import subprocess
@@ -13,10 +12,8 @@ import sys
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tools"))  # its helper module bench_report
-_spec = importlib.util.spec_from_file_location("bench_reference", ROOT / "tools" / "bench_reference.py")
-bench_reference = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(bench_reference)
+sys.path.insert(0, str(ROOT / "tools"))
+import bench_reference  # noqa: E402  (tools/)
 
 from repo_paths import FLOWCLIP_BIN  # noqa: E402  (tests/, beside this file)
 
