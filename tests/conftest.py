@@ -33,6 +33,13 @@ from service_helpers import small_recipe
 os.environ["FLOWCLIP_BIN"] = str(FLOWCLIP_BIN)
 
 TEMPLATES_2D = ("drop2d", "column2d", "jet2d")
+
+
+def pytest_configure(config):
+    config.addinivalue_line(
+        "markers", "heavy: minutes of simulation under the sanitizers (benchmark sweeps, the batch runner's own "
+        "logic, physics read from exports); server/fuzz/pytest_sanitized.sh leaves these out (-m 'not heavy'): "
+        "the input handling the sanitized run is for is in the other tests, and ctest runs the solvers")
 MAX_BODY_MB = 1
 
 
@@ -54,6 +61,19 @@ def template_dir(tmp_path_factory):
             subprocess.run([str(FLOWCLIP_BIN), "record", str(ROOT / "templates" / "recipes" / f"{name}.json"),
                             "--templates", str(out), "--force", "--quiet"], check=True, timeout=300)
     return out
+
+
+@pytest.fixture(scope="session")
+def quick_accuracy(template_dir, tmp_path_factory):
+    """One `flowclip bench accuracy --quick` sweep (with its plots) for every test that reads one: the
+    study's own and the Dask sweep's comparison. One thread: on a machine shared with busy processes,
+    OpenMP's barriers wait for descheduled threads; the timeout only catches a hang."""
+    out = tmp_path_factory.mktemp("accuracy")
+    cmd = [str(FLOWCLIP_BIN), "bench", "accuracy", "--quick", "--threads", "1", "--out", str(out),
+           "--templates", str(template_dir)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=3600, cwd=ROOT)
+    assert proc.returncode == 0, f"{' '.join(cmd)} exited with {proc.returncode}:\n{proc.stdout}\n{proc.stderr}"
+    return out, proc
 
 
 @pytest.fixture(scope="session")

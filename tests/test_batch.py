@@ -41,6 +41,7 @@ def frames_of(path):
         return out
 
 
+@pytest.mark.heavy
 def test_a_wedge_on_a_local_cluster_equals_plain_runs_and_resumes(tmp_path):
     spec = load_spec(write_spec(tmp_path))
     lines = []
@@ -108,6 +109,7 @@ def test_a_killed_tasks_leftovers_never_count_as_complete(tmp_path):
     assert (out / task.id / "task.json").exists()
 
 
+@pytest.mark.heavy
 def test_a_worker_killed_mid_task_is_retried_and_leaves_nothing_partial(tmp_path):
     spec = load_spec(write_spec(tmp_path, frames=200, grid={"instances[drop].speed": [1.0, 2.0]}))
     out = tmp_path / "out"

@@ -37,6 +37,7 @@ def write_spec(tmp_path, out, **extra):
     return path
 
 
+@pytest.mark.heavy
 def test_a_wedge_into_a_file_url_is_complete_task_by_task_and_resumes(tmp_path):
     out = tmp_path / "out"
     spec = load_spec(write_spec(tmp_path, f"file://{out}"))
@@ -77,6 +78,7 @@ class Interrupted(OSError):
     pass
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("step, after", [("put_file", 2), ("mv", 1)])
 def test_an_interrupted_upload_leaves_no_complete_task_and_a_rerun_completes_it(tmp_path, monkeypatch, step,
                                                                                  after):

@@ -33,19 +33,15 @@ COLUMNS = (["id", "group", "scene", "method", "boundary", "real"] + KNOBS +
             "solver_max_density_error_pct", "volume_drift_pct", "max_speed", "surge_front_rms", "surge_front_bias",
             "fidelity_iou"] + REST + ["front_avg_density_error", "front_max_density_error", "front_volume_drift",
             "front_surge_front_rms", "front_fidelity", "preset", "load_avg"])
+pytestmark = pytest.mark.heavy
+
 TEXT = {"id", "group", "scene", "method", "boundary", "real", "status", "preset"}
 TOLERANCES = ["density_tolerance_pct", "divergence_tolerance_pct"]
 
 
 @pytest.fixture(scope="module")
-def study(template_dir, tmp_path_factory):
-    out = tmp_path_factory.mktemp("accuracy")
-    # One thread: on a machine shared with busy processes, OpenMP's barriers wait for descheduled
-    # threads (a sanitized build's study went past 15 minutes that way); the timeout only catches a hang.
-    cmd = [str(FLOWCLIP_BIN), "bench", "accuracy", "--quick", "--threads", "1", "--out", str(out),
-           "--templates", str(template_dir)]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=3600, cwd=ROOT)
-    assert proc.returncode == 0, f"{' '.join(cmd)} exited with {proc.returncode}:\n{proc.stdout}\n{proc.stderr}"
+def study(quick_accuracy):
+    out, proc = quick_accuracy
     with (out / "accuracy.csv").open(newline="") as f:
         reader = csv.reader(f)
         header = next(reader)

@@ -45,12 +45,12 @@ def rows(out):
         return list(csv.DictReader(f))
 
 
-def test_the_sweep_on_a_local_cluster_equals_the_sequential_sweep(template_dir, tmp_path):
-    seq = sweep(tmp_path / "seq", template_dir)
-    assert seq.returncode == 0, seq.stderr
+@pytest.mark.heavy
+def test_the_sweep_on_a_local_cluster_equals_the_sequential_sweep(quick_accuracy, template_dir, tmp_path):
+    seq_dir = quick_accuracy[0]  # the study's sequential sweep (tests/conftest.py)
     dask = sweep(tmp_path / "dask", template_dir, "--local", "2")
     assert dask.returncode == 0, dask.stderr
-    a, b = rows(tmp_path / "seq"), rows(tmp_path / "dask")
+    a, b = rows(seq_dir), rows(tmp_path / "dask")
     assert len(a) == len(b) >= 10
     for x, y in zip(a, b):
         assert x["status"] == y["status"] == "ok", (x, y)
@@ -60,7 +60,7 @@ def test_the_sweep_on_a_local_cluster_equals_the_sequential_sweep(template_dir, 
         for col in ("wall_s_per_sim_s", "cpu_s_per_sim_s"):  # measured on the worker, not left out
             assert float(y[col]) > 0, (col, y)
     # The surge fronts too: every exported frame's front, point by point.
-    assert (tmp_path / "seq" / "surge_fronts.csv").read_text() == (tmp_path / "dask" / "surge_fronts.csv").read_text()
+    assert (seq_dir / "surge_fronts.csv").read_text() == (tmp_path / "dask" / "surge_fronts.csv").read_text()
     # One progress line per point, the runner's own per task, and the report says where the points ran.
     n = len(b)
     for i in range(1, n + 1):
@@ -82,7 +82,9 @@ def free_port():
 
 def test_an_unreachable_scheduler_is_named_without_a_traceback(template_dir, tmp_path):
     address = f"tcp://127.0.0.1:{free_port()}"
-    r = sweep(tmp_path / "out", template_dir, "--scheduler", address)
+    # Dask's own setting: how long to keep trying to connect (30 s by default).
+    r = sweep(tmp_path / "out", template_dir, "--scheduler", address,
+              env={"DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT": "2s"})
     assert r.returncode == 2, r.stderr
     assert f"--scheduler {address}: cannot reach the scheduler" in r.stderr
     assert "Traceback" not in r.stderr
@@ -141,6 +143,7 @@ def test_a_command_list_that_cannot_run_is_refused_naming_the_entry(tmp_path, en
     assert r.returncode == 2 and names in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.heavy
 def test_ctrl_c_stops_the_cluster_and_keeps_the_points_measured(template_dir, tmp_path):
     """Ctrl-C reaches the whole process group (the sweep, the runner, its workers and their runs): the
     sweep writes the points whose runs finished and exits 130, and nothing of the batch is left."""

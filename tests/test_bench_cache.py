@@ -26,6 +26,7 @@ def positive(value) -> bool:
 # A benchmark of the Release build: under the sanitizers (make test-asan) its 3D recording alone
 # would take many minutes and its figures would mean nothing.
 @pytest.mark.skipif(bool(os.environ.get("FLOWCLIP_SANITIZED")), reason="a benchmark of the Release build")
+@pytest.mark.heavy
 def test_quick_benchmark_report(tmp_path):
     assert FLOWCLIP_BIN.exists(), f"{FLOWCLIP_BIN} is missing: build first (make build) or set FLOWCLIP_BIN"
     run = subprocess.run([sys.executable, str(ROOT / "tools" / "bench_cache.py"), "--quick", "--out", str(tmp_path)],

@@ -16,6 +16,7 @@ FRAMES = 16
 DROP = ROOT / "scenes" / "drop2d.json"
 
 
+@pytest.mark.heavy
 def test_repeat_reports_the_median_run_and_the_range(template_dir, tmp_path):
     out = tmp_path / "control"
     done = run_bench(["control", str(DROP), "--frames", str(FRAMES), "--threads", "1", "--repeat", str(REPEAT),

@@ -76,6 +76,7 @@ def test_solver_report_compares_boundary_models(tmp_path):
     assert f"| {bender['bench_scene']} | dfsph | bender2019 |" in md
 
 
+@pytest.mark.heavy
 def test_scenes_report(template_dir, tmp_path):
     out = tmp_path / "scenes"
     frames = 14  # two frames past the drop's instance start (t = 0.2 s)
@@ -104,6 +105,7 @@ def test_scenes_report(template_dir, tmp_path):
     assert "| drop2d | 2D Rectangular drop | 6700 | 1300 | 88 | 36 | 190.2 | 5.6 | 2.9 | 0.33 | 3.87 |" in md
 
 
+@pytest.mark.heavy
 def test_scenes_report_at_the_papers_scale(tmp_path):
     # The drop's template at its paper scale, where `--scale paper` looks for it.
     templates = tmp_path / "templates"

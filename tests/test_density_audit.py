@@ -107,6 +107,7 @@ def test_a_file_without_points_is_a_clear_error(tmp_path):
         density_audit.read_vtk(str(p))
 
 
+@pytest.mark.heavy
 @pytest.mark.skipif(not FLOWCLIP_BIN.exists(), reason=f"{FLOWCLIP_BIN} does not exist: build it first (make build)")
 def test_flowclips_resting_column_holds_its_tolerance_measured_from_its_export(tmp_path):
     scene = json.loads((ROOT / "scenes" / "hydrostatic2d.json").read_text())

@@ -34,6 +34,7 @@ def paper_templates(tmp_path_factory):
     return root / "templates" / "paper"
 
 
+@pytest.mark.heavy
 def test_record_at_the_recipes_paper_resolution(paper_templates):
     recipe = json.loads(RECIPE.read_text())
     path = paper_templates / "drop2d.h5"
@@ -43,6 +44,7 @@ def test_record_at_the_recipes_paper_resolution(paper_templates):
         assert f.attrs["particle_radius"] < recipe["particle_radius"]
 
 
+@pytest.mark.heavy
 def test_a_recorded_template_is_kept_and_a_missing_one_recorded(paper_templates, tmp_path):
     before = (paper_templates / "drop2d.h5").stat()
     proc = flowclip("record", RECIPE, "--scale", "paper", "--skip-existing", "--templates", paper_templates)
@@ -62,6 +64,7 @@ def run_stats(tmp_path, name, *args):
     return json.loads(stats.read_text())
 
 
+@pytest.mark.heavy
 def test_run_at_the_paper_scale_holds_the_papers_liquid(paper_templates, tmp_path):
     scene = json.loads(SCENE.read_text())
     radius = scene["scales"]["paper"]["particle_radius"]

@@ -45,6 +45,7 @@ def test_a_gauge_reads_the_water_standing_on_the_floor_not_the_spray():
     assert spheric2.column_top(np.array([]), r) == 0.0
 
 
+@pytest.mark.heavy
 def test_a_coarse_run_reaches_the_first_gauge_with_the_experiment(tmp_path):
     out = tmp_path / "report"
     cmd = [sys.executable, str(ROOT / "tools" / "spheric2.py"), "--radius", "0.0275", "--seconds", "0.5",

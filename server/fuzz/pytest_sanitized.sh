@@ -33,7 +33,8 @@ export UBSAN_OPTIONS="log_path=$logs/ubsan:halt_on_error=1:print_stacktrace=1:su
 export LSAN_OPTIONS="suppressions=$supp/lsan.supp:print_suppressions=0"
 
 start=$SECONDS
-"$python" -m pytest -q "$@" tests
+# Tests marked heavy are left out: minutes of simulation each under the sanitizers (tests/conftest.py).
+"$python" -m pytest -q -m "not heavy" "$@" tests
 status=$?
 elapsed=$((SECONDS - start))
 

@@ -154,10 +154,12 @@ def _remove_leftovers(commands: list[dict]) -> None:
 
 
 def run_commands(commands: list[dict], *, local=None, scheduler=None, retries=2, log=None, event=None,
-                 connect_timeout=30) -> list[dict]:
+                 connect_timeout=None) -> list[dict]:
     """Runs every command as a task of a LocalCluster of `local` worker processes (one task at a time
     each) or of the scheduler at `scheduler`; the results in the list's order. On KeyboardInterrupt the
-    results so far are in the exception's `results` (None for the commands not finished)."""
+    results so far are in the exception's `results` (None for the commands not finished). Reaching the
+    scheduler gives up after `connect_timeout` seconds (default: Dask's distributed.comm.timeouts.connect,
+    30 s unless DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT says otherwise)."""
     from distributed import Client, LocalCluster, as_completed
 
     log = log or (lambda line: print(line, file=sys.stderr, flush=True))
@@ -179,7 +181,8 @@ def run_commands(commands: list[dict], *, local=None, scheduler=None, retries=2,
             signal.signal(signal.SIGINT, previous)
     try:
         try:
-            client = Client(cluster if cluster is not None else scheduler, timeout=connect_timeout)
+            timeout = {} if connect_timeout is None else {"timeout": connect_timeout}
+            client = Client(cluster if cluster is not None else scheduler, **timeout)
         except (OSError, ValueError) as e:
             if scheduler is None:
                 raise
