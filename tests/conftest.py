@@ -33,6 +33,7 @@ from service_helpers import small_recipe
 os.environ["FLOWCLIP_BIN"] = str(FLOWCLIP_BIN)
 
 TEMPLATES_2D = ("drop2d", "column2d", "jet2d")
+MAX_BODY_MB = 1
 
 
 def pytest_configure(config):
@@ -40,7 +41,6 @@ def pytest_configure(config):
         "markers", "heavy: minutes of simulation under the sanitizers (benchmark sweeps, the batch runner's own "
         "logic, physics read from exports); server/fuzz/pytest_sanitized.sh leaves these out (-m 'not heavy'): "
         "the input handling the sanitized run is for is in the other tests, and ctest runs the solvers")
-MAX_BODY_MB = 1
 
 
 @pytest.fixture(scope="session")
