@@ -35,3 +35,16 @@ def test_scaling_report(tmp_path):
                       f"{r['us_per_particle_step'] / runs[0]['us_per_particle_step']:.2f}",
                       f"{r['ms_per_frame']:.0f}", f"{r['peak_rss_mb']:.0f}",
                       f"{r['bytes_per_liquid_particle']:.0f}") in md
+    # The memory parts: the liquid's own arrays (position, velocity, acceleration: 3 floats each; mass,
+    # density, pressure and its average; phase, kind, id) and a list entry and a pair term per neighbour pair.
+    for r in runs:
+        mem, n = r["memory_bytes"], r["liquid_particles"]
+        assert 58 * n <= mem["liquid_particles"] <= 2 * 58 * n
+        assert mem["pair_terms"] >= 4 * n and mem["neighbour_lists"] >= mem["pair_terms"] + 4 * (n + 1)
+        assert mem["boundary_samples"] >= 28 * r["boundary_particles"]
+        assert mem["boundary_model"] == 0  # the scene's wall samples need no map
+        parts = ("liquid_particles", "neighbour_lists", "pair_terms", "neighbour_grids", "boundary_sums",
+                 "boundary_samples", "boundary_model")
+        assert mem["counted"] == sum(mem[k] for k in parts) < r["peak_rss_mb"] * 1e6
+        assert md_row(f"{n:,}", *(f"{mem[k] / n:.0f}" for k in parts), f"{mem['counted'] / n:.0f}",
+                      f"{(r['peak_rss_mb'] * 1e6 - mem['counted']) / n:.0f}") in md

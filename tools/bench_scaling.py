@@ -64,7 +64,14 @@ def run(radius: float, seconds: float, threads: int, tmp: Path) -> dict:
             "wall_s_per_simulated_s": summary["wall_s_per_simulated_s"],
             "peak_rss_mb": summary["peak_rss_mb"],
             "bytes_per_liquid_particle": summary["peak_rss_mb"] * 1e6 / liquid,
+            "memory_bytes": summary["memory_bytes"],
             "unconverged_frames": summary["unconverged_frames"]}
+
+
+# The run summary's memory parts (`memory_bytes`), in the order of the breakdown table.
+PARTS = [("liquid_particles", "liquid arrays"), ("neighbour_lists", "neighbour lists"),
+         ("pair_terms", "pair terms"), ("neighbour_grids", "neighbour grids"), ("boundary_sums", "boundary sums"),
+         ("boundary_samples", "wall samples"), ("boundary_model", "boundary model")]
 
 
 def markdown(report: dict) -> str:
@@ -89,7 +96,20 @@ def markdown(report: dict) -> str:
     lines += ["", "The µs per particle-step include the solver's iterations, which change with the resolution "
               "(the step shrinks with the radius, so each substep starts closer to the solution): the column "
               "before them gives how many there were. Bytes per liquid particle hold the tank's wall samples "
-              "too (as many as the liquid's at a million) and the process's own few tens of MB.", ""]
+              "too (as many as the liquid's at a million) and the process's own few tens of MB.", "",
+              "## Where the memory is", "",
+              "Bytes per liquid particle of each part the simulation's containers hold at the run's end "
+              "(`flowclip run`'s `memory_bytes`: capacities), what they add up to, and the rest of the peak RSS: "
+              "the pressure solver's and the effects' per-particle arrays, scratch released before the end, "
+              "the libraries and the process.", "",
+              "| liquid particles | " + " | ".join(name for _, name in PARTS) + " | counted | rest of peak RSS |",
+              "|---:|" + "---:|" * (len(PARTS) + 2)]
+    for r in report["runs"]:
+        mem, n = r["memory_bytes"], r["liquid_particles"]
+        rest = r["peak_rss_mb"] * 1e6 - mem["counted"]
+        lines.append(f"| {n:,} | " + " | ".join(f"{mem[key] / n:.0f}" for key, _ in PARTS)
+                     + f" | {mem['counted'] / n:.0f} | {rest / n:.0f} |")
+    lines.append("")
     return "\n".join(lines)
 
 

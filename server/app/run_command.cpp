@@ -1,6 +1,7 @@
 // `flowclip run SCENE.json`: simulate a scene headless, with a progress line,
 // optional HDF5 export of every frame and a JSON stats file.
 #include "app/commands.h"
+#include "app/memory_breakdown.h"
 #include "app/surface_options.h"
 #include "export/from_simulation.h"
 #include "cli/param_override.h"
@@ -263,6 +264,7 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
       {"escaped_particles", escaped},
       {"wall_contacts", contacts},
       {"peak_rss_mb", peakRssMb()},
+      {"memory_bytes", memoryBreakdown(sim)},
       {"pipeline", sim.pipelineStages()},
       {"status", status == Ok ? "ok" : status == Interrupted ? "interrupted" : "failed"}};
   if (instances) {
