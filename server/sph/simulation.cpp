@@ -419,8 +419,18 @@ template <bool NumberDensity>
 void Simulation<D>::computeDensitiesWith() {
   const auto& nf = search.dynamicNeighbors();
   const long n = long(fluid.size());
-  massGradScale.resize(nf.pairs());
-  gradScale.resize(NumberDensity ? nf.pairs() : 0);
+  // Every pair's term is written below: a list that must grow is freed, not
+  // copied (which would hold both), and gets an eighth to spare, as the
+  // neighbour lists, where resize() would double it.
+  const auto fit = [](std::vector<Real>& v, size_t size) {
+    if (size > v.capacity()) {
+      v = {};
+      v.reserve(size + size / 8);
+    }
+    v.resize(size);
+  };
+  fit(massGradScale, nf.pairs());
+  fit(gradScale, NumberDensity ? nf.pairs() : 0);
   boundaryGradW.resize(size_t(n));
   boundaryFlux.resize(size_t(n));
   boundaryNeighbors.resize(size_t(n));
