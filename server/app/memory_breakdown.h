@@ -3,19 +3,14 @@
 // (`memory_bytes`): what the simulation's own containers hold (capacities,
 // in bytes). The pressure solver's and the effects' per-particle arrays,
 // the template grids and the process itself are what peak RSS adds.
+#include "core/capacity_bytes.h"
 #include "sph/simulation.h"
 
 #include <nlohmann/json.hpp>
 
 #include <cstddef>
-#include <vector>
 
 namespace fc {
-
-template <class T>
-size_t capacityBytes(const std::vector<T>& v) {
-  return v.capacity() * sizeof(T);
-}
 
 template <int D>
 nlohmann::json memoryBreakdown(const Simulation<D>& sim) {

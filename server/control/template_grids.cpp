@@ -1,5 +1,6 @@
 #include "control/template_grids.h"
 #include "core/kernels.h"
+#include "core/capacity_bytes.h"
 #include <omp.h>
 #include <chrono>
 #include <cmath>
@@ -183,8 +184,7 @@ template <int D>
 size_t TemplateFrameGrids<D>::memoryBytes() const {
   return sizeof(*this) + gridBytes(controlGrid_, controlCount(), controlBuilt_) +
          gridBytes(repulsionGrid_, repX_.size(), repulsionBuilt_) +
-         repX_.capacity() * sizeof(Vec<D>) + repN_.capacity() * sizeof(Vec<D>) +
-         repSource_.capacity() * sizeof(uint32_t);
+         capacityBytes(repX_) + capacityBytes(repN_) + capacityBytes(repSource_);
 }
 
 template <int D>
@@ -297,9 +297,8 @@ std::shared_ptr<const TemplateFrameGrids<D>> TemplateAccel<D>::frame(size_t i) c
   } catch (const std::exception& e) {
     throw std::invalid_argument("template '" + source->header.name + "' frame " + std::to_string(i) + ": " + e.what());
   }
-  built->bytes = built->grids.memoryBytes() + built->data.x.capacity() * sizeof(Vec<D>) +
-                 built->data.v.capacity() * sizeof(Vec<D>) + built->data.mass.capacity() * sizeof(Real) +
-                 built->data.phase.capacity();
+  built->bytes = built->grids.memoryBytes() + capacityBytes(built->data.x) + capacityBytes(built->data.v) +
+                 capacityBytes(built->data.mass) + capacityBytes(built->data.phase);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   std::lock_guard<std::mutex> lock(c.mutex);
   c.stats.loadSeconds += seconds;
@@ -369,10 +368,9 @@ size_t TemplateAccel<D>::memoryBytes() const {
 
 template <int D>
 size_t TemplateAccel<D>::templateBytes(const Template<D>& tpl) {
-  size_t s = sizeof(tpl) + tpl.header.recipe.capacity() + tpl.frames.capacity() * sizeof(TemplateFrame<D>);
+  size_t s = sizeof(tpl) + tpl.header.recipe.capacity() + capacityBytes(tpl.frames);
   for (const auto& f : tpl.frames)
-    s += f.x.capacity() * sizeof(Vec<D>) + f.v.capacity() * sizeof(Vec<D>) + f.mass.capacity() * sizeof(Real) +
-         f.phase.capacity() * sizeof(uint8_t);
+    s += capacityBytes(f.x) + capacityBytes(f.v) + capacityBytes(f.mass) + capacityBytes(f.phase);
   return s;
 }
 

@@ -1,5 +1,6 @@
 #include "core/neighborhood_search.h"
 #include "core/morton.h"
+#include "core/capacity_bytes.h"
 #include <omp.h>
 #if defined(__AVX512F__)
 #include <immintrin.h>
@@ -249,7 +250,7 @@ void NeighborhoodSearch<D>::buildLists(const std::vector<Vec<D>>& x, const std::
 
 template <int D>
 size_t NeighborhoodSearch<D>::memoryBytes() const {
-  auto bytes = [](const auto& v) { return v.capacity() * sizeof(v[0]); };
+  const auto bytes = [](const auto& v) { return capacityBytes(v); };
   size_t b = bytes(dynStart_) + bytes(dynSortedIdx_) + bytes(dynCellOf_) + bytes(statStart_) + bytes(staticIdx_) +
              bytes(statCellOf_) + bytes(dyn_.offsets) + bytes(dyn_.indices) + bytes(dyn_.blockPairs) +
              bytes(mortonKeys_) + bytes(threadCounts_) + bytes(regionStart_) + bytes(regionNeed_) + bytes(overflowed_);

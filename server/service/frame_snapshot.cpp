@@ -1,6 +1,8 @@
 // Recorded frames: see frame_snapshot.h.
 #include "service/frame_snapshot.h"
 
+#include "core/capacity_bytes.h"
+
 #include <Eigen/Dense>
 
 #include <algorithm>
@@ -17,10 +19,10 @@ constexpr size_t kSharedOverhead = 16;
 
 size_t FrameSnapshot::bytes() const {
   size_t b = sizeof(FrameSnapshot) + kSharedOverhead;
-  b += (positions.capacity() + velocities.capacity()) * sizeof(uint16_t) + kind.capacity() + phase.capacity();
-  b += stats.instances.capacity() * sizeof(InstanceFrameStats);
+  b += capacityBytes(positions) + capacityBytes(velocities) + capacityBytes(kind) + capacityBytes(phase);
+  b += capacityBytes(stats.instances);
   for (const auto& i : stats.instances) b += heapBytes(i.name);
-  b += instances.capacity() * sizeof(InstanceSnapshot);
+  b += capacityBytes(instances);
   for (const auto& i : instances) b += heapBytes(i.name) + heapBytes(i.templateName);
   return b;
 }
