@@ -95,7 +95,7 @@ class DFSPH final : public PressureSolver<D> {
     kappaDensity_.resize(n, 0);
     kappaDivergence_.resize(n, 0);
     residual_.resize(n, 0);
-    stiffness_.resize(n, 0);
+    packed_.resize(n);
     deficient_.resize(n, 0);
   }
   // The stiffnesses warm-start the next substep's solves.
@@ -122,6 +122,7 @@ class DFSPH final : public PressureSolver<D> {
     const long n = long(sim.fluid.size());
     // Stop when the average density rate is below tol·ρ0 per time step.
     const Real eta = divergenceTol_ / dt;
+    pack(sim);
     Real avg = divergenceResidual(sim);
     if (warmStart_) {
       warmStartFrom(sim, kappaDivergence_, Real(1));
@@ -145,6 +146,7 @@ class DFSPH final : public PressureSolver<D> {
     const long n = long(sim.fluid.size());
     boundaryImpulse_ = {};
     Real maxErr = 0;
+    pack(sim);
     Real avg = densityResidual(sim, dt, maxErr);
     if (warmStart_) {
       warmStartFrom(sim, kappaDensity_, dt);
@@ -200,7 +202,7 @@ class DFSPH final : public PressureSolver<D> {
       const auto [first, last] = sim.threadParticles();
       for (long i = first; i < last; ++i) {
         kappa[i] = residual_[i] > 0 ? Real(0.5) * kappa[i] : Real(0);
-        stiffness_[i] = kappa[i] * dt;
+        packed_[i].x[3] = kappa[i] * dt;
       }
     }
     updateVelocities(sim);
@@ -262,8 +264,9 @@ class DFSPH final : public PressureSolver<D> {
     {
       const auto [first, last] = sim.threadParticles();
       for (long i = first; i < last; ++i) {
-        stiffness_[i] = residual_[i] * factor_[i];
-        kappa[i] += stiffness_[i] / dt;
+        const Real stiffness = residual_[i] * factor_[i];
+        kappa[i] += stiffness / dt;
+        packed_[i].x[3] = stiffness;
       }
     }
     updateVelocities(sim);
@@ -282,40 +285,25 @@ class DFSPH final : public PressureSolver<D> {
   void updateVelocitiesWith(Simulation<D>& sim) {
     const uint32_t* off = sim.pairOffsets();
     const uint32_t* nbr = sim.pairNeighbors();
-    const Real* stiffness = stiffness_.data();
     const Real* scale = ND ? sim.gradScale.data() : sim.massGradScale.data();
+    const Packed* packed = packed_.data();
     auto& f = sim.fluid;
-    const Real* xs = f.x.data()->data();  // Vec<D> is D packed Reals
     const Real w = sim.boundaryPressureWeight();
     double ix = 0, iy = 0, iz = 0;
-    // Named scalar accumulators with `omp simd`, so the neighbour loop
-    // vectorises (the reduction may be reordered).
 #pragma omp parallel reduction(+ : ix, iy, iz)
     {
       const auto [first, last] = sim.threadParticles();
       for (long i = first; i < last; ++i) {
-        const Real ki = stiffness[i];
+        const Lanes xi = packed[i].x;
+        const Real ki = xi[3];
         const uint32_t b = off[i], e = off[i + 1];
-        const Vec<D> xi = f.x[i];
-        Real dx = 0, dy = 0, dz = 0;
-        if constexpr (D == 2) {
-#pragma omp simd reduction(+ : dx, dy)
-          for (uint32_t k = b; k < e; ++k) {
-            const Real* xj = xs + 2 * size_t(nbr[k]);
-            const Real s = ki + stiffness[nbr[k]];
-            dx += s * (scale[k] * (xi[0] - xj[0]));
-            dy += s * (scale[k] * (xi[1] - xj[1]));
-          }
-        } else {
-#pragma omp simd reduction(+ : dx, dy, dz)
-          for (uint32_t k = b; k < e; ++k) {
-            const Real* xj = xs + 3 * size_t(nbr[k]);
-            const Real s = ki + stiffness[nbr[k]];
-            dx += s * (scale[k] * (xi[0] - xj[0]));
-            dy += s * (scale[k] * (xi[1] - xj[1]));
-            dz += s * (scale[k] * (xi[2] - xj[2]));
-          }
+        // Lanes 0..D-1: Σ_j (K_i + K_j) m_j F_ij (x_i - x_j).
+        Lanes sum = {};
+        for (uint32_t k = b; k < e; ++k) {
+          const Lanes xj = packed[nbr[k]].x;
+          sum += (xi - xj) * ((ki + xj[3]) * scale[k]);
         }
+        Real dx = sum[0], dy = sum[1], dz = D == 3 ? sum[2] : Real(0);
         Real kb = w * ki * sim.restDensity_[f.phase[i]];
         if constexpr (ND) {
           // Both terms carry 1/m_i, the boundary one once more (its weight V_b/V_i).
@@ -329,6 +317,7 @@ class DFSPH final : public PressureSolver<D> {
         f.v[i][0] -= dx + kb * gb[0];
         f.v[i][1] -= dy + kb * gb[1];
         if constexpr (D == 3) f.v[i][2] -= dz + kb * gb[2];
+        for (int d = 0; d < D; ++d) packed_[i].v[d] = f.v[i][d];
         const double mk = -double(f.mass[i]) * double(kb);
         ix += mk * gb[0];
         iy += mk * gb[1];
@@ -338,6 +327,22 @@ class DFSPH final : public PressureSolver<D> {
     boundaryImpulse_[0] += ix;
     boundaryImpulse_[1] += iy;
     boundaryImpulse_[2] += iz;
+  }
+
+  // Each particle's position and velocity into its packed record, at the
+  // start of a solve (the stiffness lane is written where it is set).
+  void pack(const Simulation<D>& sim) {
+    const auto& f = sim.fluid;
+#pragma omp parallel
+    {
+      const auto [first, last] = sim.threadParticles();
+      for (long i = first; i < last; ++i) {
+        Packed& p = packed_[i];
+        p.x = Lanes{};
+        p.v = Lanes{};
+        for (int d = 0; d < D; ++d) p.x[d] = f.x[i][d], p.v[d] = f.v[i][d];
+      }
+    }
   }
 
   Real divergenceResidual(Simulation<D>& sim) {
@@ -406,34 +411,25 @@ class DFSPH final : public PressureSolver<D> {
   // Number density: the rate of ρ_i = m_i δ_i + ρ0_i Σ_b V_b W_ib,
   // m_i Σ_j (v_i - v_j)·∇W_ij + the same boundary term ([SP08] Section 4, differentiated).
   template <bool ND>
-  static Real rateOfDensity(const Simulation<D>& sim, long i, Real rho0) {
+  Real rateOfDensity(const Simulation<D>& sim, long i, Real rho0) const {
     const auto& f = sim.fluid;
     const uint32_t* off = sim.pairOffsets();
     const uint32_t* nbr = sim.pairNeighbors();
     const Real* scale = ND ? sim.gradScale.data() : sim.massGradScale.data();
-    const Real* xs = f.x.data()->data();  // Vec<D> is D packed Reals
-    const Real* v = f.v.data()->data();
-    const Vec<D> xi = f.x[i], vi = f.v[i];
+    const Packed* packed = packed_.data();
+    const Lanes xi = packed[i].x, vi = packed[i].v;
     const uint32_t b = off[i], e = off[i + 1];
-    Real r = 0;
-    if constexpr (D == 2) {
-#pragma omp simd reduction(+ : r)
-      for (uint32_t k = b; k < e; ++k) {
-        const Real* xj = xs + 2 * size_t(nbr[k]);
-        const Real* vj = v + 2 * size_t(nbr[k]);
-        r += (vi[0] - vj[0]) * (scale[k] * (xi[0] - xj[0])) + (vi[1] - vj[1]) * (scale[k] * (xi[1] - xj[1]));
-      }
-    } else {
-#pragma omp simd reduction(+ : r)
-      for (uint32_t k = b; k < e; ++k) {
-        const Real* xj = xs + 3 * size_t(nbr[k]);
-        const Real* vj = v + 3 * size_t(nbr[k]);
-        r += (vi[0] - vj[0]) * (scale[k] * (xi[0] - xj[0])) + (vi[1] - vj[1]) * (scale[k] * (xi[1] - xj[1])) +
-             (vi[2] - vj[2]) * (scale[k] * (xi[2] - xj[2]));
-      }
+    // Lanes 0..D-1 of Σ_j m_j F_ij (x_i - x_j) ∘ (v_i - v_j); the other lanes
+    // stay 0 (the velocity's are).
+    Lanes sum = {};
+    for (uint32_t k = b; k < e; ++k) {
+      const Packed& p = packed[nbr[k]];
+      sum += ((xi - p.x) * (vi - p.v)) * scale[k];
     }
+    Real r = (sum[0] + sum[1]) + (sum[2] + sum[3]);
+    const Vec<D> v = f.v[i];
     if constexpr (ND) r *= f.mass[i];
-    return r + rho0 * (vi.dot(sim.boundaryGradW[i]) - sim.boundaryFlux[i]);
+    return r + rho0 * (v.dot(sim.boundaryGradW[i]) - sim.boundaryFlux[i]);
   }
 
   Real densityTol_, divergenceTol_;
@@ -442,7 +438,15 @@ class DFSPH final : public PressureSolver<D> {
   bool numberDensity_ = false;  // Simulation::numberDensity(), read in prepare()
 
 
-  std::vector<Real> factor_, kappaDensity_, kappaDivergence_, residual_, stiffness_, scratch_;
+  std::vector<Real> factor_, kappaDensity_, kappaDivergence_, residual_, scratch_;
+  // Per particle, what the sweeps read of a neighbour, in one aligned record
+  // (one load each instead of D + 1 scattered ones): x in lanes 0..D-1 and
+  // this iteration's stiffness K in lane 3; v in lanes 0..D-1, the rest 0.
+  using Lanes = Real __attribute__((vector_size(4 * sizeof(Real))));
+  struct alignas(8 * sizeof(Real)) Packed {
+    Lanes x, v;
+  };
+  std::vector<Packed> packed_;
   std::vector<uint8_t> deficient_;
   std::array<double, 3> boundaryImpulse_{};
 };
