@@ -440,8 +440,9 @@ class DFSPH final : public PressureSolver<D> {
 
   std::vector<Real> factor_, kappaDensity_, kappaDivergence_, residual_, scratch_;
   // Per particle, what the sweeps read of a neighbour, in one aligned record
-  // (one load each instead of D + 1 scattered ones): x in lanes 0..D-1 and
-  // this iteration's stiffness K in lane 3; v in lanes 0..D-1, the rest 0.
+  // (one or two loads of it instead of D + 1 or 2D scattered ones): x in
+  // lanes 0..D-1 and this iteration's stiffness K in lane 3; v in lanes
+  // 0..D-1, the rest 0. Rebuilt at each solve's start, so never permuted.
   using Lanes = Real __attribute__((vector_size(4 * sizeof(Real))));
   struct alignas(8 * sizeof(Real)) Packed {
     Lanes x, v;
