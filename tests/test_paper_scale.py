@@ -114,3 +114,35 @@ def test_every_table1_scene_and_its_recipes_have_the_paper_scale():
         for inst in scene.get("instances", []):
             if "template" in inst:
                 assert inst["template"] in captured, f"{name} plays {inst['template']}, which make templates-paper does not record"
+
+
+# The 2D scenes of Table 1 and the recipe each plays.
+TABLE1_2D = {"drop2d": "drop2d", "wave2d": "wave2d", "blade2d": "blade2d", "waterjet2d": "waterjet2d",
+             "zero_gravity2d": "jet2d", "doubledam2d": "doubledam2d"}
+
+
+@pytest.mark.heavy
+def test_the_2d_scenes_at_the_paper_scale_play_the_papers_control_particles(tmp_path):
+    """Each recipe's paper radius gives its scene the paper's Control column (the particles its
+    template stores per frame, as the paper counts them) within 10 %, and the bench's report
+    holds the template storage at most a quarter of the paper's Storage column."""
+    templates = tmp_path / "templates"
+    for recipe in sorted(set(TABLE1_2D.values())):
+        proc = flowclip("record", ROOT / "templates" / "recipes" / f"{recipe}.json", "--scale", "paper",
+                        "--templates", templates, "--quiet", "--threads", 2)
+        assert proc.returncode == 0, proc.stderr
+    out = tmp_path / "bench"
+    proc = flowclip("bench", "scenes", "--scale", "paper", "--templates", templates, "--frames", 60, "--threads", 2,
+                    "--out", out, *(ROOT / "scenes" / f"{s}.json" for s in TABLE1_2D), timeout=1800)
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads((out / "scenes.json").read_text())
+    assert report["failures"] == []
+    rows = {r["scene"]: r for r in report["scenes"]}
+    assert set(rows) == set(TABLE1_2D)
+    for name, r in rows.items():
+        paper = r["paper"]
+        assert r["control"] == pytest.approx(paper["control"], rel=0.1), name
+        assert r["liquid"] == pytest.approx(paper["liquid"], rel=0.1), name
+        assert 0 < r["template_storage_mb"] <= 0.25 * paper["template_storage_mb"], name
+    # The ratio table names the control column.
+    assert "| scene | liquid | control | ms / frame |" in (out / "scenes.md").read_text()
