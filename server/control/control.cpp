@@ -827,9 +827,7 @@ void Control<D>::endFrame(Simulation<D>& sim, FrameStats& fs) {
   fs.seededParticles = seeded_;
   fs.removedParticles = removed_;
   fs.fadedParticles = faded_;
-  // The frame-start neighbour refresh its first substep reused is the
-  // simulation's (FrameStats counts it there).
-  fs.controlMs = std::max(0.0, controlMs_ - sim.reusedRefreshMs());
+  fs.controlMs = controlMs_;
 }
 
 template <int D>

@@ -148,6 +148,7 @@ class Control : public Effect<D> {
   std::vector<Real> sortedVolume_;    // their volumes m/ρ, in localGrid_'s cell order
   std::vector<Real> sortedMass_;      // seeding: control masses in their grid's order
   std::vector<std::array<std::vector<Real>, D>> pairGradients_;  // seeding: one particle's m_j ∇W_ij, per thread
+  std::vector<std::vector<uint32_t>> sourceNeighbors_;           // seeding: one particle's neighbour list, per thread
   // The frame's control and repulsion particles in grids (template space,
   // localGrid_'s cells), and per particle in their cell order what the
   // force sums read: α m/ρ0, (1 − α) m/ρ0, v_j per axis (control);

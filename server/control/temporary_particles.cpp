@@ -79,11 +79,12 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
     l = Real(defaults.seedDistance);
   }
   if (!seeding && temporaries_ == 0) return;
-  // Neighbours and pair gradients of the frame's own positions: the frame
-  // then depends only on the state between frames, which a checkpoint
-  // restores (the last substep's lists are not part of it). When no
-  // particle comes or goes, the first substep reuses them.
-  sim.refreshNeighbors();
+  // The grid of the frame's own positions: the frame then depends only on
+  // the state between frames, which a checkpoint restores (the last
+  // substep's grid is not part of it). Only the seeding sources get their
+  // lists and sums; every particle's come with the first substep, which
+  // needs them anew whenever a particle came or went.
+  sim.search.updateGrid(sim.fluid.x);
 
   const auto& f = sim.fluid;
   const Real hL = sim.supportRadius();
@@ -161,8 +162,6 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
     const auto& obstacles = sim.setup().obstacles;
     std::vector<uint8_t>& emitted = emittedScratch_;
     emitted.assign(size_t(n), 0);
-    const uint32_t* off = sim.pairOffsets();
-    const uint32_t* nbr = sim.pairNeighbors();
     for (size_t s = 0; s < instances_.size(); ++s) {
       State& st = state_[s];
       const InstanceParams& p = instances_[s].spec.params;
@@ -192,23 +191,33 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
       auto& local = seedCandidates_;
       local.resize(static_cast<size_t>(omp_get_max_threads()));
       pairGradients_.resize(static_cast<size_t>(omp_get_max_threads()));
+      sourceNeighbors_.resize(static_cast<size_t>(omp_get_max_threads()));
       for (auto& v : local) v.clear();
 #pragma omp parallel for schedule(dynamic, 16)
       for (long k = 0; k < m; ++k) {
         const uint32_t i = sources[k];
         if (emitted[i] || f.phase[i] != phase || !insideBox(s, st.toTemplate.point(f.x[i]))) continue;
-        // ∇ρ_i from the substep's pair gradients and the boundary's.
-        auto& rows = pairGradients_[size_t(omp_get_thread_num())];
+        // ∇ρ_i = Σ_j m_j ∇W_ij + ρ0_i Σ_b V_b ∇W_ib, over i's neighbour list
+        // as the substep's density sums take it.
+        const int t = omp_get_thread_num();
+        std::vector<uint32_t>& nbr = sourceNeighbors_[size_t(t)];
+        sim.search.dynamicNeighborsOf(f.x[i], i, nbr);
+        const size_t count = nbr.size();
+        auto& rows = pairGradients_[size_t(t)];
         const Real* grads[D];
         for (int d = 0; d < D; ++d) {
-          rows[size_t(d)].resize(off[i + 1] - off[i]);
+          rows[size_t(d)].resize(count);
           grads[d] = rows[size_t(d)].data();
         }
-        for (uint32_t q = off[i]; q < off[i + 1]; ++q) {
-          const Vec<D> gq = sim.massGradWAt(long(i), q);
-          for (int d = 0; d < D; ++d) rows[size_t(d)][q - off[i]] = gq[d];
+        for (size_t q = 0; q < count; ++q) {
+          const uint32_t j = nbr[q];
+          const Vec<D> r = f.x[i] - f.x[j];
+          Real w, fac;
+          W.evaluateSquared(r.squaredNorm(), w, fac);
+          const Vec<D> gq = (f.mass[j] * fac) * r;
+          for (int d = 0; d < D; ++d) rows[size_t(d)][q] = gq[d];
         }
-        const Vec<D> g = sim.restDensity(i) * sim.boundaryGradW[i] + sumRanges<D>(grads, 0, off[i + 1] - off[i]);
+        const Vec<D> g = sim.restDensity(i) * sim.boundaryGradientAt(f.x[i]) + sumRanges<D>(grads, 0, count);
         // A gradient this small gives no direction to seed along (a
         // symmetric neighbourhood). It is not what filters the liquid's
         // interior: the particles' disorder keeps ‖∇ρ‖ above it almost
@@ -226,8 +235,7 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
         // below still checks crowding against the rest.
         const Real crowd2 = (dtp - eps) * (dtp - eps);
         bool crowded = false;
-        for (uint32_t q = off[i]; q < off[i + 1] && !crowded; ++q)
-          crowded = (xtp - f.x[nbr[q]]).squaredNorm() < crowd2;
+        for (size_t q = 0; q < count && !crowded; ++q) crowded = (xtp - f.x[nbr[q]]).squaredNorm() < crowd2;
         if (crowded) continue;
         // Then the cheaper half of step 1: the template must hold liquid
         // there at all (ρ_cp − ρ > η ρ0 needs ρ_cp > η ρ0, as ρ >= 0).

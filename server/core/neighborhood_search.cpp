@@ -315,6 +315,27 @@ void NeighborhoodSearch<D>::update(const std::vector<Vec<D>>& x) {
 }
 
 template <int D>
+void NeighborhoodSearch<D>::updateGrid(const std::vector<Vec<D>>& x) {
+  countingSort(x, dynStart_, dynSorted_, dynSortedIdx_, dynCellOf_);
+}
+
+template <int D>
+void NeighborhoodSearch<D>::dynamicNeighborsOf(const Vec<D>& p, uint32_t self, std::vector<uint32_t>& out) const {
+  // The rows and the scan buildLists uses, so the list is the same one.
+  size_t candidates = 0;
+  auto count = [&](uint32_t b, uint32_t e) { candidates += e - b; };
+  forEachRow(p, dynStart_, count);
+  out.resize(candidates + kScanSlack);
+  size_t hits = 0;
+  const Real r2 = radius_ * radius_;
+  auto scan = [&](uint32_t b, uint32_t e) {
+    hits += scanRow<D>(dynSorted_, dynSortedIdx_.data(), b, e, p, r2, self, out.data() + hits);
+  };
+  forEachRow(p, dynStart_, scan);
+  out.resize(hits);
+}
+
+template <int D>
 void NeighborhoodSearch<D>::staticNeighborLists(const std::vector<Vec<D>>& x, NeighborList& out) {
   if (statStart_.empty()) {
     out.offsets.assign(x.size() + 1, 0);

@@ -48,6 +48,12 @@ class NeighborhoodSearch {
   // Rebuilds the dynamic grid from x and the neighbour list of every x[i]
   // among x (self excluded).
   void update(const std::vector<Vec<D>>& x);
+  // Rebuilds the dynamic grid from x only: the queries below then see x,
+  // while dynamicNeighbors() keeps the last update's lists.
+  void updateGrid(const std::vector<Vec<D>>& x);
+  // The dynamic points within radius() of p, except `self`, in the order
+  // update() lists them for a point at p: one list without building all.
+  void dynamicNeighborsOf(const Vec<D>& p, uint32_t self, std::vector<uint32_t>& out) const;
   const NeighborList& dynamicNeighbors() const { return dyn_; }
 
   // Static neighbours of every x[i], as a list. The solver does not need it

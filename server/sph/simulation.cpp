@@ -415,6 +415,48 @@ std::pair<long, long> Simulation<D>::threadParticles() const {
 }
 
 template <int D>
+typename Simulation<D>::StaticSums Simulation<D>::staticSumsAt(const Vec<D>& xi) const {
+  const Real h = kernel.radius();
+  const Real ramp = mirrorRamp_;
+  StaticSums out;
+  Real w;
+  Vec<D> g;
+  search.forEachStaticNear(xi, h, [&](uint32_t b, const Vec<D>& xb) {
+    if (mapStaticSolids_ && b < staticSamples_) return;  // the map's terms below stand for them
+    kernel.evaluate(xi - xb, w, g);
+    const Real vb = boundary.volume[b];
+    out.volume += vb * w;
+    out.grad += vb * g;
+    out.flux += vb * boundary.v[b].dot(g);
+    if (mirrorInConstraint_ && b < staticSamples_) {
+      // The mirror's part: c V_b W_ib s((r - d_ib)/r), zero beyond the rest distance, and its gradient.
+      const Real d = (xi - xb).dot(surfaceNormal_[b]) - surfaceDepth_[b];
+      if (d < radius_) {
+        // s(t) = t²/(2τ) up to τ, then t - τ/2: the push sets in smoothly over the first τ r.
+        const Real t = (radius_ - d) / radius_, cv = mirrorScale_ * vb;
+        const Real st = t < ramp ? t * t / (2 * ramp) : t - ramp / 2;
+        const Real ds = std::min(t / ramp, Real(1));
+        out.excess += cv * w * st;
+        out.grad += cv * (st * g - (w * ds / radius_) * surfaceNormal_[b]);
+      }
+    }
+    // [AHA12]'s wall pressure, per pair: Δp_ib / ρ0_i = g·(x_b - x_i) (sph/boundary/adami2012.cpp).
+    if (extrapolateBoundary_) out.extrapolated += (vb * gravity_.dot(xb - xi)) * g;
+    ++out.count;
+  });
+  if (mapStaticSolids_) {
+    StaticBoundaryTerms<D> t;
+    if (boundaryModel_->staticTerms(xi, gravity_, t)) {
+      out.volume += t.volume;
+      out.grad += t.grad;
+      if (extrapolateBoundary_) out.extrapolated += t.extrapolation;
+      out.count += t.samples;  // DFSPH's neighbour-deficiency test
+    }
+  }
+  return out;
+}
+
+template <int D>
 template <bool NumberDensity>
 void Simulation<D>::computeDensitiesWith() {
   const auto& nf = search.dynamicNeighbors();
@@ -437,8 +479,6 @@ void Simulation<D>::computeDensitiesWith() {
   boundaryExtrapolation.resize(extrapolateBoundary_ ? size_t(n) : 0);
   boundaryExcess.resize(mirrorInConstraint_ ? size_t(n) : 0);
   const Real w0 = kernel.W0();
-  const Real h = kernel.radius();
-  const Real ramp = mirrorRamp_;
   const uint32_t* nbr = nf.indices.data();
   const Real* xs = fluid.x.data()->data();  // Vec<D> is D packed Reals
   const Real* mass = fluid.mass.data();
@@ -470,49 +510,13 @@ void Simulation<D>::computeDensitiesWith() {
       }
       // ρ_i = m_i δ_i, [SP08] §4 (its "adapted density").
       if constexpr (NumberDensity) rho *= fluid.mass[i];
-      Real w;
-      Vec<D> g;
-      Real volume = 0, flux = 0, excess = 0;
-      Vec<D> gb = Vec<D>::Zero(), extrapolated = Vec<D>::Zero();
-      unsigned count = 0;
-      search.forEachStaticNear(xi, h, [&](uint32_t b, const Vec<D>& xb) {
-        if (mapStaticSolids_ && b < staticSamples_) return;  // the map's terms below stand for them
-        kernel.evaluate(xi - xb, w, g);
-        const Real vb = boundary.volume[b];
-        volume += vb * w;
-        gb += vb * g;
-        flux += vb * boundary.v[b].dot(g);
-        if (mirrorInConstraint_ && b < staticSamples_) {
-          // The mirror's part: c V_b W_ib s((r - d_ib)/r), zero beyond the rest distance, and its gradient.
-          const Real d = (xi - xb).dot(surfaceNormal_[b]) - surfaceDepth_[b];
-          if (d < radius_) {
-            // s(t) = t²/(2τ) up to τ, then t - τ/2: the push sets in smoothly over the first τ r.
-            const Real t = (radius_ - d) / radius_, cv = mirrorScale_ * vb;
-            const Real st = t < ramp ? t * t / (2 * ramp) : t - ramp / 2;
-            const Real ds = std::min(t / ramp, Real(1));
-            excess += cv * w * st;
-            gb += cv * (st * g - (w * ds / radius_) * surfaceNormal_[b]);
-          }
-        }
-        // [AHA12]'s wall pressure, per pair: Δp_ib / ρ0_i = g·(x_b - x_i) (sph/boundary/adami2012.cpp).
-        if (extrapolateBoundary_) extrapolated += (vb * gravity_.dot(xb - xi)) * g;
-        ++count;
-      });
-      if (mapStaticSolids_) {
-        StaticBoundaryTerms<D> t;
-        if (boundaryModel_->staticTerms(xi, gravity_, t)) {
-          volume += t.volume;
-          gb += t.grad;
-          if (extrapolateBoundary_) extrapolated += t.extrapolation;
-          count += t.samples;  // DFSPH's neighbour-deficiency test
-        }
-      }
-      if (extrapolateBoundary_) boundaryExtrapolation[i] = extrapolated;
-      if (mirrorInConstraint_) boundaryExcess[i] = restDensity_[fluid.phase[i]] * excess;
-      fluid.density[i] = rho + restDensity_[fluid.phase[i]] * volume;
-      boundaryGradW[i] = gb;
-      boundaryFlux[i] = flux;
-      boundaryNeighbors[i] = uint16_t(std::min(count, 65535u));
+      const StaticSums t = staticSumsAt(xi);
+      if (extrapolateBoundary_) boundaryExtrapolation[i] = t.extrapolated;
+      if (mirrorInConstraint_) boundaryExcess[i] = restDensity_[fluid.phase[i]] * t.excess;
+      fluid.density[i] = rho + restDensity_[fluid.phase[i]] * t.volume;
+      boundaryGradW[i] = t.grad;
+      boundaryFlux[i] = t.flux;
+      boundaryNeighbors[i] = uint16_t(std::min(t.count, 65535u));
     }
   }
 }
@@ -751,7 +755,7 @@ FrameStats Simulation<D>::advanceFrame() {
   const double frameEnd = double(frame_ + 1) * frameDuration();
   const int reorderInterval = setup_.settings.reorderInterval;
   fs.minDt = 1e30;
-  refreshNeighborMs_ = refreshDensityMs_ = reusedRefreshMs_ = 0;
+  refreshNeighborMs_ = refreshDensityMs_ = 0;
   for (Effect<D>* e : frameStages_) e->beginFrame(*this, fs);
   const long n = long(fluid.size());
   const int maxSubsteps = setup_.settings.maxSubstepsPerFrame;
@@ -794,7 +798,6 @@ FrameStats Simulation<D>::advanceFrame() {
     if (neighborsFresh_) {  // the frame-start refresh, reused: this substep's own work
       fs.neighborMs += refreshNeighborMs_;
       fs.densityMs += refreshDensityMs_;
-      reusedRefreshMs_ += refreshNeighborMs_ + refreshDensityMs_;
     }
     refreshNeighborMs_ = refreshDensityMs_ = 0;
     neighborsFresh_ = false;

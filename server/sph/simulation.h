@@ -139,10 +139,6 @@ class Simulation {
   // Neighbours and densities (with pair gradients) for the current positions,
   // outside a substep; the next substep reuses them if nothing moved.
   void refreshNeighbors();
-  // The wall ms of this frame's refresh that its first substep reused: the
-  // simulation's own neighbour search and densities, done before the substep
-  // (counted in the frame's neighbour and density times, not the caller's).
-  double reusedRefreshMs() const { return reusedRefreshMs_; }
   // Between frames only (FrameBoundary stages): every per-particle array of
   // the simulation, its solver and its effects follows. Removal keeps the
   // remaining particles in order; `indices` sorted ascending, unique.
@@ -246,6 +242,9 @@ class Simulation {
   // c makes that push, at the rest distance from a flat wall, the wall's
   // push once more, as the mirrored liquid of [AHA12] adds.
   std::vector<Real> boundaryExcess;
+  // Σ_b V_b ∇W(x - x_b) over the solids, as boundaryGradW holds it for a
+  // particle at x (the same sums), without computing every particle's.
+  Vec<D> boundaryGradientAt(const Vec<D>& x) const { return staticSumsAt(x).grad; }
   // The density the pressure solvers correct: ρ_i, plus boundaryExcess where there is one.
   Real constrainedDensity(size_t i) const { return fluid.density[i] + (boundaryExcess.empty() ? Real(0) : boundaryExcess[i]); }
   std::vector<Real> restDensity_;   // per phase
@@ -257,6 +256,14 @@ class Simulation {
   void splitWork();
   template <bool NumberDensity>
   void computeDensitiesWith();
+  // What a particle at x gets from the solids: computeDensities' boundary
+  // sums, one particle at a time.
+  struct StaticSums {
+    Real volume = 0, flux = 0, excess = 0;
+    Vec<D> grad = Vec<D>::Zero(), extrapolated = Vec<D>::Zero();
+    unsigned count = 0;
+  };
+  StaticSums staticSumsAt(const Vec<D>& xi) const;
   // The substep's time step; nullopt when a particle's speed is not finite.
   std::optional<Real> cflTimeStep() const;
   void updateStepScale(bool converged);
@@ -287,7 +294,7 @@ class Simulation {
   std::unique_ptr<RigidBodies<D>> bodies_;
   std::vector<Effect<D>*> accelerationStages_, implicitStages_, velocityStages_, frameStages_;
   bool neighborsFresh_ = false;
-  double refreshNeighborMs_ = 0, refreshDensityMs_ = 0, reusedRefreshMs_ = 0;  // refreshNeighbors' times
+  double refreshNeighborMs_ = 0, refreshDensityMs_ = 0;  // refreshNeighbors' times
   std::vector<long> workSplit_;  // threadParticles' blocks: thread t has [t], [t + 1]
   bool numberDensity_ = false;
   Real contrastStep_ = 1;  // number density: time step scale, see cflTimeStep

@@ -282,3 +282,54 @@ TEST(NeighborhoodSearch, InPlaceListsFollowGrowthAndShrinkOnAnyThreadCount) {
   }
   omp_set_num_threads(threadsBefore);
 }
+
+// One point's list without building every list: the list update() builds,
+// pair for pair in its order; after updateGrid() the queries see the new
+// positions while the lists stay the last update's.
+template <int D>
+void checkOnePointLists(const std::vector<Vec<D>>& x, const AABB<D>& box, Real r) {
+  NeighborhoodSearch<D> ns;
+  ns.setGrid(box, r);
+  ns.update(x);
+  const NeighborList& lists = ns.dynamicNeighbors();
+  std::vector<uint32_t> one;
+  for (uint32_t i = 0; i < x.size(); ++i) {
+    ns.dynamicNeighborsOf(x[i], i, one);
+    ASSERT_EQ(one, std::vector<uint32_t>(lists.begin(i), lists.end(i))) << "point " << i;
+  }
+  // Every point moved by up to half a radius: the grid follows, the lists do not.
+  std::vector<Vec<D>> moved = x;
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<Real> jitter(-r / 2, r / 2);
+  for (auto& p : moved)
+    for (int d = 0; d < D; ++d) p[d] += jitter(rng);
+  const NeighborList before = lists;
+  ns.updateGrid(moved);
+  EXPECT_EQ(ns.dynamicNeighbors().offsets, before.offsets);
+  EXPECT_TRUE(std::equal(before.begin(0), before.end(uint32_t(x.size() - 1)), ns.dynamicNeighbors().begin(0)));
+  const auto truth = bruteForce<D>(moved, moved, r, true);
+  for (uint32_t i = 0; i < moved.size(); ++i) {
+    ns.dynamicNeighborsOf(moved[i], i, one);
+    std::sort(one.begin(), one.end());
+    ASSERT_EQ(one, truth[i]) << "point " << i << " after updateGrid";
+  }
+  // And the lists a full update then builds are the one-point ones.
+  ns.update(moved);
+  for (uint32_t i = 0; i < moved.size(); ++i) {
+    ns.dynamicNeighborsOf(moved[i], i, one);
+    ASSERT_EQ(one, std::vector<uint32_t>(ns.dynamicNeighbors().begin(i), ns.dynamicNeighbors().end(i)));
+  }
+}
+
+TEST(NeighborhoodSearch, OnePointsListIsTheOneUpdateBuilds2D) {
+  AABB<2> box(Vec<2>(0, 0), Vec<2>(1, 0.7f));
+  checkOnePointLists<2>(randomPoints<2>(3000, AABB<2>(Vec<2>(-0.1f, -0.1f), Vec<2>(1.1f, 0.8f)), 11), box, 0.04f);
+  checkOnePointLists<2>(latticePoints<2>(20, 0.25f), AABB<2>(Vec<2>(0, 0), Vec<2>(4.75f, 4.75f)), 0.25f);
+}
+
+TEST(NeighborhoodSearch, OnePointsListIsTheOneUpdateBuilds3D) {
+  AABB<3> box(Vec<3>(0, 0, 0), Vec<3>(0.6f, 0.4f, 0.5f));
+  checkOnePointLists<3>(randomPoints<3>(6000, AABB<3>(Vec<3>(-0.05f, 0, 0), Vec<3>(0.65f, 0.45f, 0.5f)), 13), box,
+                        0.05f);
+  checkOnePointLists<3>(latticePoints<3>(12, 0.5f), AABB<3>(Vec<3>(0, 0, 0), Vec<3>(5.5f, 5.5f, 5.5f)), 0.5f);
+}
