@@ -827,7 +827,9 @@ void Control<D>::endFrame(Simulation<D>& sim, FrameStats& fs) {
   fs.seededParticles = seeded_;
   fs.removedParticles = removed_;
   fs.fadedParticles = faded_;
-  fs.controlMs = controlMs_;
+  // A frame-start refresh its first substep reused is the simulation's
+  // (FrameStats counts it there).
+  fs.controlMs = std::max(0.0, controlMs_ - sim.reusedRefreshMs());
 }
 
 template <int D>

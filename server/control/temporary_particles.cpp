@@ -81,10 +81,21 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
   if (!seeding && temporaries_ == 0) return;
   // The grid of the frame's own positions: the frame then depends only on
   // the state between frames, which a checkpoint restores (the last
-  // substep's grid is not part of it). Only the seeding sources get their
-  // lists and sums; every particle's come with the first substep, which
-  // needs them anew whenever a particle came or went.
+  // substep's grid is not part of it).
   sim.search.updateGrid(sim.fluid.x);
+  // The seeding sources' lists and sums: where the boxes hold most of the
+  // liquid, every particle's, which the first substep reuses when no
+  // particle comes or goes; elsewhere the sources' alone, since a frame in
+  // which particles come or go needs every particle's anew.
+  size_t inBoxes = 0;
+  if (seeding)
+    for (size_t s = 0; s < instances_.size(); ++s)
+      if (state_[s].on && instances_[s].spec.params.temporaryParticles) {
+        sim.search.dynamicInBox(state_[s].regionWorldBox.grown(sim.search.radius()), seedSources_);
+        inBoxes += seedSources_.size();
+      }
+  const bool everyList = 2 * inBoxes > sim.fluid.size();
+  if (everyList) sim.refreshNeighbors();
 
   const auto& f = sim.fluid;
   const Real hL = sim.supportRadius();
@@ -167,8 +178,7 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
       const InstanceParams& p = instances_[s].spec.params;
       if (!st.on || !p.temporaryParticles) continue;
       // Only the box seeds (not its falloff band): its liquid, from the
-      // grid of the last substep (grown by a cell: particles moved less
-      // since), tested on today's positions.
+      // frame's grid (the box grown by a cell, as the forces' gather).
       std::vector<uint32_t>& sources = seedSources_;
       sim.search.dynamicInBox(st.regionWorldBox.grown(sim.search.radius()), sources);
       const int phase = instances_[s].spec.phase;
@@ -200,9 +210,17 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
         // ∇ρ_i = Σ_j m_j ∇W_ij + ρ0_i Σ_b V_b ∇W_ib, over i's neighbour list
         // as the substep's density sums take it.
         const int t = omp_get_thread_num();
-        std::vector<uint32_t>& nbr = sourceNeighbors_[size_t(t)];
-        sim.search.dynamicNeighborsOf(f.x[i], i, nbr);
-        const size_t count = nbr.size();
+        const uint32_t* nbr;
+        size_t count;
+        if (everyList) {
+          nbr = sim.pairNeighbors() + sim.pairOffsets()[i];
+          count = sim.pairOffsets()[i + 1] - sim.pairOffsets()[i];
+        } else {
+          std::vector<uint32_t>& own = sourceNeighbors_[size_t(t)];
+          sim.search.dynamicNeighborsOf(f.x[i], i, own);
+          nbr = own.data();
+          count = own.size();
+        }
         auto& rows = pairGradients_[size_t(t)];
         const Real* grads[D];
         for (int d = 0; d < D; ++d) {
@@ -210,14 +228,19 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
           grads[d] = rows[size_t(d)].data();
         }
         for (size_t q = 0; q < count; ++q) {
-          const uint32_t j = nbr[q];
-          const Vec<D> r = f.x[i] - f.x[j];
-          Real w, fac;
-          W.evaluateSquared(r.squaredNorm(), w, fac);
-          const Vec<D> gq = (f.mass[j] * fac) * r;
+          Vec<D> gq;
+          if (everyList) {
+            gq = sim.massGradWAt(long(i), sim.pairOffsets()[i] + q);
+          } else {
+            const Vec<D> r = f.x[i] - f.x[nbr[q]];
+            Real w, fac;
+            W.evaluateSquared(r.squaredNorm(), w, fac);
+            gq = (f.mass[nbr[q]] * fac) * r;
+          }
           for (int d = 0; d < D; ++d) rows[size_t(d)][q] = gq[d];
         }
-        const Vec<D> g = sim.restDensity(i) * sim.boundaryGradientAt(f.x[i]) + sumRanges<D>(grads, 0, count);
+        const Vec<D> gb = everyList ? sim.boundaryGradW[i] : sim.boundaryGradientAt(f.x[i]);
+        const Vec<D> g = sim.restDensity(i) * gb + sumRanges<D>(grads, 0, count);
         // A gradient this small gives no direction to seed along (a
         // symmetric neighbourhood). It is not what filters the liquid's
         // interior: the particles' disorder keeps ‖∇ρ‖ above it almost

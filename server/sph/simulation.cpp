@@ -755,7 +755,7 @@ FrameStats Simulation<D>::advanceFrame() {
   const double frameEnd = double(frame_ + 1) * frameDuration();
   const int reorderInterval = setup_.settings.reorderInterval;
   fs.minDt = 1e30;
-  refreshNeighborMs_ = refreshDensityMs_ = 0;
+  refreshNeighborMs_ = refreshDensityMs_ = reusedRefreshMs_ = 0;
   for (Effect<D>* e : frameStages_) e->beginFrame(*this, fs);
   const long n = long(fluid.size());
   const int maxSubsteps = setup_.settings.maxSubstepsPerFrame;
@@ -798,6 +798,7 @@ FrameStats Simulation<D>::advanceFrame() {
     if (neighborsFresh_) {  // the frame-start refresh, reused: this substep's own work
       fs.neighborMs += refreshNeighborMs_;
       fs.densityMs += refreshDensityMs_;
+      reusedRefreshMs_ += refreshNeighborMs_ + refreshDensityMs_;
     }
     refreshNeighborMs_ = refreshDensityMs_ = 0;
     neighborsFresh_ = false;

@@ -139,6 +139,10 @@ class Simulation {
   // Neighbours and densities (with pair gradients) for the current positions,
   // outside a substep; the next substep reuses them if nothing moved.
   void refreshNeighbors();
+  // The wall ms of this frame's refresh that its first substep reused: the
+  // simulation's own neighbour search and densities, done before the substep
+  // (counted in the frame's neighbour and density times, not the caller's).
+  double reusedRefreshMs() const { return reusedRefreshMs_; }
   // Between frames only (FrameBoundary stages): every per-particle array of
   // the simulation, its solver and its effects follows. Removal keeps the
   // remaining particles in order; `indices` sorted ascending, unique.
@@ -294,7 +298,7 @@ class Simulation {
   std::unique_ptr<RigidBodies<D>> bodies_;
   std::vector<Effect<D>*> accelerationStages_, implicitStages_, velocityStages_, frameStages_;
   bool neighborsFresh_ = false;
-  double refreshNeighborMs_ = 0, refreshDensityMs_ = 0;  // refreshNeighbors' times
+  double refreshNeighborMs_ = 0, refreshDensityMs_ = 0, reusedRefreshMs_ = 0;  // refreshNeighbors' times
   std::vector<long> workSplit_;  // threadParticles' blocks: thread t has [t], [t + 1]
   bool numberDensity_ = false;
   Real contrastStep_ = 1;  // number density: time step scale, see cflTimeStep
