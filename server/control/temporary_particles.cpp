@@ -83,18 +83,11 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
   // the state between frames, which a checkpoint restores (the last
   // substep's grid is not part of it).
   sim.search.updateGrid(sim.fluid.x);
-  // The seeding sources' lists and sums: where the boxes hold most of the
-  // liquid, every particle's, which the first substep reuses when no
-  // particle comes or goes; elsewhere the sources' alone, since a frame in
-  // which particles come or go needs every particle's anew.
-  size_t inBoxes = 0;
-  if (seeding)
-    for (size_t s = 0; s < instances_.size(); ++s)
-      if (state_[s].on && instances_[s].spec.params.temporaryParticles) {
-        sim.search.dynamicInBox(state_[s].regionWorldBox.grown(sim.search.radius()), seedSources_);
-        inBoxes += seedSources_.size();
-      }
-  const bool everyList = 2 * inBoxes > sim.fluid.size();
+  // The seeding sources' lists and sums. Without temporary particles a
+  // frame mostly keeps its particles: every particle's, which the first
+  // substep then reuses. With them, particles come or go in most frames,
+  // and the first substep needs every particle's anew: the sources' alone.
+  const bool everyList = temporaries_ == 0;
   if (everyList) sim.refreshNeighbors();
 
   const auto& f = sim.fluid;
