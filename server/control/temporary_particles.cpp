@@ -79,16 +79,15 @@ void Control<D>::updateTemporaryParticles(Simulation<D>& sim, FrameStats&) {
     l = Real(defaults.seedDistance);
   }
   if (!seeding && temporaries_ == 0) return;
-  // The grid of the frame's own positions: the frame then depends only on
-  // the state between frames, which a checkpoint restores (the last
-  // substep's grid is not part of it).
-  sim.search.updateGrid(sim.fluid.x);
-  // The seeding sources' lists and sums. Without temporary particles a
-  // frame mostly keeps its particles: every particle's, which the first
-  // substep then reuses. With them, particles come or go in most frames,
-  // and the first substep needs every particle's anew: the sources' alone.
+  // The grid of the frame's own positions (the frame then depends only on
+  // the state between frames, which a checkpoint restores), and the
+  // seeding sources' lists and sums. Without temporary particles a frame
+  // mostly keeps its particles: every particle's, which the first substep
+  // then reuses. With them, particles come or go in most frames, and the
+  // first substep needs every particle's anew: the sources' alone.
   const bool everyList = temporaries_ == 0;
   if (everyList) sim.refreshNeighbors();
+  else sim.search.updateGrid(sim.fluid.x);
 
   const auto& f = sim.fluid;
   const Real hL = sim.supportRadius();
