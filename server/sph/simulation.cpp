@@ -414,8 +414,10 @@ std::pair<long, long> Simulation<D>::threadParticles() const {
   return {n * t / threads, n * (t + 1) / threads};
 }
 
+// Always inlined: it is the body of the density pass's per-particle loop.
 template <int D>
-typename Simulation<D>::StaticSums Simulation<D>::staticSumsAt(const Vec<D>& xi) const {
+[[gnu::always_inline]] inline typename Simulation<D>::StaticSums Simulation<D>::staticSumsAt(
+    const Vec<D>& xi) const {
   const Real h = kernel.radius();
   const Real ramp = mirrorRamp_;
   StaticSums out;
@@ -454,6 +456,11 @@ typename Simulation<D>::StaticSums Simulation<D>::staticSumsAt(const Vec<D>& xi)
     }
   }
   return out;
+}
+
+template <int D>
+Vec<D> Simulation<D>::boundaryGradientAt(const Vec<D>& x) const {
+  return staticSumsAt(x).grad;
 }
 
 template <int D>

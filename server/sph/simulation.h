@@ -248,7 +248,7 @@ class Simulation {
   std::vector<Real> boundaryExcess;
   // Σ_b V_b ∇W(x - x_b) over the solids, as boundaryGradW holds it for a
   // particle at x (the same sums), without computing every particle's.
-  Vec<D> boundaryGradientAt(const Vec<D>& x) const { return staticSumsAt(x).grad; }
+  Vec<D> boundaryGradientAt(const Vec<D>& x) const;
   // The density the pressure solvers correct: ρ_i, plus boundaryExcess where there is one.
   Real constrainedDensity(size_t i) const { return fluid.density[i] + (boundaryExcess.empty() ? Real(0) : boundaryExcess[i]); }
   std::vector<Real> restDensity_;   // per phase
@@ -261,7 +261,7 @@ class Simulation {
   template <bool NumberDensity>
   void computeDensitiesWith();
   // What a particle at x gets from the solids: computeDensities' boundary
-  // sums, one particle at a time.
+  // sums, one particle at a time (inlined into the density pass).
   struct StaticSums {
     Real volume = 0, flux = 0, excess = 0;
     Vec<D> grad = Vec<D>::Zero(), extrapolated = Vec<D>::Zero();
