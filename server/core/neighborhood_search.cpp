@@ -1,4 +1,6 @@
 #include "core/neighborhood_search.h"
+
+#include "core/parallel_failure.h"
 #include "core/morton.h"
 #include "core/capacity_bytes.h"
 #include <omp.h>
@@ -76,6 +78,12 @@ namespace {
 
 // A sixteen-wide step stores all sixteen lanes, up to 15 past its last hit.
 constexpr size_t kScanSlack = 16;
+
+// Candidates (the points of a particle's 3^D cells) beyond which the points
+// have collapsed: a liquid at rest has about 220 (3D) or 36 (2D) there, and
+// a list built from such a pile would take O(n²) time and memory.
+template <int D>
+constexpr size_t kCollapsedCandidates = D == 3 ? 32768 : 8192;
 
 // Writes the indices of the candidates k in [begin, end) within sqrt(r2) of p
 // (except `self`) to dst and returns how many. dst must have room for every
@@ -168,81 +176,113 @@ void NeighborhoodSearch<D>::buildLists(const std::vector<Vec<D>>& x, const std::
   bool exact = false;
   // Regions of the counts cannot be outgrown by the same team: the second
   // pass is the last (unless the team's size changed in between).
+  ParallelFailure failure;  // an exception in the region (no memory for the list), rethrown after it
+  size_t crowded = 0;       // the most candidates of a particle past kCollapsedCandidates, 0 if none
+  size_t total = 0;         // the pairs of the last pass
   for (;;) {
-    bool anyOverflow = false;
+    bool anyOverflow = false, failed = false;
 #pragma omp parallel
     {
       const int t = omp_get_thread_num(), T = omp_get_num_threads();
 #pragma omp single
       {
         teams = T;
-        planRegions(T, exact);
-      }
-      const size_t begin = n * size_t(t) / size_t(T), end = n * size_t(t + 1) / size_t(T);
-      uint32_t* region = out.indices.data() + regionStart_[size_t(t)];
-      const size_t room = regionStart_[size_t(t) + 1] - regionStart_[size_t(t)];
-      std::vector<uint32_t>& scratch = threadBuf_[t];
-      bool overflow = false;
-      size_t used = 0, most = 0;
-      constexpr int rows = D == 2 ? 3 : 9;
-      std::array<uint32_t, rows> rowBegin{}, rowEnd{};
-      for (size_t i = begin; i < end; ++i) {
-        out.offsets[i] = uint32_t(used);
-        if (!haveTargets) continue;
-        const Vec<D> p = x[i];
-        int nrows = 0;
-        size_t candidates = 0;
-        auto addRow = [&](uint32_t rb, uint32_t re) {
-          rowBegin[nrows] = rb;
-          rowEnd[nrows] = re;
-          candidates += re - rb;
-          ++nrows;
-        };
-        forEachRow(p, start, addRow);
-        most = std::max(most, candidates);
-        // Room for every candidate, so the scan can write each one and
-        // advance the cursor only for hits, without a branch.
-        overflow = overflow || used + candidates + kScanSlack > room;
-        uint32_t* dst;
-        if (!overflow) {
-          dst = region + used;
-        } else {
-          if (scratch.size() < candidates + kScanSlack) scratch.resize(candidates + kScanSlack);
-          dst = scratch.data();
+        try {
+          planRegions(T, exact);
+        } catch (...) {
+          failure.keep();
+          failed = true;
         }
-        size_t hits = 0;
-        for (int rr = 0; rr < nrows; ++rr)
-          hits += scanRow<D>(sorted, sortedIdx.data(), rowBegin[rr], rowEnd[rr], p, r2,
-                             excludeSelf ? uint32_t(i) : UINT32_MAX, dst + hits);
-        used += hits;
       }
-      threadCounts_[size_t(t) + 1] = used;
-      regionNeed_[size_t(t)] = used + most + kScanSlack;
-      overflowed_[size_t(t)] = overflow;
+      if (!failed) {  // every thread sees it after the single's barrier
+        const size_t begin = n * size_t(t) / size_t(T), end = n * size_t(t + 1) / size_t(T);
+        uint32_t* region = out.indices.data() + regionStart_[size_t(t)];
+        const size_t room = regionStart_[size_t(t) + 1] - regionStart_[size_t(t)];
+        std::vector<uint32_t>& scratch = threadBuf_[t];
+        bool overflow = false;
+        size_t used = 0, most = 0, mostCrowded = 0;
+        constexpr int rows = D == 2 ? 3 : 9;
+        std::array<uint32_t, rows> rowBegin{}, rowEnd{};
+        for (size_t i = begin; i < end; ++i) {
+          out.offsets[i] = uint32_t(used);
+          if (!haveTargets) continue;
+          const Vec<D> p = x[i];
+          int nrows = 0;
+          size_t candidates = 0;
+          auto addRow = [&](uint32_t rb, uint32_t re) {
+            rowBegin[nrows] = rb;
+            rowEnd[nrows] = re;
+            candidates += re - rb;
+            ++nrows;
+          };
+          forEachRow(p, start, addRow);
+          if (candidates > kCollapsedCandidates<D>) {
+            mostCrowded = std::max(mostCrowded, candidates);
+            continue;
+          }
+          most = std::max(most, candidates);
+          // Room for every candidate, so the scan can write each one and
+          // advance the cursor only for hits, without a branch.
+          overflow = overflow || used + candidates + kScanSlack > room;
+          uint32_t* dst;
+          if (!overflow) {
+            dst = region + used;
+          } else {
+            if (scratch.size() < candidates + kScanSlack) scratch.resize(candidates + kScanSlack);
+            dst = scratch.data();
+          }
+          size_t hits = 0;
+          for (int rr = 0; rr < nrows; ++rr)
+            hits += scanRow<D>(sorted, sortedIdx.data(), rowBegin[rr], rowEnd[rr], p, r2,
+                               excludeSelf ? uint32_t(i) : UINT32_MAX, dst + hits);
+          used += hits;
+        }
+        threadCounts_[size_t(t) + 1] = used;
+        regionNeed_[size_t(t)] = used + most + kScanSlack;
+        overflowed_[size_t(t)] = overflow;
+        if (mostCrowded > 0) {
+#pragma omp critical(fc_neighbor_crowded)
+          crowded = std::max(crowded, mostCrowded);
+        }
 #pragma omp barrier
 #pragma omp single
-      {
-        for (int k = 0; k < T; ++k) anyOverflow = anyOverflow || overflowed_[size_t(k)];
-        if (!anyOverflow) {
-          // Close the gaps between the regions, in order: each block moves
-          // towards the front, never over a block still to be moved.
-          for (int k = 0; k < T; ++k) {
-            threadCounts_[size_t(k) + 1] += threadCounts_[size_t(k)];
-            const size_t to = threadCounts_[size_t(k)], from = regionStart_[size_t(k)];
-            const size_t count = threadCounts_[size_t(k) + 1] - to;
-            if (count && to != from)
-              std::memmove(out.indices.data() + to, out.indices.data() + from, count * sizeof(uint32_t));
+        {
+          for (int k = 0; k < T; ++k) anyOverflow = anyOverflow || overflowed_[size_t(k)];
+          total = 0;
+          for (int k = 0; k < T; ++k) total += threadCounts_[size_t(k) + 1];
+          // The offsets are 32-bit: a list past them cannot be stored.
+          failed = crowded > 0 || total > UINT32_MAX;
+          if (!anyOverflow && !failed) {
+            // Close the gaps between the regions, in order: each block moves
+            // towards the front, never over a block still to be moved.
+            for (int k = 0; k < T; ++k) {
+              threadCounts_[size_t(k) + 1] += threadCounts_[size_t(k)];
+              const size_t to = threadCounts_[size_t(k)], from = regionStart_[size_t(k)];
+              const size_t count = threadCounts_[size_t(k) + 1] - to;
+              if (count && to != from)
+                std::memmove(out.indices.data() + to, out.indices.data() + from, count * sizeof(uint32_t));
+            }
+            out.offsets[n] = uint32_t(threadCounts_[size_t(T)]);
           }
-          out.offsets[n] = uint32_t(threadCounts_[size_t(T)]);
+        }
+        if (!anyOverflow && !failed) {
+          const uint32_t base = uint32_t(threadCounts_[size_t(t)]);
+          for (size_t i = begin; i < end; ++i) out.offsets[i] += base;
         }
       }
-      if (!anyOverflow) {
-        const uint32_t base = uint32_t(threadCounts_[size_t(t)]);
-        for (size_t i = begin; i < end; ++i) out.offsets[i] += base;
-      }
     }
+    if (failed) break;
     if (!anyOverflow) break;
     exact = true;
+  }
+  failure.rethrow();
+  if (crowded > 0 || total > UINT32_MAX) {
+    // Nothing may read a half-built list: an empty one.
+    std::fill(out.offsets.begin(), out.offsets.end(), 0u);
+    out.blockPairs.clear();
+    throw NeighborCollapse(crowded > 0 ? std::to_string(crowded) + " particles in one's neighbourhood, where a liquid "
+                                                                    "at rest has a few hundred"
+                                       : std::to_string(total) + " neighbour pairs, more than 2^32");
   }
   last.assign(size_t(teams), 0);
   for (int t = 0; t < teams; ++t) last[size_t(t)] = threadCounts_[size_t(t) + 1] - threadCounts_[size_t(t)];

@@ -14,6 +14,8 @@
 #include <algorithm>
 #include <array>
 #include <cassert>
+#include <stdexcept>
+#include <string>
 #include <vector>
 
 namespace fc {
@@ -33,6 +35,16 @@ struct NeighborList {
   std::vector<size_t> blockPairs;
 };
 
+// The points have piled up so densely that their neighbour lists cannot be
+// built (a simulation that has blown up): update() throws it instead of
+// spending O(n²) time and memory on them.
+class NeighborCollapse : public std::runtime_error {
+ public:
+  explicit NeighborCollapse(const std::string& how)
+      : std::runtime_error("the particles have collapsed onto each other (" + how +
+                           "): the simulation has become unstable") {}
+};
+
 template <int D>
 class NeighborhoodSearch {
  public:
@@ -46,7 +58,8 @@ class NeighborhoodSearch {
   void setStaticPoints(const std::vector<Vec<D>>& points);
 
   // Rebuilds the dynamic grid from x and the neighbour list of every x[i]
-  // among x (self excluded).
+  // among x (self excluded). Throws NeighborCollapse when the points have
+  // piled up (the lists are then empty).
   void update(const std::vector<Vec<D>>& x);
   // Rebuilds the dynamic grid from x only: the queries below then see x,
   // while dynamicNeighbors() keeps the last update's lists.

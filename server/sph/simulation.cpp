@@ -758,6 +758,23 @@ void Simulation<D>::relaxInitialState() {
 template <int D>
 FrameStats Simulation<D>::advanceFrame() {
   const auto t0 = Clock::now();
+  try {
+    return advanceFrameSteps();
+  } catch (const NeighborCollapse& e) {
+    FrameStats fs;
+    fs.finite = false;
+    fs.failure = e.what();
+    fs.frame = frame_ + 1;
+    fs.time = time_;
+    fs.particles = fluid.size();
+    fs.wallMs = msSince(t0);
+    return fs;
+  }
+}
+
+template <int D>
+FrameStats Simulation<D>::advanceFrameSteps() {
+  const auto t0 = Clock::now();
   FrameStats fs;
   const double frameEnd = double(frame_ + 1) * frameDuration();
   const int reorderInterval = setup_.settings.reorderInterval;

@@ -114,6 +114,9 @@ class Simulation {
   explicit Simulation(const SimulationSetup<D>& setup);
   ~Simulation();
 
+  // One frame. A frame whose particles have blown up (non-finite values,
+  // too many substeps, a collapse the neighbour search cannot list) stops
+  // with `failure` set and `finite` false, as one past the watchdog does.
   FrameStats advanceFrame();
 
   // The watchdog of advanceFrame: checked before every substep. A frame
@@ -254,6 +257,7 @@ class Simulation {
   std::vector<Real> restDensity_;   // per phase
 
  private:
+  FrameStats advanceFrameSteps();
   void buildBoundary();
   void buildFluid();
   void computeDensities();

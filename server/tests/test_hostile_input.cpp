@@ -216,6 +216,21 @@ TEST(Watchdog, ANonFiniteVelocityStopsTheFrameAtOnce) {
   EXPECT_NE(failureText(fs).find("frame 2 (t = "), std::string::npos) << failureText(fs);
 }
 
+TEST(Watchdog, ParticlesPiledOntoEachOtherStopTheFrameWithAFailure) {
+  json scene = fc::test::smallTankScene();
+  scene["particle_radius"] = 0.002;  // 10,000 particles, more than a pile may hold
+  Simulation<2> sim(parseScene<2>(scene));
+  ASSERT_TRUE(sim.advanceFrame().finite);
+  ASSERT_GT(sim.fluid.size(), 9000u);
+  for (auto& x : sim.fluid.x) x = Vec<2>(0.2f, 0.2f);
+  const FrameStats fs = sim.advanceFrame();
+  EXPECT_FALSE(fs.finite);
+  EXPECT_FALSE(fs.cancelled);
+  EXPECT_NE(fs.failure.find("collapsed"), std::string::npos) << fs.failure;
+  EXPECT_EQ(fs.frame, 2);
+  EXPECT_EQ(fs.particles, sim.fluid.size());
+}
+
 TEST(Watchdog, AFrameNeedingMoreSubstepsThanTheLimitStops) {
   Simulation<2> sim(tank({{"frame_rate", 1}, {"dt_max", 0.001}, {"max_substeps_per_frame", 25}}));
   const FrameStats fs = sim.advanceFrame();

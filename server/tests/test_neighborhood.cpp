@@ -333,3 +333,41 @@ TEST(NeighborhoodSearch, OnePointsListIsTheOneUpdateBuilds3D) {
                         0.05f);
   checkOnePointLists<3>(latticePoints<3>(12, 0.5f), AABB<3>(Vec<3>(0, 0, 0), Vec<3>(5.5f, 5.5f, 5.5f)), 0.5f);
 }
+
+// Points piled into one spot (a simulation that blew up) are reported, not
+// listed: listing them would take n² time and memory. The search then lists
+// an ordinary set again.
+template <int D>
+void checkPileIsReported(int piled) {
+  const Real h = 0.05f;
+  AABB<D> box;
+  box.min = Vec<D>::Zero();
+  box.max = Vec<D>::Constant(Real(0.6));
+  std::vector<Vec<D>> pile(size_t(piled), Vec<D>::Constant(Real(0.3)));
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> jitter(-1e-4f, 1e-4f);
+  for (auto& p : pile)
+    for (int d = 0; d < D; ++d) p[d] += jitter(rng);
+  NeighborhoodSearch<D> search;
+  search.setGrid(box, h);
+  try {
+    search.update(pile);
+    FAIL() << "a pile of " << piled << " points was listed";
+  } catch (const NeighborCollapse& e) {
+    EXPECT_NE(std::string(e.what()).find("collapsed"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find(std::to_string(piled) + " particles in one's neighbourhood"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(search.dynamicNeighbors().pairs(), 0u);
+  for (size_t i = 0; i < pile.size(); i += 997) EXPECT_EQ(search.dynamicNeighbors().count(uint32_t(i)), 0u);
+
+  const std::vector<Vec<D>> lattice = latticePoints<D>(D == 3 ? 10 : 40, Real(0.5) * h);
+  search.update(lattice);
+  size_t pairs = 0;
+  for (size_t i = 0; i < lattice.size(); ++i)
+    for (size_t j = 0; j < lattice.size(); ++j)
+      pairs += i != j && (lattice[i] - lattice[j]).squaredNorm() <= h * h;
+  EXPECT_EQ(search.dynamicNeighbors().pairs(), pairs);
+}
+
+TEST(NeighborhoodSearch, APileOfPointsIsReportedNotListed2D) { checkPileIsReported<2>(9000); }
+TEST(NeighborhoodSearch, APileOfPointsIsReportedNotListed3D) { checkPileIsReported<3>(40000); }
