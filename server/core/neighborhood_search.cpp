@@ -179,8 +179,9 @@ void NeighborhoodSearch<D>::buildLists(const std::vector<Vec<D>>& x, const std::
   ParallelFailure failure;  // an exception in the region (no memory for the list), rethrown after it
   size_t crowded = 0;       // the most candidates of a particle past kCollapsedCandidates, 0 if none
   size_t total = 0;         // the pairs of the last pass
+  bool failed = false;      // no list: out of memory, or a pile
   for (;;) {
-    bool anyOverflow = false, failed = false;
+    bool anyOverflow = false;
 #pragma omp parallel
     {
       const int t = omp_get_thread_num(), T = omp_get_num_threads();
@@ -275,11 +276,11 @@ void NeighborhoodSearch<D>::buildLists(const std::vector<Vec<D>>& x, const std::
     if (!anyOverflow) break;
     exact = true;
   }
-  failure.rethrow();
-  if (crowded > 0 || total > UINT32_MAX) {
+  if (failed) {
     // Nothing may read a half-built list: an empty one.
     std::fill(out.offsets.begin(), out.offsets.end(), 0u);
     out.blockPairs.clear();
+    failure.rethrow();
     throw NeighborCollapse(crowded > 0 ? std::to_string(crowded) + " particles in one's neighbourhood, where a liquid "
                                                                     "at rest has a few hundred"
                                        : std::to_string(total) + " neighbour pairs, more than 2^32");
