@@ -761,15 +761,19 @@ FrameStats Simulation<D>::advanceFrame() {
   try {
     return advanceFrameSteps();
   } catch (const NeighborCollapse& e) {
-    FrameStats fs;
-    fs.finite = false;
-    fs.failure = e.what();
-    fs.frame = frame_ + 1;
-    fs.time = time_;
-    fs.particles = fluid.size();
-    fs.wallMs = msSince(t0);
-    return fs;
+    return stoppedFrame(FrameStats{}, e.what(), t0);
   }
+}
+
+template <int D>
+FrameStats Simulation<D>::stoppedFrame(FrameStats fs, std::string why, Clock::time_point t0) const {
+  fs.finite = false;
+  fs.failure = std::move(why);
+  fs.frame = frame_ + 1;
+  fs.time = time_;
+  fs.particles = fluid.size();
+  fs.wallMs = msSince(t0);
+  return fs;
 }
 
 template <int D>
@@ -783,15 +787,7 @@ FrameStats Simulation<D>::advanceFrameSteps() {
   for (Effect<D>* e : frameStages_) e->beginFrame(*this, fs);
   const long n = long(fluid.size());
   const int maxSubsteps = setup_.settings.maxSubstepsPerFrame;
-  auto stop = [&](std::string why) {
-    fs.finite = false;
-    fs.failure = std::move(why);
-    fs.frame = frame_ + 1;
-    fs.time = time_;
-    fs.particles = fluid.size();
-    fs.wallMs = msSince(t0);
-    return fs;
-  };
+  auto stop = [&](std::string why) { return stoppedFrame(fs, std::move(why), t0); };
 
   while (time_ < frameEnd - 1e-9) {
     if (frameLimits_.cancel && frameLimits_.cancel->load(std::memory_order_relaxed)) {

@@ -258,6 +258,8 @@ class Simulation {
 
  private:
   FrameStats advanceFrameSteps();
+  // fs as a frame that stops here: not finite, `why` its failure, timed from t0.
+  FrameStats stoppedFrame(FrameStats fs, std::string why, std::chrono::steady_clock::time_point t0) const;
   void buildBoundary();
   void buildFluid();
   void computeDensities();
