@@ -34,11 +34,13 @@ templates: $(foreach t,$(TEMPLATES_2D),templates/$(t).h5)
 
 # The paper's scale (docs/benchmarks/paper-scale.md): every recipe the
 # scenes of the paper's Table 1 play, recorded at its "paper" resolution into
-# templates/paper/. A template already there is kept, so a stopped run
+# templates/paper/, and the boat's own hand (scale "paper-boat") into
+# templates/paper-boat/. A template already there is kept, so a stopped run
 # resumes at the first recipe still missing.
 RECIPES_PAPER = drop2d wave2d blade2d waterjet2d jet2d doubledam2d honey3d blade3d hand3d letters3d
 templates-paper: build
 	@for r in $(RECIPES_PAPER); do $(BUILD_DIR)/flowclip record templates/recipes/$$r.json --scale paper --skip-existing || exit 1; done
+	@$(BUILD_DIR)/flowclip record templates/recipes/hand3d.json --scale paper-boat --skip-existing
 
 # The 3D dam break from 59k to a million particles: µs per particle-step and
 # bytes per particle (bench/scaling/scaling.md; tools/bench_scaling.py).

@@ -7,6 +7,7 @@ resumes (`--skip-existing`). docs/benchmarks/paper-scale.md.
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 
 import pytest
@@ -88,6 +89,34 @@ def test_the_scale_looks_for_its_own_templates(tmp_path):
     assert "templates/paper" in proc.stderr, proc.stderr
 
 
+def test_a_scale_that_names_its_templates_folder_plays_and_records_there(tmp_path):
+    # The boat's paper scale plays a hand recorded at its own resolution, from templates/paper-boat.
+    scene = json.loads(SCENE.read_text())
+    scene["scales"]["paper"]["templates"] = "paper-x"
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(scene))
+    proc = flowclip("run", path, "--scale", "paper", "--frames", 1, "--quiet", cwd=tmp_path)
+    assert proc.returncode != 0
+    assert "templates/paper-x" in proc.stderr, proc.stderr
+    # A recipe's scale records into the folder it names, which the scene's scale then plays.
+    recipe = json.loads(RECIPE.read_text())
+    recipe["scales"]["coarse"] = {"particle_radius": 2 * recipe["particle_radius"], "templates": "paper-x"}
+    recipe["capture"]["seconds"] = 0.05
+    rpath = tmp_path / "recipe.json"
+    rpath.write_text(json.dumps(recipe))
+    proc = flowclip("record", rpath, "--scale", "coarse", "--quiet", "--threads", 1, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    made = sorted(p.relative_to(tmp_path).as_posix() for p in (tmp_path / "templates").rglob("*.h5"))
+    assert made == [f"templates/paper-x/{recipe['capture']['name']}.h5"]
+    with h5py.File(tmp_path / made[0], "r") as f:
+        assert f.attrs["particle_radius"] == pytest.approx(2 * recipe["particle_radius"], rel=1e-6)
+    # A folder that is not one plain name is refused before anything runs.
+    scene["scales"]["paper"]["templates"] = "../elsewhere"
+    path.write_text(json.dumps(scene))
+    proc = flowclip("run", path, "--scale", "paper", "--frames", 1, "--quiet", cwd=tmp_path)
+    assert proc.returncode == 2 and "scales.paper.templates" in proc.stderr, proc.stderr
+
+
 def test_an_unknown_scale_is_refused_naming_the_known_ones(tmp_path):
     proc = flowclip("run", SCENE, "--scale", "final", "--frames", 1, "--quiet", cwd=tmp_path)
     assert proc.returncode == 2, proc.stderr
@@ -100,20 +129,27 @@ def test_every_table1_scene_and_its_recipes_have_the_paper_scale():
     table1 = ["drop2d", "wave2d", "blade2d", "waterjet2d", "zero_gravity2d", "doubledam2d", "viscous3d", "blade3d",
               "letters3d", "multiphase3d", "boat3d", "composition3d"]
     makefile = (ROOT / "Makefile").read_text()
-    recorded = next(line for line in makefile.splitlines() if line.startswith("RECIPES_PAPER")).split("=")[1].split()
-    captured = {}
-    for name in recorded:
+    recorded = [(name, "paper") for name in
+                next(line for line in makefile.splitlines() if line.startswith("RECIPES_PAPER")).split("=")[1].split()]
+    # and the recipes it records at a scale of their own (the boat's hand)
+    recorded += re.findall(r"record templates/recipes/([a-z0-9_]+)\.json --scale ([a-z0-9_-]+)", makefile)
+    captured = {}  # (template, folder) -> recipe
+    for name, scale in recorded:
         recipe = json.loads((ROOT / "templates" / "recipes" / f"{name}.json").read_text())
-        assert "paper" in recipe.get("scales", {}), f"recipe {name} has no paper scale"
+        assert scale in recipe.get("scales", {}), f"recipe {name} has no scale {scale}"
+        folder = recipe["scales"][scale].get("templates", scale)
         caps = recipe["capture"] if isinstance(recipe["capture"], list) else [recipe["capture"]]
         for c in caps:
-            captured[c["name"]] = name
+            captured[(c["name"], folder)] = name
     for name in table1:
         scene = json.loads((ROOT / "scenes" / f"{name}.json").read_text())
         assert "paper" in scene.get("scales", {}), f"scene {name} has no paper scale"
+        folder = scene["scales"]["paper"].get("templates", "paper")
         for inst in scene.get("instances", []):
             if "template" in inst:
-                assert inst["template"] in captured, f"{name} plays {inst['template']}, which make templates-paper does not record"
+                assert (inst["template"], folder) in captured, \
+                    f"{name} plays {inst['template']} from templates/{folder}, which make templates-paper does not record"
+    assert json.loads((ROOT / "scenes" / "boat3d.json").read_text())["scales"]["paper"]["templates"] == "paper-boat"
 
 
 # The 2D scenes of Table 1 and the recipe each plays.

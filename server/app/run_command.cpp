@@ -351,8 +351,8 @@ void addRunCommand(CLI::App& app) {
       nlohmann::json j = loadSceneJson(opt->scene);
       RunOptions o = *opt;
       if (!o.scale.empty()) {
+        if (!run->count("--templates")) o.templates = scaledTemplatesDir(o.templates, j, o.scale);
         j = applySceneScale(j, o.scale);
-        if (!run->count("--templates")) o.templates = scaledTemplatesDir(o.templates, o.scale);
       }
       code = sceneDimension(j) == 2 ? runScene<2>(o, j) : runScene<3>(o, j);
     } catch (...) {

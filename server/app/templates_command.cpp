@@ -31,6 +31,7 @@ struct RecordCliOptions {
   int threads = 0;
   double particleRadius = 0;
   std::string scale;  // --scale NAME: the recipe's named resolution
+  bool templatesGiven = false;  // --templates: used as it is, also with --scale
 };
 
 struct TemplatesCliOptions {
@@ -50,19 +51,23 @@ std::string vecText(const std::vector<double>& v) {
 
 int record(const RecordCliOptions& opt) {
   Recipe recipe = loadRecipe(opt.recipe);
-  if (!opt.scale.empty()) recipe.scene = applySceneScale(recipe.scene, opt.scale);
+  std::string templatesDir = opt.templatesDir;
+  if (!opt.scale.empty()) {
+    if (!opt.templatesGiven) templatesDir = scaledTemplatesDir(opt.templatesDir, recipe.scene, opt.scale);
+    recipe.scene = applySceneScale(recipe.scene, opt.scale);
+  }
   if (opt.skipExisting) {
-    const TemplateDatabase db(opt.templatesDir);
+    const TemplateDatabase db(templatesDir);
     bool all = true;
     for (const CaptureSpec& c : recipe.captures) all = all && std::filesystem::exists(db.pathFor(c.name));
     if (all) {
       if (!opt.quiet) std::fprintf(stderr, "%s: every template it captures is in %s already\n", opt.recipe.c_str(),
-                                   opt.templatesDir.c_str());
+                                   templatesDir.c_str());
       return Ok;
     }
   }
   RecordOptions ro;
-  ro.templatesDir = opt.templatesDir;
+  ro.templatesDir = templatesDir;
   ro.force = opt.force;
   ro.particleRadiusOverride = opt.particleRadius;
   const bool tty = isatty(fileno(stderr));
@@ -200,12 +205,13 @@ void addTemplatesCommands(CLI::App& app) {
   auto* radius = rec->add_option("--particle-radius", ro->particleRadius, "override the recipe's particle radius, m")
                      ->check(CLI::PositiveNumber);
   rec->add_option("--scale", ro->scale,
-                  "record at one of the recipe's named resolutions (\"scales\", e.g. paper) into TEMPLATES/NAME")
+                  "record at one of the recipe's named resolutions (\"scales\", e.g. paper) into TEMPLATES/NAME (or the "
+                  "folder the scale names)")
       ->excludes(radius);
   rec->add_flag("--quiet", ro->quiet, "no progress line");
   rec->callback([ro, rec] {
     if (ro->threads > 0) omp_set_num_threads(ro->threads);
-    if (!ro->scale.empty() && !rec->count("--templates")) ro->templatesDir = scaledTemplatesDir(ro->templatesDir, ro->scale);
+    ro->templatesGiven = rec->count("--templates") > 0;
     int code = Ok;
     try {
       code = record(*ro);

@@ -62,6 +62,7 @@ struct Options {
   int frames = 60;
   std::string templates = "templates";
   std::string scale;  // a named resolution of every scene ("paper"); empty: as shipped
+  bool templatesGiven = false;  // --templates: every scene's, also with --scale
   int threads = 0;
   std::string out;  // default bench/scenes, or bench/scenes-NAME with a scale
 };
@@ -186,8 +187,17 @@ int benchScenes(const Options& opt) {
     const std::string stem = fs::path(scene).stem().string();
     std::fprintf(stderr, "[%zu/%zu] %s: %d frames…\n", k + 1, scenes.size(), stem.c_str(), sceneFrames);
     const std::string statsPath = (tmp / (stem + ".json")).string();
+    // A scale's templates: the folder it names under --templates' directory, as `run --scale` reads them.
+    std::string templates = opt.templates;
+    if (!opt.scale.empty() && !opt.templatesGiven) {
+      try {
+        templates = scaledTemplatesDir(opt.templates, loadSceneJson(scene), opt.scale);
+      } catch (const std::exception&) {
+        templates = scaledTemplatesDir(opt.templates, json::object(), opt.scale);  // run reports the scene's error
+      }
+    }
     std::vector<std::string> args = {self, "run", scene, "--frames", std::to_string(sceneFrames), "--stats",
-                                     statsPath, "--templates", opt.templates, "--threads",
+                                     statsPath, "--templates", templates, "--threads",
                                      std::to_string(threads), "--quiet"};
     if (!opt.scale.empty()) {
       args.push_back("--scale");
@@ -238,7 +248,7 @@ int benchScenes(const Options& opt) {
       for (const json& inst : sceneJson.value("instances", json::array()))
         if (inst.contains("template") && templatesUsed.insert(inst["template"].get<std::string>()).second) {
           std::error_code ec;
-          const auto bytes = fs::file_size(fs::path(opt.templates) / (inst["template"].get<std::string>() + ".h5"), ec);
+          const auto bytes = fs::file_size(fs::path(templates) / (inst["template"].get<std::string>() + ".h5"), ec);
           if (!ec) storage += double(bytes) / 1e6;
         }
     } catch (const std::exception&) {
@@ -308,7 +318,7 @@ void addBenchScenesCommand(CLI::App& bench) {
     int code = Ok;
     try {
       Options o = *opt;
-      if (!o.scale.empty() && !cmd->count("--templates")) o.templates = scaledTemplatesDir(o.templates, o.scale);
+      o.templatesGiven = cmd->count("--templates") > 0;
       if (o.out.empty()) o.out = o.scale.empty() ? "bench/scenes" : "bench/scenes-" + o.scale;
       code = benchScenes(o);
     } catch (...) {

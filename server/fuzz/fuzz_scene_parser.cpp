@@ -17,6 +17,7 @@
 // mesh code (an obstacle file must end in .obj: no device can be opened).
 #include "fuzz_support.h"
 #include "io/scene.h"
+#include <filesystem>
 
 #include <nlohmann/json.hpp>
 
@@ -87,6 +88,10 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
         const json scaled = fc::applySceneScale(scene, item.key());
         if (dimension == 2) validate<2>(scaled);
         else validate<3>(scaled);
+        // The folder its templates come from stays one name under the templates directory.
+        const std::filesystem::path dir = fc::scaledTemplatesDir("templates", scene, item.key());
+        FUZZ_CHECK(dir.parent_path() == "templates" && dir.filename() != ".." && dir.filename() != ".",
+                   "a scale's templates folder left the templates directory: " + dir.string());
       }
   } catch (const fc::SceneError&) {
     // The documented error for a bad scene.

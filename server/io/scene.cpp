@@ -1065,8 +1065,25 @@ json applySceneScale(const json& scene, const std::string& scale) {
   return out;  // parseScene checks the values like any scene's
 }
 
-std::string scaledTemplatesDir(const std::string& dir, const std::string& scale) {
-  return (std::filesystem::path(dir) / scale).string();
+// A scale's name, and the templates folder a scale names, are one folder name.
+static void checkScaleFolderName(const std::string& name, const std::string& path, const char* what) {
+  if (name.empty() || name.size() > 32 ||
+      name.find_first_not_of("abcdefghijklmnopqrstuvwxyz0123456789_-") != std::string::npos)
+    fail(path, std::string(what) + " is 1-32 characters of a-z, 0-9, '_' and '-'");
+}
+
+std::string scaledTemplatesDir(const std::string& dir, const json& scene, const std::string& scale) {
+  std::string folder = scale;
+  if (const json* scales = member(scene, "scales"); scales && scales->is_object() && scales->contains(scale)) {
+    const json& sc = (*scales)[scale];
+    if (const json* t = sc.is_object() ? member(sc, "templates") : nullptr) {
+      const std::string path = "scales." + scale + ".templates";
+      expectType(t->is_string(), *t, path, "a folder name");
+      folder = t->get<std::string>();
+      checkScaleFolderName(folder, path, "a scale's templates folder");
+    }
+  }
+  return (std::filesystem::path(dir) / folder).string();
 }
 
 // "camera": {"position": [x, y, z], "target": [x, y, z], "lens_mm": 40}, 3D in every scene.
@@ -1104,24 +1121,28 @@ static size_t parseMaxParticles(const json& j, const std::string& path) {
   return size_t(n);
 }
 
-// "scales": {"paper": {"particle_radius": 0.0036, "max_particles": 3000000}}:
-// named resolutions, each a particle radius and optionally a particle cap.
+// "scales": {"paper": {"particle_radius": 0.0036, "max_particles": 3000000, "templates": "paper"}}:
+// named resolutions, each a particle radius and optionally a particle cap
+// and the folder of templates it plays (the scale's name by default).
 static std::map<std::string, SceneScale> parseScales(const json& j) {
   expectObject(j, "scales");
   std::map<std::string, SceneScale> out;
   for (const auto& [name, v] : j.items()) {
     const std::string path = "scales." + name;
-    if (name.empty() || name.size() > 32 ||
-        name.find_first_not_of("abcdefghijklmnopqrstuvwxyz0123456789_-") != std::string::npos)
-      fail(path, "a scale's name is 1-32 characters of a-z, 0-9, '_' and '-'");
+    checkScaleFolderName(name, path, "a scale's name");
     expectObject(v, path);
-    checkKeys(v, path, {"particle_radius", "max_particles"});
+    checkKeys(v, path, {"particle_radius", "max_particles", "templates"});
     SceneScale sc;
     sc.particleRadius = getNumber(required(v, path, "particle_radius", "the scale's particle radius, m"),
                                   path + ".particle_radius");
     if (!(sc.particleRadius > 0) || !std::isfinite(sc.particleRadius))
       fail(path + ".particle_radius", fmt(sc.particleRadius) + " m must be a finite value > 0");
     if (const json* m = member(v, "max_particles")) sc.maxParticles = parseMaxParticles(*m, path + ".max_particles");
+    if (const json* t = member(v, "templates")) {
+      expectType(t->is_string(), *t, path + ".templates", "a folder name");
+      sc.templates = t->get<std::string>();
+      checkScaleFolderName(sc.templates, path + ".templates", "a scale's templates folder");
+    }
     out[name] = sc;
   }
   return out;
@@ -1216,6 +1237,7 @@ json sceneToJson(const SimulationSetup<D>& s) {
     for (const auto& [name, sc] : s.scales) {
       scales[name] = {{"particle_radius", sc.particleRadius}};
       if (sc.maxParticles) scales[name]["max_particles"] = sc.maxParticles;
+      if (!sc.templates.empty()) scales[name]["templates"] = sc.templates;
     }
     j["scales"] = scales;
   }

@@ -48,9 +48,11 @@ void resolveSceneFilePaths(nlohmann::json& scene, const std::string& sceneFile);
 // ones; the values are checked by parseScene.
 nlohmann::json applySceneScale(const nlohmann::json& scene, const std::string& scale);
 
-// Where the templates of a scale live: DIR/NAME (templates recorded at that
-// scale's resolution, `flowclip record --scale NAME`).
-std::string scaledTemplatesDir(const std::string& dir, const std::string& scale);
+// Where the templates of a scene's scale live: DIR/NAME (templates recorded
+// at that scale's resolution, `flowclip record --scale NAME`), or DIR/FOLDER
+// where the scale names its own ("templates": FOLDER: a scene that plays a
+// recipe at another resolution than the recipe's own scale of that name).
+std::string scaledTemplatesDir(const std::string& dir, const nlohmann::json& scene, const std::string& scale);
 
 // The scene's "dimension" (2 or 3), so callers can pick parseScene<2> or <3>.
 int sceneDimension(const nlohmann::json& scene);

@@ -176,6 +176,7 @@ struct SceneCamera {
 struct SceneScale {
   double particleRadius = 0;  // m
   size_t maxParticles = 0;    // 0: the scene's own
+  std::string templates;      // the folder of templates it plays; empty: the scale's name
 };
 
 template <int D>

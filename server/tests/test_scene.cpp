@@ -868,6 +868,34 @@ TEST(SceneScale, ApplyingOneGivesAPlainSceneAtItsResolution) {
   }
 }
 
+// A scale may play templates recorded at another resolution than the
+// recipe's scale of the same name: the boat plays its own, finer hand.
+TEST(SceneScale, AScaleMayNameTheFolderOfTheTemplatesItPlays) {
+  json s = baseScene2D();
+  const double r = s["particle_radius"].get<double>();
+  s["scales"] = {{"fine", {{"particle_radius", 0.5 * r}}},
+                 {"paper", {{"particle_radius", 0.5 * r}, {"templates", "paper-boat"}}}};
+  const SimulationSetup<2> setup = parseScene<2>(s);
+  EXPECT_EQ(setup.scales.at("paper").templates, "paper-boat");
+  EXPECT_EQ(setup.scales.at("fine").templates, "");
+  EXPECT_EQ(std::filesystem::path(scaledTemplatesDir("templates", s, "paper")), std::filesystem::path("templates/paper-boat"));
+  EXPECT_EQ(std::filesystem::path(scaledTemplatesDir("templates", s, "fine")), std::filesystem::path("templates/fine"));
+  EXPECT_EQ(sceneToJson(parseScene<2>(applySceneScale(s, "paper"))), sceneToJson(parseScene<2>(applySceneScale(s, "fine"))))
+      << "the folder changes where templates come from, not the scene";
+  // A folder is one name under the templates directory, never a path out of it.
+  for (const json& bad : {json("../etc"), json(""), json("Paper"), json("a/b"), json(3)}) {
+    json b = s;
+    b["scales"]["paper"]["templates"] = bad;
+    expectError(b, "scales.paper.templates");
+    try {
+      scaledTemplatesDir("templates", b, "paper");
+      FAIL() << bad.dump() << " must be refused";
+    } catch (const SceneError& e) {
+      EXPECT_EQ(e.path, "scales.paper.templates") << bad.dump();
+    }
+  }
+}
+
 // The scenes of the paper's Table 1 carry its resolution as the scale
 // "paper": their fluid blocks then hold the paper's liquid count (every one
 // of them starts with its liquid in blocks).
