@@ -1072,18 +1072,21 @@ static void checkScaleFolderName(const std::string& name, const std::string& pat
     fail(path, std::string(what) + " is 1-32 characters of a-z, 0-9, '_' and '-'");
 }
 
+// A scale's "templates" (the folder it plays), checked; empty where it names none.
+static std::string scaleTemplatesFolder(const json& scale, const std::string& path) {
+  const json* t = scale.is_object() ? member(scale, "templates") : nullptr;
+  if (!t) return {};
+  expectType(t->is_string(), *t, path + ".templates", "a folder name");
+  const std::string folder = t->get<std::string>();
+  checkScaleFolderName(folder, path + ".templates", "a scale's templates folder");
+  return folder;
+}
+
 std::string scaledTemplatesDir(const std::string& dir, const json& scene, const std::string& scale) {
-  std::string folder = scale;
-  if (const json* scales = member(scene, "scales"); scales && scales->is_object() && scales->contains(scale)) {
-    const json& sc = (*scales)[scale];
-    if (const json* t = sc.is_object() ? member(sc, "templates") : nullptr) {
-      const std::string path = "scales." + scale + ".templates";
-      expectType(t->is_string(), *t, path, "a folder name");
-      folder = t->get<std::string>();
-      checkScaleFolderName(folder, path, "a scale's templates folder");
-    }
-  }
-  return (std::filesystem::path(dir) / folder).string();
+  std::string folder;
+  if (const json* scales = member(scene, "scales"); scales && scales->is_object() && scales->contains(scale))
+    folder = scaleTemplatesFolder((*scales)[scale], "scales." + scale);
+  return (std::filesystem::path(dir) / (folder.empty() ? scale : folder)).string();
 }
 
 // "camera": {"position": [x, y, z], "target": [x, y, z], "lens_mm": 40}, 3D in every scene.
@@ -1138,11 +1141,7 @@ static std::map<std::string, SceneScale> parseScales(const json& j) {
     if (!(sc.particleRadius > 0) || !std::isfinite(sc.particleRadius))
       fail(path + ".particle_radius", fmt(sc.particleRadius) + " m must be a finite value > 0");
     if (const json* m = member(v, "max_particles")) sc.maxParticles = parseMaxParticles(*m, path + ".max_particles");
-    if (const json* t = member(v, "templates")) {
-      expectType(t->is_string(), *t, path + ".templates", "a folder name");
-      sc.templates = t->get<std::string>();
-      checkScaleFolderName(sc.templates, path + ".templates", "a scale's templates folder");
-    }
+    sc.templates = scaleTemplatesFolder(v, path);
     out[name] = sc;
   }
   return out;
