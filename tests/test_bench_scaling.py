@@ -14,7 +14,7 @@ from repo_paths import ROOT
 def test_scaling_report(tmp_path):
     out = tmp_path / "scaling"
     cmd = [sys.executable, str(ROOT / "tools" / "bench_scaling.py"), "--counts", "8k,1k", "--seconds", "0.05",
-           "--threads", "1", "--out", str(out)]
+           "--threads", "1", "--repeat", "2", "--out", str(out)]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=ROOT)
     assert done.returncode == 0, done.stderr
     assert sorted(p.name for p in out.iterdir()) == ["scaling.json", "scaling.md"]
@@ -34,7 +34,10 @@ def test_scaling_report(tmp_path):
                       f"{r['us_per_particle_step']:.3f}",
                       f"{r['us_per_particle_step'] / runs[0]['us_per_particle_step']:.2f}",
                       f"{r['ms_per_frame']:.0f}", f"{r['peak_rss_mb']:.0f}",
-                      f"{r['bytes_per_liquid_particle']:.0f}") in md
+                      f"{r['bytes_per_liquid_particle']:.0f}",
+                      ", ".join(f"{u:.3f}" for u in r["us_per_particle_step_runs"])) in md
+        # Each row is its size's fastest of the rounds.
+        assert len(r["us_per_particle_step_runs"]) == 2 and r["us_per_particle_step"] == min(r["us_per_particle_step_runs"])
     # The memory parts: the liquid's own arrays (position, velocity, acceleration: 3 floats each; mass,
     # density, pressure and its average; phase, kind, id) and a list entry and a pair term per neighbour pair.
     for r in runs:
