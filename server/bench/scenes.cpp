@@ -187,11 +187,17 @@ int benchScenes(const Options& opt) {
     const std::string stem = fs::path(scene).stem().string();
     std::fprintf(stderr, "[%zu/%zu] %s: %d frames…\n", k + 1, scenes.size(), stem.c_str(), sceneFrames);
     const std::string statsPath = (tmp / (stem + ".json")).string();
+    // Read once: the scale's templates folder and the templates it plays (a file it cannot read, run reports).
+    json sceneJson = json::object();
+    try {
+      sceneJson = loadSceneJson(scene);
+    } catch (const std::exception&) {
+    }
     // A scale's templates: the folder it names under --templates' directory, as `run --scale` reads them.
     std::string templates = opt.templates;
     if (!opt.scale.empty() && !opt.templatesGiven) {
       try {
-        templates = scaledTemplatesDir(opt.templates, loadSceneJson(scene), opt.scale);
+        templates = scaledTemplatesDir(opt.templates, sceneJson, opt.scale);
       } catch (const std::exception&) {
         templates = scaledTemplatesDir(opt.templates, json::object(), opt.scale);  // run reports the scene's error
       }
@@ -244,7 +250,6 @@ int benchScenes(const Options& opt) {
     // Template storage: the files of the templates the scene names.
     double storage = 0;
     try {
-      const json sceneJson = loadSceneJson(scene);
       for (const json& inst : sceneJson.value("instances", json::array()))
         if (inst.contains("template") && templatesUsed.insert(inst["template"].get<std::string>()).second) {
           std::error_code ec;
