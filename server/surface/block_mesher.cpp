@@ -144,7 +144,13 @@ struct EdgeBits {
   uint64_t bits[kWords] = {};
   uint16_t before[kWords] = {};  // set bits in the words before
   static int index(int axis, int i, int j, int k) { return ((axis * 9 + i + 1) * 9 + j + 1) * 9 + k + 1; }
-  void set(int b) { bits[b >> 6] |= uint64_t(1) << (b & 63); }
+  // The 9 edges of a row along z from bit b (z = -1) on.
+  void setRow(int b, uint32_t nine) {
+    if (!nine) return;
+    const int w = b >> 6, o = b & 63;
+    bits[w] |= uint64_t(nine) << o;
+    if (o > 64 - 9) bits[w + 1] |= uint64_t(nine) >> (64 - o);
+  }
   void rank() {
     uint16_t n = 0;
     for (int w = 0; w < kWords; ++w) before[w] = n, n = uint16_t(n + __builtin_popcountll(bits[w]));
@@ -169,7 +175,6 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
   const size_t nb = blocks.size();
   std::vector<BlockState> state(nb);
   std::vector<std::vector<std::array<float, 6>>> vertices(nb);  // position (voxels), velocity
-  constexpr int stride[3] = {100, 10, 1};
 
   ParallelFailure failure;  // an exception in the OpenMP regions, rethrown after them
 
@@ -186,21 +191,33 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
     const uint8_t* S = st.inside;
     auto& verts = vertices[n];
     verts.reserve(128);
-    for (int axis = 0; axis < 3; ++axis) {
-      const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+    // Each padded row along z as bits (bit t: voxel z = t - 1 inside); an
+    // edge crosses where its two ends' bits differ, 9 edges at a time.
+    uint32_t row[kB + 2][kB + 2];
+    for (int i = 0; i < kB + 2; ++i)
+      for (int j = 0; j < kB + 2; ++j) {
+        const uint8_t* r = S + (i * 10 + j) * 10;
+        uint32_t m = 0;
+        for (int t = 0; t < kB + 2; ++t) m |= uint32_t(r[t]) << t;
+        row[i][j] = m;
+      }
+    const auto orphansAlong = [&](int axis) {
       int dir[3] = {0, 0, 0};
       dir[axis] = -1;
-      const bool orphans = !around.crossed[neighbourOf(dir[0], dir[1], dir[2])];
-      for (int a = 0; a < kB; ++a)
-        for (int b = 0; b < kB; ++b)
-          for (int c = orphans ? -1 : 0; c < kB; ++c) {
-            int x[3];
-            x[axis] = c, x[u] = a, x[v] = b;
-            const int lo = padded(x[0], x[1], x[2]);
-            if (S[lo] == S[lo + stride[axis]]) continue;
-            st.edges.set(EdgeBits::index(axis, x[0], x[1], x[2]));
-          }
-    }
+      return !around.crossed[neighbourOf(dir[0], dir[1], dir[2])];
+    };
+    const int from[3] = {orphansAlong(0) ? -1 : 0, orphansAlong(1) ? -1 : 0, orphansAlong(2) ? -1 : 0};
+    constexpr uint32_t inBlock = 0x1FE, withOrphan = 0x1FF;  // z = 0..7; z = -1..7
+    for (int i = from[0]; i < kB; ++i)
+      for (int j = 0; j < kB; ++j)
+        st.edges.setRow(EdgeBits::index(0, i, j, -1), (row[i + 1][j + 1] ^ row[i + 2][j + 1]) & inBlock);
+    for (int i = 0; i < kB; ++i)
+      for (int j = from[1]; j < kB; ++j)
+        st.edges.setRow(EdgeBits::index(1, i, j, -1), (row[i + 1][j + 1] ^ row[i + 1][j + 2]) & inBlock);
+    for (int i = 0; i < kB; ++i)
+      for (int j = 0; j < kB; ++j)
+        st.edges.setRow(EdgeBits::index(2, i, j, -1),
+                        (row[i + 1][j + 1] ^ (row[i + 1][j + 1] >> 1)) & (from[2] < 0 ? withOrphan : inBlock));
     st.edges.rank();
     // The vertices, in bit order: the rank is the index.
     for (int w = 0; w < EdgeBits::kWords; ++w)

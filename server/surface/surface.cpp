@@ -128,7 +128,7 @@ struct alignas(64) Sums {
 
 // [ZB05] Sec. 6, scattered: every particle adds k(s) and k(s) x_i, k(s) v_i
 // to the voxels of its kernel ball, a whole row of the block at a time.
-void sumBlock(const Points& g, float rv, Sums& s) {
+void sumFine(const Points& g, float rv, Sums& s) {
   std::memset(&s, 0, sizeof s);
   const float rv2 = rv * rv, inv = 1.0f / rv2;
   for (size_t n = 0; n < g.size(); ++n) {
@@ -164,7 +164,129 @@ void sumBlock(const Points& g, float rv, Sums& s) {
   }
 }
 
+// The same sums at every second voxel of a block and on its far faces,
+// (0, 2, 4, 6, 8)³ in voxels: rows along z of 5 samples, padded to 8 lanes.
+constexpr float kCoarseFrom = 5;  // kernel radius (voxels) from which the sums are sampled every second voxel
+constexpr int kCoarse = kBlock / 2 + 1, kCoarseRows = kCoarse * kCoarse, kCoarseSize = kCoarseRows * kBlock;
+struct alignas(64) CoarseSums {
+  float w[kCoarseSize], x[kCoarseSize], y[kCoarseSize], z[kCoarseSize], vx[kCoarseSize], vy[kCoarseSize],
+      vz[kCoarseSize];
+};
+
+// [ZB05] Sec. 6, scattered: every particle adds k(s) and k(s) x_i, k(s) v_i
+// to the samples of its kernel ball, a whole row of samples at a time.
+void sumCoarse(const Points& g, float rv, CoarseSums& s) {
+  std::memset(&s, 0, sizeof s);
+  const float rv2 = rv * rv, inv = 1.0f / rv2;
+  constexpr float last = kBlock;  // the far faces' samples, in voxels
+  for (size_t n = 0; n < g.size(); ++n) {
+    const float ux = g.x[n], uy = g.y[n], uz = g.z[n], ax = g.vx[n], ay = g.vy[n], az = g.vz[n];
+    // The distance from the particle to the block's rows, along z.
+    const float zOut = uz < 0 ? -uz : uz > last ? uz - last : 0.0f;
+    const int i0 = std::max(0, int(std::ceil(0.5f * (ux - rv)))), i1 = std::min(kCoarse - 1, int(std::floor(0.5f * (ux + rv))));
+    for (int i = i0; i <= i1; ++i) {
+      const float dx = float(2 * i) - ux, rx2 = rv2 - dx * dx;
+      if (rx2 <= 0) continue;
+      const float ry = std::sqrt(rx2);
+      const int j0 = std::max(0, int(std::ceil(0.5f * (uy - ry)))),
+                j1 = std::min(kCoarse - 1, int(std::floor(0.5f * (uy + ry))));
+      for (int j = j0; j <= j1; ++j) {
+        const float dy = float(2 * j) - uy, dxy2 = dx * dx + dy * dy;
+        if (dxy2 + zOut * zOut >= rv2) continue;
+        const int row = (i * kCoarse + j) * kBlock;
+        float* __restrict w = s.w + row;
+        float* __restrict x = s.x + row;
+        float* __restrict y = s.y + row;
+        float* __restrict z = s.z + row;
+        float* __restrict vx = s.vx + row;
+        float* __restrict vy = s.vy + row;
+        float* __restrict vz = s.vz + row;
+#pragma omp simd
+        for (int k = 0; k < kBlock; ++k) {  // lanes 5-7 lie beyond the block and are never read
+          const float dz = float(2 * k) - uz;
+          const float c = kernelWeight(dxy2 + dz * dz, inv);
+          w[k] += c, x[k] += c * ux, y[k] += c * uy, z[k] += c * uz;
+          vx[k] += c * ax, vy[k] += c * ay, vz[k] += c * az;
+        }
+      }
+    }
+  }
+}
+
+// One quantity's coarse samples to every voxel of the block, trilinearly,
+// an axis at a time (a voxel between two samples takes their mean).
+void refine(const float* __restrict coarse, float* __restrict fine) {
+  float alongZ[kCoarse][kCoarse][kBlock], alongY[kCoarse][kBlock][kBlock];
+  for (int i = 0; i < kCoarse; ++i)
+    for (int j = 0; j < kCoarse; ++j) {
+      const float* c = coarse + (i * kCoarse + j) * kBlock;
+      for (int k = 0; k < kBlock; ++k) alongZ[i][j][k] = k % 2 ? 0.5f * (c[k / 2] + c[k / 2 + 1]) : c[k / 2];
+    }
+  for (int i = 0; i < kCoarse; ++i)
+    for (int j = 0; j < kBlock; ++j)
+#pragma omp simd
+      for (int k = 0; k < kBlock; ++k)
+        alongY[i][j][k] = j % 2 ? 0.5f * (alongZ[i][j / 2][k] + alongZ[i][j / 2 + 1][k]) : alongZ[i][j / 2][k];
+  for (int i = 0; i < kBlock; ++i)
+    for (int j = 0; j < kBlock; ++j) {
+      float* f = fine + (i << 6) + (j << 3);
+#pragma omp simd
+      for (int k = 0; k < kBlock; ++k)
+        f[k] = i % 2 ? 0.5f * (alongY[i / 2][j][k] + alongY[i / 2 + 1][j][k]) : alongY[i / 2][j][k];
+    }
+}
+
+// [ZB05]'s sums at every voxel of a block, from samples at every second
+// voxel: the kernel changes little over two voxels (a quarter of its
+// radius at the default voxel), and a quarter of the voxels cost a third of
+// the rows. Interpolating the weights and the weighted positions alike keeps
+// x̄ a weighted mean of the particles: a lone particle is still a sphere.
+void sumBlock(const Points& g, float rv, CoarseSums& coarse, Sums& s) {
+  if (rv < kCoarseFrom) return sumFine(g, rv, s);
+  sumCoarse(g, rv, coarse);
+  refine(coarse.w, s.w);
+  // The means where every sample around a voxel has particles (a third of
+  // the sums' volume loss on a resting block), the sums elsewhere.
+  alignas(64) float valid[kCoarseSize], mean[kCoarseSize], fineValid[kVoxels], fineMean[kVoxels], fineSum[kVoxels];
+  for (int c = 0; c < kCoarseSize; ++c) valid[c] = coarse.w[c] > 0 ? 1.0f : 0.0f;
+  refine(valid, fineValid);
+  const float* coarseOf[6] = {coarse.x, coarse.y, coarse.z, coarse.vx, coarse.vy, coarse.vz};
+  float* fineOf[6] = {s.x, s.y, s.z, s.vx, s.vy, s.vz};
+  for (int q = 0; q < 6; ++q) {
+    const float* a = coarseOf[q];
+    for (int c = 0; c < kCoarseSize; ++c) mean[c] = coarse.w[c] > 0 ? a[c] / coarse.w[c] : 0.0f;
+    refine(mean, fineMean);
+    refine(a, fineSum);
+    float* out = fineOf[q];
+#pragma omp simd
+    for (int n = 0; n < kVoxels; ++n) out[n] = fineValid[n] == 1.0f ? s.w[n] * fineMean[n] : fineSum[n];
+  }
+}
+
 enum Kind : uint8_t { Outside, Inside, Crossed };
+
+// A crossed block's field and velocity (x, y, z per voxel), before any
+// OpenVDB leaf is made of them (only the grids need one).
+struct BlockValues {
+  float phi[kVoxels];
+  float velocity[3 * kVoxels];
+};
+
+// One thread's blocks, a chunk at a time: an address handed out never moves.
+class BlockArena {
+ public:
+  // The next free block; it stays free until keep().
+  BlockValues* next() {
+    if (chunks_.empty() || used_ == kChunk) chunks_.emplace_back(new BlockValues[kChunk]), used_ = 0;
+    return &chunks_.back()[used_];
+  }
+  void keep() { ++used_; }
+
+ private:
+  static constexpr size_t kChunk = 64;
+  std::vector<std::unique_ptr<BlockValues[]>> chunks_;
+  size_t used_ = 0;
+};
 
 // One block's field clamped to [-band, band] and its mean velocity, and
 // what the block is: crossed when some voxel is inside the band or the
@@ -177,6 +299,27 @@ Kind fieldOfBlock(const Sums& s, const Sums* trail, float voxel, float rs, float
     const float mz = z * iw - float(k);
     return voxel * std::sqrt(mx * mx + my * my + mz * mz) - rs;
   };
+  if (!trail) {  // the same, a row of 8 voxels per vector
+    int in = 0, out = 0, near = 0;
+    for (int i = 0; i < kBlock; ++i)
+      for (int j = 0; j < kBlock; ++j) {
+        const int r = (i << 6) | (j << 3);
+#pragma omp simd reduction(| : in, out, near)
+        for (int k = 0; k < kBlock; ++k) {
+          const int n = r + k;
+          const float w = s.w[n];
+          const bool has = w > 0;
+          const float iw = has ? 1.0f / w : 0.0f;
+          const float mx = s.x[n] * iw - float(i), my = s.y[n] * iw - float(j), mz = s.z[n] * iw - float(k);
+          float p = has ? voxel * std::sqrt(mx * mx + my * my + mz * mz) - rs : band;
+          p = std::min(band, std::max(-band, p));
+          phi[n] = p;
+          vel[3 * n] = s.vx[n] * iw, vel[3 * n + 1] = s.vy[n] * iw, vel[3 * n + 2] = s.vz[n] * iw;
+          in |= p <= -band, out |= p >= band, near |= std::abs(p) < band;
+        }
+      }
+    return near || (in && out) ? Crossed : in ? Inside : Outside;
+  }
   bool in = false, out = false, near = false;
   for (int n = 0; n < kVoxels; ++n) {
     const int i = n >> 6, j = (n >> 3) & 7, k = n & 7, c = n;
@@ -265,6 +408,7 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   const float rv = float(R / voxel);
   const Buckets buckets(frame, R, s.trail, particleRadius, keyReach(R, kBlock * voxel));
 
+
   Surface out;
   out.particles = buckets.particles();
   if (buckets.size() == 0) return out;
@@ -311,6 +455,7 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
     candidates.push_back(k);
   });
   const size_t occupiedCount = candidates.size();
+
   for (size_t c = 0; c < occupiedCount; ++c) {
     const int64_t b[3] = {unkey(candidates[c], 0), unkey(candidates[c], 1), unkey(candidates[c], 2)};
     for (int i = -ring; i <= ring; ++i)
@@ -321,6 +466,10 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
             candidates.push_back(k);
         }
   }
+  // In key order (z fastest, then y, then x): neighbouring blocks are
+  // evaluated and meshed close together, in time and in memory.
+  std::sort(candidates.begin(), candidates.end());
+  for (size_t c = 0; c < candidates.size(); ++c) *candidateIndex.insert(candidates[c], 0).first = uint32_t(c);
   out.classifyMs = msSince(t0);
 
   // Each candidate: skipped when far outside (its centre farther than its
@@ -329,8 +478,8 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   // centre, otherwise evaluated voxel by voxel and kept when crossed.
   const auto tFill = std::chrono::steady_clock::now();
   std::vector<uint8_t> kinds(candidates.size(), Outside);
-  std::vector<std::unique_ptr<LeafT>> leaves(candidates.size());
-  std::vector<std::unique_ptr<VLeafT>> velocityLeaves(candidates.size());
+  std::vector<BlockValues*> values(candidates.size(), nullptr);
+  std::vector<BlockArena> arenas(static_cast<size_t>(omp_get_max_threads()));
   const float halfDiagonal = float(0.5 * std::sqrt(3.0) * (kBlock - 1));  // voxels
   const float rsv = float(rs / voxel), bandv = float(band / voxel);
   ParallelFailure failure;  // an exception in the OpenMP regions, rethrown after them
@@ -338,8 +487,10 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   {
     Gathered g;
     std::unique_ptr<Sums> sums, trailSums;
-    std::vector<float> phi(kVoxels), vel(3 * kVoxels);
+    std::unique_ptr<CoarseSums> coarse;
+    BlockArena& arena = arenas[size_t(omp_get_thread_num())];
     try {
+      coarse = std::make_unique<CoarseSums>();
       sums = std::make_unique<Sums>();
       if (s.trail > 0) trailSums = std::make_unique<Sums>();
     } catch (...) {
@@ -370,18 +521,16 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
         kinds[c] = Inside;
         continue;
       }
-      sumBlock(g.real, rv, *sums);
+      sumBlock(g.real, rv, *coarse, *sums);
       const bool trails = g.trail.size() > 0;
-      if (trails) sumBlock(g.trail, rv, *trailSums);
+      if (trails) sumBlock(g.trail, rv, *coarse, *trailSums);
+      BlockValues* block = arena.next();
       const Kind kind = fieldOfBlock(*sums, trails ? trailSums.get() : nullptr, float(voxel),
-                                     float(rs), band, phi.data(), vel.data());
+                                     float(rs), band, block->phi, block->velocity);
       kinds[c] = kind;
       if (kind != Crossed) continue;
-      leaves[c] = std::make_unique<LeafT>(o, band, false);
-      velocityLeaves[c] = std::make_unique<VLeafT>(o, openvdb::Vec3s(0.0f), false);
-      std::copy(phi.begin(), phi.end(), leaves[c]->buffer().data());
-      openvdb::Vec3s* v = velocityLeaves[c]->buffer().data();
-      for (int n = 0; n < kVoxels; ++n) v[n] = openvdb::Vec3s(vel[3 * n], vel[3 * n + 1], vel[3 * n + 2]);
+      arena.keep();
+      values[c] = block;
     } catch (...) {
       failure.keep();
     }
@@ -416,7 +565,7 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
         d[f / 2] = f % 2 ? 1 : -1;
         faces[n].block[f] = neighbourOf(b, d[0], d[1], d[2], faces[n].value[f]);
       }
-      data[n] = leaves[crossed[n]]->buffer().data();
+      data[n] = values[crossed[n]]->phi;
       scratch[n] = &scratchStore[n * kVoxels];
     }
     for (int pass = 0; pass < s.smoothing; ++pass) {
@@ -429,18 +578,12 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
 #pragma omp parallel for schedule(static)
       for (size_t n = 0; n < crossed.size(); ++n) std::copy(data[n], data[n] + kVoxels, scratch[n]);
   }
-  // Active where the field is inside the band.
+  // Clamped to the band, outside which a grid's voxels are inactive.
 #pragma omp parallel for schedule(static)
   for (size_t n = 0; n < crossed.size(); ++n) {
-    LeafT& leaf = *leaves[crossed[n]];
-    VLeafT& vleaf = *velocityLeaves[crossed[n]];
-    float* phi = leaf.buffer().data();
-    for (int i = 0; i < kVoxels; ++i) {
-      const bool on = std::abs(phi[i]) < band;
-      if (!on) phi[i] = phi[i] < 0 ? -band : band;
-      leaf.setActiveState(openvdb::Index(i), on);
-      vleaf.setActiveState(openvdb::Index(i), on);
-    }
+    float* phi = values[crossed[n]]->phi;
+#pragma omp simd
+    for (int i = 0; i < kVoxels; ++i) phi[i] = std::min(band, std::max(-band, phi[i]));
   }
   out.smoothMs = msSince(tSmooth);
 
@@ -455,8 +598,8 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
       MeshBlock& m = blocks[n];
       const uint64_t k = candidates[crossed[n]];
       for (int d = 0; d < 3; ++d) m.block[d] = unkey(k, d);
-      m.phi = leaves[crossed[n]]->buffer().data();
-      m.velocity = &velocityLeaves[crossed[n]]->buffer().data()[0][0];
+      m.phi = values[crossed[n]]->phi;
+      m.velocity = values[crossed[n]]->velocity;
       for (int di = -1; di <= 1; ++di)
         for (int dj = -1; dj <= 1; ++dj)
           for (int dk = -1; dk <= 1; ++dk) {
@@ -470,22 +613,40 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   // The grids, unless only a uniform mesh was asked for (a ply, obj or usd export).
   const auto tInsert = std::chrono::steady_clock::now();
   if (withGrids || (withMesh && !uniform)) {
-    // The velocity of a voxel outside the band is no one's.
+    // Active where the field is inside the band; the velocity of a voxel
+    // outside it is no one's.
+    std::vector<std::unique_ptr<LeafT>> leaves(crossed.size());
+    std::vector<std::unique_ptr<VLeafT>> velocityLeaves(crossed.size());
+    ParallelFailure leafFailure;
 #pragma omp parallel for schedule(static)
-    for (size_t n = 0; n < crossed.size(); ++n) {
-      VLeafT& vleaf = *velocityLeaves[crossed[n]];
-      openvdb::Vec3s* v = vleaf.buffer().data();
-      for (int i = 0; i < kVoxels; ++i)
-        if (!vleaf.isValueOn(openvdb::Index(i))) v[i] = openvdb::Vec3s(0.0f);
+    for (size_t n = 0; n < crossed.size(); ++n) try {
+      const uint64_t k = candidates[crossed[n]];
+      const Coord o(int(unkey(k, 0) * kBlock), int(unkey(k, 1) * kBlock), int(unkey(k, 2) * kBlock));
+      const BlockValues& from = *values[crossed[n]];
+      auto leaf = std::make_unique<LeafT>(o, band, false);
+      auto vleaf = std::make_unique<VLeafT>(o, openvdb::Vec3s(0.0f), false);
+      float* phi = leaf->buffer().data();
+      openvdb::Vec3s* v = vleaf->buffer().data();
+      for (int i = 0; i < kVoxels; ++i) {
+        const bool on = std::abs(from.phi[i]) < band;
+        phi[i] = from.phi[i];
+        if (on) v[i] = openvdb::Vec3s(from.velocity[3 * i], from.velocity[3 * i + 1], from.velocity[3 * i + 2]);
+        leaf->setActiveState(openvdb::Index(i), on);
+        vleaf->setActiveState(openvdb::Index(i), on);
+      }
+      leaves[n] = std::move(leaf), velocityLeaves[n] = std::move(vleaf);
+    } catch (...) {
+      leafFailure.keep();
     }
+    leafFailure.rethrow();
     for (size_t c = 0; c < candidates.size(); ++c) {
       if (kinds[c] == Inside) {
         const Coord o(int(unkey(candidates[c], 0) * kBlock), int(unkey(candidates[c], 1) * kBlock),
                       int(unkey(candidates[c], 2) * kBlock));
         sdf->tree().addTile(1, o, -band, false);
       } else if (kinds[c] == Crossed) {
-        sdf->tree().addLeaf(leaves[c].release());
-        velocity->tree().addLeaf(velocityLeaves[c].release());
+        sdf->tree().addLeaf(leaves[crossedIndex[c]].release());
+        velocity->tree().addLeaf(velocityLeaves[crossedIndex[c]].release());
       }
     }
     out.volumes = prunedSurfaceVolumes(grids);
