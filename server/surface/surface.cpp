@@ -1,7 +1,8 @@
 // Surface reconstruction on an OpenVDB grid [Mus13], only where the surface
 // is: the liquid's 8³-voxel blocks are classified from their neighbourhood's
 // occupancy and samples at their corners and centre, and only the blocks the
-// surface crosses are evaluated voxel by voxel, a row of 8 voxels per vector.
+// surface crosses are evaluated: sums at every second voxel, a row per
+// vector, interpolated to the others.
 // The field is Zhu & Bridson's, the distance to the kernel-weighted mean of
 // the neighbouring particles minus a radius; then a box filter, then a mesh:
 // marching cubes over the blocks (surface/block_mesher.h) or OpenVDB's
@@ -16,6 +17,7 @@
 
 #include "core/key_map.h"
 #include "core/parallel_failure.h"
+#include "surface/block_field.h"
 #include "surface/block_mesher.h"
 #include "surface/particle_buckets.h"
 #include "surface/planar_surface.h"
@@ -87,7 +89,7 @@ using LeafT = openvdb::FloatTree::LeafNodeType;
 using VLeafT = openvdb::Vec3STree::LeafNodeType;
 using namespace surface_detail;
 constexpr int kVoxels = int(LeafT::SIZE);   // voxels per block
-static_assert(kBlock == int(LeafT::DIM) && kVoxels == 512, "a block row is one 8-float vector");
+static_assert(kBlock == int(LeafT::DIM) && kVoxels == kBlockVoxels, "a block is an OpenVDB leaf");
 
 void initialiseOpenVdb() {
   static std::once_flag once;
@@ -120,151 +122,6 @@ float phiAt(const Gathered& g, const float u[3], float rv, float rs) {
                                    sum[0][3] + sum[1][3]));
 }
 
-// Per-voxel sums of the weights and the weighted positions and velocities
-// of one block, one array per quantity: a row of 8 voxels is one vector.
-struct alignas(64) Sums {
-  float w[kVoxels], x[kVoxels], y[kVoxels], z[kVoxels], vx[kVoxels], vy[kVoxels], vz[kVoxels];
-};
-
-// [ZB05] Sec. 6, scattered: every particle adds k(s) and k(s) x_i, k(s) v_i
-// to the voxels of its kernel ball, a whole row of the block at a time.
-void sumFine(const Points& g, float rv, Sums& s) {
-  std::memset(&s, 0, sizeof s);
-  const float rv2 = rv * rv, inv = 1.0f / rv2;
-  for (size_t n = 0; n < g.size(); ++n) {
-    const float ux = g.x[n], uy = g.y[n], uz = g.z[n], ax = g.vx[n], ay = g.vy[n], az = g.vz[n];
-    // The distance from the particle to the block's rows, along z.
-    const float zOut = uz < 0 ? -uz : uz > kBlock - 1 ? uz - (kBlock - 1) : 0.0f;
-    const int i0 = std::max(0, int(std::ceil(ux - rv))), i1 = std::min(kBlock - 1, int(std::floor(ux + rv)));
-    for (int i = i0; i <= i1; ++i) {
-      const float dx = float(i) - ux, rx2 = rv2 - dx * dx;
-      if (rx2 <= 0) continue;
-      const float ry = std::sqrt(rx2);
-      const int j0 = std::max(0, int(std::ceil(uy - ry))), j1 = std::min(kBlock - 1, int(std::floor(uy + ry)));
-      for (int j = j0; j <= j1; ++j) {
-        const float dy = float(j) - uy, dxy2 = dx * dx + dy * dy;
-        if (dxy2 + zOut * zOut >= rv2) continue;
-        const int row = (i << 6) | (j << 3);
-        float* __restrict w = s.w + row;
-        float* __restrict x = s.x + row;
-        float* __restrict y = s.y + row;
-        float* __restrict z = s.z + row;
-        float* __restrict vx = s.vx + row;
-        float* __restrict vy = s.vy + row;
-        float* __restrict vz = s.vz + row;
-#pragma omp simd
-        for (int k = 0; k < kBlock; ++k) {
-          const float dz = float(k) - uz;
-          const float c = kernelWeight(dxy2 + dz * dz, inv);
-          w[k] += c, x[k] += c * ux, y[k] += c * uy, z[k] += c * uz;
-          vx[k] += c * ax, vy[k] += c * ay, vz[k] += c * az;
-        }
-      }
-    }
-  }
-}
-
-// The same sums at every second voxel of a block and on its far faces,
-// (0, 2, 4, 6, 8)³ in voxels: rows along z of 5 samples, padded to 8 lanes.
-constexpr float kCoarseFrom = 5;  // kernel radius (voxels) from which the sums are sampled every second voxel
-constexpr int kCoarse = kBlock / 2 + 1, kCoarseRows = kCoarse * kCoarse, kCoarseSize = kCoarseRows * kBlock;
-struct alignas(64) CoarseSums {
-  float w[kCoarseSize], x[kCoarseSize], y[kCoarseSize], z[kCoarseSize], vx[kCoarseSize], vy[kCoarseSize],
-      vz[kCoarseSize];
-};
-
-// [ZB05] Sec. 6, scattered: every particle adds k(s) and k(s) x_i, k(s) v_i
-// to the samples of its kernel ball, a whole row of samples at a time.
-void sumCoarse(const Points& g, float rv, CoarseSums& s) {
-  std::memset(&s, 0, sizeof s);
-  const float rv2 = rv * rv, inv = 1.0f / rv2;
-  constexpr float last = kBlock;  // the far faces' samples, in voxels
-  for (size_t n = 0; n < g.size(); ++n) {
-    const float ux = g.x[n], uy = g.y[n], uz = g.z[n], ax = g.vx[n], ay = g.vy[n], az = g.vz[n];
-    // The distance from the particle to the block's rows, along z.
-    const float zOut = uz < 0 ? -uz : uz > last ? uz - last : 0.0f;
-    const int i0 = std::max(0, int(std::ceil(0.5f * (ux - rv)))), i1 = std::min(kCoarse - 1, int(std::floor(0.5f * (ux + rv))));
-    for (int i = i0; i <= i1; ++i) {
-      const float dx = float(2 * i) - ux, rx2 = rv2 - dx * dx;
-      if (rx2 <= 0) continue;
-      const float ry = std::sqrt(rx2);
-      const int j0 = std::max(0, int(std::ceil(0.5f * (uy - ry)))),
-                j1 = std::min(kCoarse - 1, int(std::floor(0.5f * (uy + ry))));
-      for (int j = j0; j <= j1; ++j) {
-        const float dy = float(2 * j) - uy, dxy2 = dx * dx + dy * dy;
-        if (dxy2 + zOut * zOut >= rv2) continue;
-        const int row = (i * kCoarse + j) * kBlock;
-        float* __restrict w = s.w + row;
-        float* __restrict x = s.x + row;
-        float* __restrict y = s.y + row;
-        float* __restrict z = s.z + row;
-        float* __restrict vx = s.vx + row;
-        float* __restrict vy = s.vy + row;
-        float* __restrict vz = s.vz + row;
-#pragma omp simd
-        for (int k = 0; k < kBlock; ++k) {  // lanes 5-7 lie beyond the block and are never read
-          const float dz = float(2 * k) - uz;
-          const float c = kernelWeight(dxy2 + dz * dz, inv);
-          w[k] += c, x[k] += c * ux, y[k] += c * uy, z[k] += c * uz;
-          vx[k] += c * ax, vy[k] += c * ay, vz[k] += c * az;
-        }
-      }
-    }
-  }
-}
-
-// One quantity's coarse samples to every voxel of the block, trilinearly,
-// an axis at a time (a voxel between two samples takes their mean).
-void refine(const float* __restrict coarse, float* __restrict fine) {
-  float alongZ[kCoarse][kCoarse][kBlock], alongY[kCoarse][kBlock][kBlock];
-  for (int i = 0; i < kCoarse; ++i)
-    for (int j = 0; j < kCoarse; ++j) {
-      const float* c = coarse + (i * kCoarse + j) * kBlock;
-      for (int k = 0; k < kBlock; ++k) alongZ[i][j][k] = k % 2 ? 0.5f * (c[k / 2] + c[k / 2 + 1]) : c[k / 2];
-    }
-  for (int i = 0; i < kCoarse; ++i)
-    for (int j = 0; j < kBlock; ++j)
-#pragma omp simd
-      for (int k = 0; k < kBlock; ++k)
-        alongY[i][j][k] = j % 2 ? 0.5f * (alongZ[i][j / 2][k] + alongZ[i][j / 2 + 1][k]) : alongZ[i][j / 2][k];
-  for (int i = 0; i < kBlock; ++i)
-    for (int j = 0; j < kBlock; ++j) {
-      float* f = fine + (i << 6) + (j << 3);
-#pragma omp simd
-      for (int k = 0; k < kBlock; ++k)
-        f[k] = i % 2 ? 0.5f * (alongY[i / 2][j][k] + alongY[i / 2 + 1][j][k]) : alongY[i / 2][j][k];
-    }
-}
-
-// [ZB05]'s sums at every voxel of a block, from samples at every second
-// voxel: the kernel changes little over two voxels (a quarter of its
-// radius at the default voxel), and a quarter of the voxels cost a third of
-// the rows. Interpolating the weights and the weighted positions alike keeps
-// x̄ a weighted mean of the particles: a lone particle is still a sphere.
-void sumBlock(const Points& g, float rv, CoarseSums& coarse, Sums& s) {
-  if (rv < kCoarseFrom) return sumFine(g, rv, s);
-  sumCoarse(g, rv, coarse);
-  refine(coarse.w, s.w);
-  // The means where every sample around a voxel has particles (a third of
-  // the sums' volume loss on a resting block), the sums elsewhere.
-  alignas(64) float valid[kCoarseSize], mean[kCoarseSize], fineValid[kVoxels], fineMean[kVoxels], fineSum[kVoxels];
-  for (int c = 0; c < kCoarseSize; ++c) valid[c] = coarse.w[c] > 0 ? 1.0f : 0.0f;
-  refine(valid, fineValid);
-  const float* coarseOf[6] = {coarse.x, coarse.y, coarse.z, coarse.vx, coarse.vy, coarse.vz};
-  float* fineOf[6] = {s.x, s.y, s.z, s.vx, s.vy, s.vz};
-  for (int q = 0; q < 6; ++q) {
-    const float* a = coarseOf[q];
-    for (int c = 0; c < kCoarseSize; ++c) mean[c] = coarse.w[c] > 0 ? a[c] / coarse.w[c] : 0.0f;
-    refine(mean, fineMean);
-    refine(a, fineSum);
-    float* out = fineOf[q];
-#pragma omp simd
-    for (int n = 0; n < kVoxels; ++n) out[n] = fineValid[n] == 1.0f ? s.w[n] * fineMean[n] : fineSum[n];
-  }
-}
-
-enum Kind : uint8_t { Outside, Inside, Crossed };
-
 // A crossed block's field and velocity (x, y, z per voxel), before any
 // OpenVDB leaf is made of them (only the grids need one).
 struct BlockValues {
@@ -287,60 +144,6 @@ class BlockArena {
   std::vector<std::unique_ptr<BlockValues[]>> chunks_;
   size_t used_ = 0;
 };
-
-// One block's field clamped to [-band, band] and its mean velocity, and
-// what the block is: crossed when some voxel is inside the band or the
-// sign changes.
-Kind fieldOfBlock(const Sums& s, const Sums* trail, float voxel, float rs, float band,
-                  float* phi, float* vel) {
-  const auto distance = [&](float w, float x, float y, float z, int i, int j, int k) {
-    const float iw = 1.0f / w;
-    const float mx = x * iw - float(i), my = y * iw - float(j);
-    const float mz = z * iw - float(k);
-    return voxel * std::sqrt(mx * mx + my * my + mz * mz) - rs;
-  };
-  if (!trail) {  // the same, a row of 8 voxels per vector
-    int in = 0, out = 0, near = 0;
-    for (int i = 0; i < kBlock; ++i)
-      for (int j = 0; j < kBlock; ++j) {
-        const int r = (i << 6) | (j << 3);
-#pragma omp simd reduction(| : in, out, near)
-        for (int k = 0; k < kBlock; ++k) {
-          const int n = r + k;
-          const float w = s.w[n];
-          const bool has = w > 0;
-          const float iw = has ? 1.0f / w : 0.0f;
-          const float mx = s.x[n] * iw - float(i), my = s.y[n] * iw - float(j), mz = s.z[n] * iw - float(k);
-          float p = has ? voxel * std::sqrt(mx * mx + my * my + mz * mz) - rs : band;
-          p = std::min(band, std::max(-band, p));
-          phi[n] = p;
-          vel[3 * n] = s.vx[n] * iw, vel[3 * n + 1] = s.vy[n] * iw, vel[3 * n + 2] = s.vz[n] * iw;
-          in |= p <= -band, out |= p >= band, near |= std::abs(p) < band;
-        }
-      }
-    return near || (in && out) ? Crossed : in ? Inside : Outside;
-  }
-  bool in = false, out = false, near = false;
-  for (int n = 0; n < kVoxels; ++n) {
-    const int i = n >> 6, j = (n >> 3) & 7, k = n & 7, c = n;
-    float p = band, w = s.w[c];
-    vel[3 * n] = vel[3 * n + 1] = vel[3 * n + 2] = 0.0f;
-    if (w > 0) p = distance(w, s.x[c], s.y[c], s.z[c], i, j, k);
-    float vx = s.vx[c], vy = s.vy[c], vz = s.vz[c];
-    if (trail && trail->w[c] > 0) {
-      // With the trails: the union of the liquid and its trails. The trails'
-      // samples alone would also draw the front back towards them.
-      const Sums& t = *trail;
-      w += t.w[c], vx += t.vx[c], vy += t.vy[c], vz += t.vz[c];
-      p = std::min(p, distance(w, s.x[c] + t.x[c], s.y[c] + t.y[c], s.z[c] + t.z[c], i, j, k));
-    }
-    if (w > 0) vel[3 * n] = vx / w, vel[3 * n + 1] = vy / w, vel[3 * n + 2] = vz / w;
-    p = std::min(band, std::max(-band, p));
-    phi[n] = p;
-    in |= p <= -band, out |= p >= band, near |= std::abs(p) < band;
-  }
-  return near || (in && out) ? Crossed : in ? Inside : Outside;
-}
 
 // The crossed blocks' six face neighbours, for the filter: another crossed
 // block's index, or the constant a tile or the outside holds.
