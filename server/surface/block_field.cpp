@@ -1,5 +1,5 @@
 // Zhu & Bridson's field over one block: the sums scattered from the
-// particles, at every voxel or at every second one and interpolated.
+// particles, then the distance to their weighted mean.
 //
 // References (docs/references.md):
 //   [ZB05]  Y. Zhu, R. Bridson. Animating sand as a fluid. ACM TOG
@@ -12,13 +12,11 @@
 
 namespace fc::surface_detail {
 
-namespace {
-
 constexpr int kVoxels = kBlockVoxels;
 
 // [ZB05] Sec. 6, scattered: every particle adds k(s) and k(s) x_i, k(s) v_i
 // to the voxels of its kernel ball, a whole row of the block at a time.
-void sumFine(const Points& g, float rv, Sums& s) {
+void sumBlock(const Points& g, float rv, Sums& s) {
   std::memset(&s, 0, sizeof s);
   const float rv2 = rv * rv, inv = 1.0f / rv2;
   for (size_t n = 0; n < g.size(); ++n) {
@@ -51,94 +49,6 @@ void sumFine(const Points& g, float rv, Sums& s) {
         }
       }
     }
-  }
-}
-
-// [ZB05] Sec. 6, scattered: every particle adds k(s) and k(s) x_i, k(s) v_i
-// to the samples of its kernel ball, a whole row of samples at a time.
-void sumCoarse(const Points& g, float rv, CoarseSums& s) {
-  std::memset(&s, 0, sizeof s);
-  const float rv2 = rv * rv, inv = 1.0f / rv2;
-  constexpr float last = kBlock;  // the far faces' samples, in voxels
-  for (size_t n = 0; n < g.size(); ++n) {
-    const float ux = g.x[n], uy = g.y[n], uz = g.z[n], ax = g.vx[n], ay = g.vy[n], az = g.vz[n];
-    // The distance from the particle to the block's rows, along z.
-    const float zOut = uz < 0 ? -uz : uz > last ? uz - last : 0.0f;
-    const int i0 = std::max(0, int(std::ceil(0.5f * (ux - rv)))),
-              i1 = std::min(kCoarse - 1, int(std::floor(0.5f * (ux + rv))));
-    for (int i = i0; i <= i1; ++i) {
-      const float dx = float(2 * i) - ux, rx2 = rv2 - dx * dx;
-      if (rx2 <= 0) continue;
-      const float ry = std::sqrt(rx2);
-      const int j0 = std::max(0, int(std::ceil(0.5f * (uy - ry)))),
-                j1 = std::min(kCoarse - 1, int(std::floor(0.5f * (uy + ry))));
-      for (int j = j0; j <= j1; ++j) {
-        const float dy = float(2 * j) - uy, dxy2 = dx * dx + dy * dy;
-        if (dxy2 + zOut * zOut >= rv2) continue;
-        const int row = (i * kCoarse + j) * kBlock;
-        float* __restrict w = s.w + row;
-        float* __restrict x = s.x + row;
-        float* __restrict y = s.y + row;
-        float* __restrict z = s.z + row;
-        float* __restrict vx = s.vx + row;
-        float* __restrict vy = s.vy + row;
-        float* __restrict vz = s.vz + row;
-#pragma omp simd
-        for (int k = 0; k < kBlock; ++k) {  // lanes 5-7 lie beyond the block and are never read
-          const float dz = float(2 * k) - uz;
-          const float c = kernelWeight(dxy2 + dz * dz, inv);
-          w[k] += c, x[k] += c * ux, y[k] += c * uy, z[k] += c * uz;
-          vx[k] += c * ax, vy[k] += c * ay, vz[k] += c * az;
-        }
-      }
-    }
-  }
-}
-
-// One quantity's coarse samples to every voxel of the block, trilinearly,
-// an axis at a time (a voxel between two samples takes their mean).
-void refine(const float* __restrict coarse, float* __restrict fine) {
-  float alongZ[kCoarse][kCoarse][kBlock], alongY[kCoarse][kBlock][kBlock];
-  for (int i = 0; i < kCoarse; ++i)
-    for (int j = 0; j < kCoarse; ++j) {
-      const float* c = coarse + (i * kCoarse + j) * kBlock;
-      for (int k = 0; k < kBlock; ++k) alongZ[i][j][k] = k % 2 ? 0.5f * (c[k / 2] + c[k / 2 + 1]) : c[k / 2];
-    }
-  for (int i = 0; i < kCoarse; ++i)
-    for (int j = 0; j < kBlock; ++j)
-#pragma omp simd
-      for (int k = 0; k < kBlock; ++k)
-        alongY[i][j][k] = j % 2 ? 0.5f * (alongZ[i][j / 2][k] + alongZ[i][j / 2 + 1][k]) : alongZ[i][j / 2][k];
-  for (int i = 0; i < kBlock; ++i)
-    for (int j = 0; j < kBlock; ++j) {
-      float* f = fine + (i << 6) + (j << 3);
-#pragma omp simd
-      for (int k = 0; k < kBlock; ++k)
-        f[k] = i % 2 ? 0.5f * (alongY[i / 2][j][k] + alongY[i / 2 + 1][j][k]) : alongY[i / 2][j][k];
-    }
-}
-
-}  // namespace
-
-void sumBlock(const Points& g, float rv, CoarseSums& coarse, Sums& s) {
-  if (rv < kCoarseFrom) return sumFine(g, rv, s);
-  sumCoarse(g, rv, coarse);
-  refine(coarse.w, s.w);
-  // The means where every sample around a voxel has particles (half the
-  // volume a resting block loses with the sums alone), the sums elsewhere.
-  alignas(64) float valid[kCoarseSize], mean[kCoarseSize], fineValid[kVoxels], fineMean[kVoxels], fineSum[kVoxels];
-  for (int c = 0; c < kCoarseSize; ++c) valid[c] = coarse.w[c] > 0 ? 1.0f : 0.0f;
-  refine(valid, fineValid);
-  const float* coarseOf[6] = {coarse.x, coarse.y, coarse.z, coarse.vx, coarse.vy, coarse.vz};
-  float* fineOf[6] = {s.x, s.y, s.z, s.vx, s.vy, s.vz};
-  for (int q = 0; q < 6; ++q) {
-    const float* a = coarseOf[q];
-    for (int c = 0; c < kCoarseSize; ++c) mean[c] = coarse.w[c] > 0 ? a[c] / coarse.w[c] : 0.0f;
-    refine(mean, fineMean);
-    refine(a, fineSum);
-    float* out = fineOf[q];
-#pragma omp simd
-    for (int n = 0; n < kVoxels; ++n) out[n] = fineValid[n] == 1.0f ? s.w[n] * fineMean[n] : fineSum[n];
   }
 }
 

@@ -21,23 +21,11 @@ struct alignas(64) Sums {
       vz[kBlockVoxels];
 };
 
-// The same sums at every second voxel of a block and on its far faces,
-// (0, 2, 4, 6, 8)³ in voxels: rows along z of 5 samples, padded to 8 lanes.
-constexpr float kCoarseFrom = 5;  // kernel radius (voxels) from which the sums are sampled every second voxel
-constexpr int kCoarse = kBlock / 2 + 1, kCoarseRows = kCoarse * kCoarse, kCoarseSize = kCoarseRows * kBlock;
-struct alignas(64) CoarseSums {
-  float w[kCoarseSize], x[kCoarseSize], y[kCoarseSize], z[kCoarseSize], vx[kCoarseSize], vy[kCoarseSize],
-      vz[kCoarseSize];
-};
-
 enum Kind : uint8_t { Outside, Inside, Crossed };
 
-// [ZB05]'s sums at every voxel of a block, from samples at every second
-// voxel: the kernel changes little over two voxels (a quarter of its
-// radius at the default voxel), and 5³ samples cost 25 rows where 8³ voxels
-// cost 64. Interpolating the weights and the weighted positions alike keeps
-// x̄ a weighted mean of the particles: a lone particle is still a sphere.
-void sumBlock(const Points& g, float rv, CoarseSums& coarse, Sums& s);
+// [ZB05] Sec. 6, scattered: every particle within `rv` voxels adds k(s),
+// k(s) x_i and k(s) v_i to the block's voxels, a row of 8 per vector.
+void sumBlock(const Points& g, float rv, Sums& s);
 
 // One block's field clamped to [-band, band] and its mean velocity, and
 // what the block is: crossed when some voxel is inside the band or the

@@ -1,8 +1,7 @@
 // Surface reconstruction on an OpenVDB grid [Mus13], only where the surface
 // is: the liquid's 8³-voxel blocks are classified from their neighbourhood's
 // occupancy and samples at their corners and centre, and only the blocks the
-// surface crosses are evaluated: sums at every second voxel, a row per
-// vector, interpolated to the others.
+// surface crosses are evaluated voxel by voxel, a row of 8 voxels per vector.
 // The field is Zhu & Bridson's, the distance to the kernel-weighted mean of
 // the neighbouring particles minus a radius; then a box filter, then a mesh:
 // marching cubes over the blocks (surface/block_mesher.h) or OpenVDB's
@@ -290,10 +289,8 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   {
     Gathered g;
     std::unique_ptr<Sums> sums, trailSums;
-    std::unique_ptr<CoarseSums> coarse;
     BlockArena& arena = arenas[size_t(omp_get_thread_num())];
     try {
-      coarse = std::make_unique<CoarseSums>();
       sums = std::make_unique<Sums>();
       if (s.trail > 0) trailSums = std::make_unique<Sums>();
     } catch (...) {
@@ -324,9 +321,9 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
         kinds[c] = Inside;
         continue;
       }
-      sumBlock(g.real, rv, *coarse, *sums);
+      sumBlock(g.real, rv, *sums);
       const bool trails = g.trail.size() > 0;
-      if (trails) sumBlock(g.trail, rv, *coarse, *trailSums);
+      if (trails) sumBlock(g.trail, rv, *trailSums);
       BlockValues* block = arena.next();
       const Kind kind = fieldOfBlock(*sums, trails ? trailSums.get() : nullptr, float(voxel),
                                      float(rs), band, block->phi, block->velocity);
