@@ -21,17 +21,21 @@ void sumBlock(const Points& g, float rv, Sums& s) {
   const float rv2 = rv * rv, inv = 1.0f / rv2;
   for (size_t n = 0; n < g.size(); ++n) {
     const float ux = g.x[n], uy = g.y[n], uz = g.z[n], ax = g.vx[n], ay = g.vy[n], az = g.vz[n];
-    // The distance from the particle to the block's rows, along z.
+    // The distance from the particle to the block's rows along z leaves
+    // this much of the kernel's reach (squared) across x and y: only rows
+    // inside it are visited, without a test per row.
     const float zOut = uz < 0 ? -uz : uz > kBlock - 1 ? uz - (kBlock - 1) : 0.0f;
-    const int i0 = std::max(0, int(std::ceil(ux - rv))), i1 = std::min(kBlock - 1, int(std::floor(ux + rv)));
+    const float rz2 = rv2 - zOut * zOut;
+    if (rz2 <= 0) continue;
+    const float rx = std::sqrt(rz2);
+    const int i0 = std::max(0, int(std::ceil(ux - rx))), i1 = std::min(kBlock - 1, int(std::floor(ux + rx)));
     for (int i = i0; i <= i1; ++i) {
-      const float dx = float(i) - ux, rx2 = rv2 - dx * dx;
-      if (rx2 <= 0) continue;
-      const float ry = std::sqrt(rx2);
+      const float dx = float(i) - ux, ry2 = rz2 - dx * dx;
+      if (ry2 <= 0) continue;
+      const float ry = std::sqrt(ry2);
       const int j0 = std::max(0, int(std::ceil(uy - ry))), j1 = std::min(kBlock - 1, int(std::floor(uy + ry)));
       for (int j = j0; j <= j1; ++j) {
         const float dy = float(j) - uy, dxy2 = dx * dx + dy * dy;
-        if (dxy2 + zOut * zOut >= rv2) continue;
         const int row = (i << 6) | (j << 3);
         float* __restrict w = s.w + row;
         float* __restrict x = s.x + row;
