@@ -121,7 +121,7 @@ float phiAt(const Gathered& g, const float u[3], float rv, float rs) {
                                    sum[0][3] + sum[1][3]));
 }
 
-// A crossed block's field and velocity (x, y, z per voxel), before any
+// A crossed block's field and velocity (x, y, z per voxel), when no
 // OpenVDB leaf is made of them (only the grids need one).
 struct BlockValues {
   float phi[kVoxels];
@@ -280,7 +280,13 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   // centre, otherwise evaluated voxel by voxel and kept when crossed.
   const auto tFill = std::chrono::steady_clock::now();
   std::vector<uint8_t> kinds(candidates.size(), Outside);
-  std::vector<BlockValues*> values(candidates.size(), nullptr);
+  // Each crossed block's field and velocity: in the grids' leaves when a
+  // format asks for the grids, else in the threads' arenas.
+  const bool uniform = withMesh && s.adaptivity <= 0;
+  const bool gridsWanted = withGrids || (withMesh && !uniform);
+  std::vector<float*> phiOf(candidates.size(), nullptr), velocityOf(candidates.size(), nullptr);
+  std::vector<std::unique_ptr<LeafT>> leaves(gridsWanted ? candidates.size() : 0);
+  std::vector<std::unique_ptr<VLeafT>> velocityLeaves(gridsWanted ? candidates.size() : 0);
   std::vector<BlockArena> arenas(static_cast<size_t>(omp_get_max_threads()));
   const float halfDiagonal = float(0.5 * std::sqrt(3.0) * (kBlock - 1));  // voxels
   const float rsv = float(rs / voxel), bandv = float(band / voxel);
@@ -329,8 +335,16 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
                                      float(rs), band, block->phi, block->velocity);
       kinds[c] = kind;
       if (kind != Crossed) continue;
-      arena.keep();
-      values[c] = block;
+      if (gridsWanted) {
+        leaves[c] = std::make_unique<LeafT>(o, band, false);
+        velocityLeaves[c] = std::make_unique<VLeafT>(o, openvdb::Vec3s(0.0f), false);
+        std::copy_n(block->phi, kVoxels, leaves[c]->buffer().data());
+        std::copy_n(block->velocity, 3 * kVoxels, &velocityLeaves[c]->buffer().data()[0][0]);
+        phiOf[c] = leaves[c]->buffer().data(), velocityOf[c] = &velocityLeaves[c]->buffer().data()[0][0];
+      } else {
+        arena.keep();
+        phiOf[c] = block->phi, velocityOf[c] = block->velocity;
+      }
     } catch (...) {
       failure.keep();
     }
@@ -365,7 +379,7 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
         d[f / 2] = f % 2 ? 1 : -1;
         faces[n].block[f] = neighbourOf(b, d[0], d[1], d[2], faces[n].value[f]);
       }
-      data[n] = values[crossed[n]]->phi;
+      data[n] = phiOf[crossed[n]];
       scratch[n] = &scratchStore[n * kVoxels];
     }
     for (int pass = 0; pass < s.smoothing; ++pass) {
@@ -381,7 +395,7 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   // Clamped to the band, outside which a grid's voxels are inactive.
 #pragma omp parallel for schedule(static)
   for (size_t n = 0; n < crossed.size(); ++n) {
-    float* phi = values[crossed[n]]->phi;
+    float* phi = phiOf[crossed[n]];
 #pragma omp simd
     for (int i = 0; i < kVoxels; ++i) phi[i] = std::min(band, std::max(-band, phi[i]));
   }
@@ -389,7 +403,6 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
 
   // A uniform mesh from the blocks themselves, while they are at hand.
   const double adaptivity = s.adaptivity;
-  const bool uniform = withMesh && adaptivity <= 0;
   auto tMesh = std::chrono::steady_clock::now();
   if (uniform) {
     std::vector<MeshBlock> blocks(crossed.size());
@@ -398,8 +411,8 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
       MeshBlock& m = blocks[n];
       const uint64_t k = candidates[crossed[n]];
       for (int d = 0; d < 3; ++d) m.block[d] = unkey(k, d);
-      m.phi = values[crossed[n]]->phi;
-      m.velocity = values[crossed[n]]->velocity;
+      m.phi = phiOf[crossed[n]];
+      m.velocity = velocityOf[crossed[n]];
       for (int di = -1; di <= 1; ++di)
         for (int dj = -1; dj <= 1; ++dj)
           for (int dk = -1; dk <= 1; ++dk) {
@@ -412,41 +425,30 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   out.meshMs = msSince(tMesh);
   // The grids, unless only a uniform mesh was asked for (a ply, obj or usd export).
   const auto tInsert = std::chrono::steady_clock::now();
-  if (withGrids || (withMesh && !uniform)) {
+  if (gridsWanted) {
     // Active where the field is inside the band; the velocity of a voxel
     // outside it is no one's.
-    std::vector<std::unique_ptr<LeafT>> leaves(crossed.size());
-    std::vector<std::unique_ptr<VLeafT>> velocityLeaves(crossed.size());
-    ParallelFailure leafFailure;
 #pragma omp parallel for schedule(static)
-    for (size_t n = 0; n < crossed.size(); ++n) try {
-      const uint64_t k = candidates[crossed[n]];
-      const Coord o(int(unkey(k, 0) * kBlock), int(unkey(k, 1) * kBlock), int(unkey(k, 2) * kBlock));
-      const BlockValues& from = *values[crossed[n]];
-      auto leaf = std::make_unique<LeafT>(o, band, false);
-      auto vleaf = std::make_unique<VLeafT>(o, openvdb::Vec3s(0.0f), false);
-      float* phi = leaf->buffer().data();
-      openvdb::Vec3s* v = vleaf->buffer().data();
+    for (size_t n = 0; n < crossed.size(); ++n) {
+      LeafT& leaf = *leaves[crossed[n]];
+      VLeafT& vleaf = *velocityLeaves[crossed[n]];
+      const float* phi = leaf.buffer().data();
+      openvdb::Vec3s* v = vleaf.buffer().data();
       for (int i = 0; i < kVoxels; ++i) {
-        const bool on = std::abs(from.phi[i]) < band;
-        phi[i] = from.phi[i];
-        if (on) v[i] = openvdb::Vec3s(from.velocity[3 * i], from.velocity[3 * i + 1], from.velocity[3 * i + 2]);
-        leaf->setActiveState(openvdb::Index(i), on);
-        vleaf->setActiveState(openvdb::Index(i), on);
+        const bool on = std::abs(phi[i]) < band;
+        if (!on) v[i] = openvdb::Vec3s(0.0f);
+        leaf.setActiveState(openvdb::Index(i), on);
+        vleaf.setActiveState(openvdb::Index(i), on);
       }
-      leaves[n] = std::move(leaf), velocityLeaves[n] = std::move(vleaf);
-    } catch (...) {
-      leafFailure.keep();
     }
-    leafFailure.rethrow();
     for (size_t c = 0; c < candidates.size(); ++c) {
       if (kinds[c] == Inside) {
         const Coord o(int(unkey(candidates[c], 0) * kBlock), int(unkey(candidates[c], 1) * kBlock),
                       int(unkey(candidates[c], 2) * kBlock));
         sdf->tree().addTile(1, o, -band, false);
       } else if (kinds[c] == Crossed) {
-        sdf->tree().addLeaf(leaves[crossedIndex[c]].release());
-        velocity->tree().addLeaf(velocityLeaves[crossedIndex[c]].release());
+        sdf->tree().addLeaf(leaves[c].release());
+        velocity->tree().addLeaf(velocityLeaves[c].release());
       }
     }
     out.volumes = prunedSurfaceVolumes(grids);
