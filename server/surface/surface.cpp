@@ -210,7 +210,6 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   const float rv = float(R / voxel);
   const Buckets buckets(frame, R, s.trail, particleRadius, keyReach(R, kBlock * voxel));
 
-
   Surface out;
   out.particles = buckets.particles();
   if (buckets.size() == 0) return out;
@@ -257,7 +256,6 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
     candidates.push_back(k);
   });
   const size_t occupiedCount = candidates.size();
-
   for (size_t c = 0; c < occupiedCount; ++c) {
     const int64_t b[3] = {unkey(candidates[c], 0), unkey(candidates[c], 1), unkey(candidates[c], 2)};
     for (int i = -ring; i <= ring; ++i)
@@ -392,12 +390,13 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
 #pragma omp parallel for schedule(static)
       for (size_t n = 0; n < crossed.size(); ++n) std::copy(data[n], data[n] + kVoxels, scratch[n]);
   }
-  // Clamped to the band, outside which a grid's voxels are inactive.
+  // Clamped to the band, outside which a grid's voxels are inactive (and
+  // what is not a number, outside).
 #pragma omp parallel for schedule(static)
   for (size_t n = 0; n < crossed.size(); ++n) {
     float* phi = phiOf[crossed[n]];
 #pragma omp simd
-    for (int i = 0; i < kVoxels; ++i) phi[i] = std::min(band, std::max(-band, phi[i]));
+    for (int i = 0; i < kVoxels; ++i) phi[i] = phi[i] < -band ? -band : phi[i] < band ? phi[i] : band;
   }
   out.smoothMs = msSince(tSmooth);
 
