@@ -15,7 +15,7 @@ namespace fc {
 
 namespace {
 
-constexpr int kB = 8, kVoxels = 512;
+constexpr int kB = 8;
 
 // Corner c of a cube is at (c & 1, c >> 1 & 1, c >> 2 & 1); edge e joins
 // corner kEdgeLow[e] to kEdgeLow[e] + (1 << kEdgeAxis[e]).
