@@ -70,6 +70,31 @@ TEST(BlockField, FarParticlesLeaveTheBlockOutsideAndABulkPutsItAtTheFloor) {
   }
 }
 
+// The rows a particle visits are all those its kernel reaches: the sums
+// equal a plain sum of every particle at every voxel, particles inside,
+// beside and beyond the block, some just at the kernel's reach.
+TEST(BlockField, TheSumsAreEveryParticleAtEveryVoxel) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> at(-9, 16), u(-1, 1);
+  Points p;
+  for (int n = 0; n < 400; ++n) add(p, at(rng), at(rng), at(rng), u(rng), u(rng), u(rng));
+  for (int n = 0; n < 8; ++n) add(p, 3.0f, 4.0f, 7.0f + kRv * (1.0f - 1e-6f * float(n)), 0, 0, 1);  // grazing the block
+  auto sums = std::make_unique<Sums>();
+  sumBlock(p, kRv, *sums);
+  const float inv = 1.0f / (kRv * kRv);
+  for (int v = 0; v < kBlockVoxels; ++v) {
+    double w = 0, x = 0, vz = 0;
+    for (size_t n = 0; n < p.size(); ++n) {
+      const float dx = p.x[n] - float(v >> 6), dy = p.y[n] - float((v >> 3) & 7), dz = p.z[n] - float(v & 7);
+      const double c = kernelWeight(dx * dx + dy * dy + dz * dz, inv);
+      w += c, x += c * p.x[n], vz += c * p.vz[n];
+    }
+    ASSERT_NEAR(sums->w[v], w, 1e-5 * std::max(1.0, w)) << "voxel " << v;
+    ASSERT_NEAR(sums->x[v], x, 1e-4 * std::max(1.0, std::abs(x))) << "voxel " << v;
+    ASSERT_NEAR(sums->vz[v], vz, 1e-5 * std::max(1.0, std::abs(vz))) << "voxel " << v;
+  }
+}
+
 // The row-per-vector path (no trails) gives what the per-voxel path gives
 // with trails that add nothing, on a random surface with droplets.
 TEST(BlockField, TheVectorPathIsThePerVoxelOne) {
