@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <memory>
 #include <vector>
 
 namespace fc {
@@ -141,8 +142,9 @@ struct Around {
 // voxel in [-1, 7]³) whose rank is the vertex's index in the block.
 struct EdgeBits {
   static constexpr int kBits = 3 * 729, kWords = (kBits + 63) / 64;
-  uint64_t bits[kWords] = {};
-  uint16_t before[kWords] = {};  // set bits in the words before
+  uint64_t bits[kWords];
+  uint16_t before[kWords];  // set bits in the words before
+  void clear() { std::fill_n(bits, kWords, uint64_t(0)); }
   static int index(int axis, int i, int j, int k) { return ((axis * 9 + i + 1) * 9 + j + 1) * 9 + k + 1; }
   // The 9 edges of a row along z from bit b (z = -1) on.
   void setRow(int b, uint32_t nine) {
@@ -162,9 +164,11 @@ struct EdgeBits {
   }
 };
 
-// One block's inside bits over [-1, 8]³ (1: phi < 0) and the edges it owns.
+// One block's inside bits over [-1, 8]³ (1: phi < 0), a row along z per
+// mask (bit t: z = t - 1), and the edges it owns. Filled by the threads:
+// nothing to zero on one.
 struct BlockState {
-  uint8_t inside[kPadded];
+  uint16_t row[kB + 2][kB + 2];
   EdgeBits edges;
 };
 
@@ -173,7 +177,7 @@ struct BlockState {
 void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, SurfaceMesh& mesh) {
   const CubeTable& table = cubeTable();
   const size_t nb = blocks.size();
-  std::vector<BlockState> state(nb);
+  std::unique_ptr<BlockState[]> state(new BlockState[nb]);
   std::vector<std::vector<std::array<float, 6>>> vertices(nb);  // position (voxels), velocity
 
   ParallelFailure failure;  // an exception in the OpenMP regions, rethrown after them
@@ -187,19 +191,18 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
     float P[kPadded];
     around.pad(P);
     BlockState& st = state[n];
-    for (int p = 0; p < kPadded; ++p) st.inside[p] = P[p] < 0;
-    const uint8_t* S = st.inside;
+    st.edges.clear();
     auto& verts = vertices[n];
     verts.reserve(128);
-    // Each padded row along z as bits (bit t: voxel z = t - 1 inside); an
-    // edge crosses where its two ends' bits differ, 9 edges at a time.
-    uint32_t row[kB + 2][kB + 2];
+    // An edge crosses where its two ends' inside bits differ: 9 edges of a
+    // row at a time.
+    uint16_t(&row)[kB + 2][kB + 2] = st.row;
     for (int i = 0; i < kB + 2; ++i)
       for (int j = 0; j < kB + 2; ++j) {
-        const uint8_t* r = S + (i * 10 + j) * 10;
+        const float* r = P + (i * 10 + j) * 10;
         uint32_t m = 0;
-        for (int t = 0; t < kB + 2; ++t) m |= uint32_t(r[t]) << t;
-        row[i][j] = m;
+        for (int t = 0; t < kB + 2; ++t) m |= uint32_t(r[t] < 0) << t;
+        row[i][j] = uint16_t(m);
       }
     const auto orphansAlong = [&](int axis) {
       int dir[3] = {0, 0, 0};
@@ -210,14 +213,14 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
     constexpr uint32_t inBlock = 0x1FE, withOrphan = 0x1FF;  // z = 0..7; z = -1..7
     for (int i = from[0]; i < kB; ++i)
       for (int j = 0; j < kB; ++j)
-        st.edges.setRow(EdgeBits::index(0, i, j, -1), (row[i + 1][j + 1] ^ row[i + 2][j + 1]) & inBlock);
+        st.edges.setRow(EdgeBits::index(0, i, j, -1), uint32_t(row[i + 1][j + 1] ^ row[i + 2][j + 1]) & inBlock);
     for (int i = 0; i < kB; ++i)
       for (int j = from[1]; j < kB; ++j)
-        st.edges.setRow(EdgeBits::index(1, i, j, -1), (row[i + 1][j + 1] ^ row[i + 1][j + 2]) & inBlock);
+        st.edges.setRow(EdgeBits::index(1, i, j, -1), uint32_t(row[i + 1][j + 1] ^ row[i + 1][j + 2]) & inBlock);
     for (int i = 0; i < kB; ++i)
       for (int j = 0; j < kB; ++j)
         st.edges.setRow(EdgeBits::index(2, i, j, -1),
-                        (row[i + 1][j + 1] ^ (row[i + 1][j + 1] >> 1)) & (from[2] < 0 ? withOrphan : inBlock));
+                        uint32_t(row[i + 1][j + 1] ^ (row[i + 1][j + 1] >> 1)) & (from[2] < 0 ? withOrphan : inBlock));
     st.edges.rank();
     // The vertices, in bit order: the rank is the index.
     for (int w = 0; w < EdgeBits::kWords; ++w)
@@ -266,7 +269,7 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
 #pragma omp parallel for schedule(dynamic, 16)
   for (size_t n = 0; n < nb; ++n) try {
     const MeshBlock& b = blocks[n];
-    const uint8_t* S = state[n].inside;
+    const uint16_t(&row)[kB + 2][kB + 2] = state[n].row;
     auto& tris = triangles[n];
     tris.reserve(2 * (first[n + 1] - first[n]) + 16);
     // The global index of the vertex on the edge from local voxel (i, j, k) along axis.
@@ -288,14 +291,13 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
     for (int i = -1; i < kB; ++i)
       for (int j = -1; j < kB; ++j) {
         // The row's configurations, one cell per k.
-        const uint8_t* s00 = S + padded(i, j, -1);
-        const uint8_t* s10 = s00 + 100;
-        const uint8_t* s01 = s00 + 10;
-        const uint8_t* s11 = s00 + 110;
+        const uint32_t r00 = row[i + 1][j + 1], r10 = row[i + 2][j + 1], r01 = row[i + 1][j + 2],
+                       r11 = row[i + 2][j + 2];
+        const auto at = [](uint32_t r, int t) { return (r >> t) & 1u; };
         uint8_t config[kB + 1];
         for (int k = 0; k <= kB; ++k)
-          config[k] = uint8_t(s00[k] | s10[k] << 1 | s01[k] << 2 | s11[k] << 3 | s00[k + 1] << 4 | s10[k + 1] << 5 |
-                              s01[k + 1] << 6 | s11[k + 1] << 7);
+          config[k] = uint8_t(at(r00, k) | at(r10, k) << 1 | at(r01, k) << 2 | at(r11, k) << 3 | at(r00, k + 1) << 4 |
+                              at(r10, k + 1) << 5 | at(r01, k + 1) << 6 | at(r11, k + 1) << 7);
         for (int k = -1; k < kB; ++k) {
           const int c = config[k + 1];
           if (c == 0 || c == 255) continue;
