@@ -12,8 +12,6 @@
 
 namespace fc::surface_detail {
 
-constexpr int kVoxels = kBlockVoxels;
-
 // [ZB05] Sec. 6, scattered: every particle adds k(s) and k(s) x_i, k(s) v_i
 // to the voxels of its kernel ball, a whole row of the block at a time.
 void sumBlock(const Points& g, float rv, Sums& s) {
@@ -56,55 +54,49 @@ void sumBlock(const Points& g, float rv, Sums& s) {
   }
 }
 
-Kind fieldOfBlock(const Sums& s, const Sums* trail, float voxel, float rs, float band,
-                  float* phi, float* vel) {
-  const auto distance = [&](float w, float x, float y, float z, int i, int j, int k) {
-    const float iw = 1.0f / w;
-    const float mx = x * iw - float(i), my = y * iw - float(j);
-    const float mz = z * iw - float(k);
-    return voxel * std::sqrt(mx * mx + my * my + mz * mz) - rs;
-  };
-  if (!trail) {  // the same, a row of 8 voxels per vector
-    int in = 0, out = 0, near = 0;
-    for (int i = 0; i < kBlock; ++i)
-      for (int j = 0; j < kBlock; ++j) {
-        const int r = (i << 6) | (j << 3);
+namespace {
+
+// fieldOfBlock, a row of 8 voxels per vector; with the trails (a separate
+// instance, so that the liquid alone pays nothing for them), the union of
+// the liquid and its trails. The trails' samples alone would also draw the
+// front back towards them.
+template <bool kTrails>
+Kind field(const Sums& s, const Sums* trail, float voxel, float rs, float band, float* phi, float* vel) {
+  int in = 0, out = 0, near = 0;
+  for (int i = 0; i < kBlock; ++i)
+    for (int j = 0; j < kBlock; ++j) {
+      const int r = (i << 6) | (j << 3);
 #pragma omp simd reduction(| : in, out, near)
-        for (int k = 0; k < kBlock; ++k) {
-          const int n = r + k;
-          const float w = s.w[n];
-          const bool has = w > 0;
-          const float iw = has ? 1.0f / w : 0.0f;
-          const float mx = s.x[n] * iw - float(i), my = s.y[n] * iw - float(j), mz = s.z[n] * iw - float(k);
-          float p = has ? voxel * std::sqrt(mx * mx + my * my + mz * mz) - rs : band;
-          p = std::min(band, std::max(-band, p));
-          phi[n] = p;
-          vel[3 * n] = s.vx[n] * iw, vel[3 * n + 1] = s.vy[n] * iw, vel[3 * n + 2] = s.vz[n] * iw;
-          in |= p <= -band, out |= p >= band, near |= std::abs(p) < band;
+      for (int k = 0; k < kBlock; ++k) {
+        const int n = r + k;
+        const auto distance = [&](float w, float x, float y, float z) {
+          const float iw = 1.0f / w;
+          const float mx = x * iw - float(i), my = y * iw - float(j), mz = z * iw - float(k);
+          return voxel * std::sqrt(mx * mx + my * my + mz * mz) - rs;
+        };
+        float w = s.w[n], vx = s.vx[n], vy = s.vy[n], vz = s.vz[n];
+        float p = w > 0 ? distance(w, s.x[n], s.y[n], s.z[n]) : band;
+        if constexpr (kTrails) {
+          const Sums& t = *trail;
+          if (t.w[n] > 0) {
+            w += t.w[n], vx += t.vx[n], vy += t.vy[n], vz += t.vz[n];
+            p = std::min(p, distance(w, s.x[n] + t.x[n], s.y[n] + t.y[n], s.z[n] + t.z[n]));
+          }
         }
+        const float iw = w > 0 ? 1.0f / w : 0.0f;
+        vel[3 * n] = vx * iw, vel[3 * n + 1] = vy * iw, vel[3 * n + 2] = vz * iw;
+        p = std::min(band, std::max(-band, p));
+        phi[n] = p;
+        in |= p <= -band, out |= p >= band, near |= std::abs(p) < band;
       }
-    return near || (in && out) ? Crossed : in ? Inside : Outside;
-  }
-  bool in = false, out = false, near = false;
-  for (int n = 0; n < kVoxels; ++n) {
-    const int i = n >> 6, j = (n >> 3) & 7, k = n & 7, c = n;
-    float p = band, w = s.w[c];
-    vel[3 * n] = vel[3 * n + 1] = vel[3 * n + 2] = 0.0f;
-    if (w > 0) p = distance(w, s.x[c], s.y[c], s.z[c], i, j, k);
-    float vx = s.vx[c], vy = s.vy[c], vz = s.vz[c];
-    if (trail && trail->w[c] > 0) {
-      // With the trails: the union of the liquid and its trails. The trails'
-      // samples alone would also draw the front back towards them.
-      const Sums& t = *trail;
-      w += t.w[c], vx += t.vx[c], vy += t.vy[c], vz += t.vz[c];
-      p = std::min(p, distance(w, s.x[c] + t.x[c], s.y[c] + t.y[c], s.z[c] + t.z[c], i, j, k));
     }
-    if (w > 0) vel[3 * n] = vx / w, vel[3 * n + 1] = vy / w, vel[3 * n + 2] = vz / w;
-    p = std::min(band, std::max(-band, p));
-    phi[n] = p;
-    in |= p <= -band, out |= p >= band, near |= std::abs(p) < band;
-  }
   return near || (in && out) ? Crossed : in ? Inside : Outside;
+}
+
+}  // namespace
+
+Kind fieldOfBlock(const Sums& s, const Sums* trail, float voxel, float rs, float band, float* phi, float* vel) {
+  return trail ? field<true>(s, trail, voxel, rs, band, phi, vel) : field<false>(s, nullptr, voxel, rs, band, phi, vel);
 }
 
 }  // namespace fc::surface_detail

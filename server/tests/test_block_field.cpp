@@ -1,7 +1,7 @@
 // The surface's field over one block (surface/block_field.h): Zhu &
-// Bridson's distance to the particles' weighted mean, a row of voxels per
-// vector, against the sphere of a lone particle and the per-voxel path
-// that velocity trails take.
+// Bridson's distance to the particles' weighted mean, against a plain sum,
+// the sphere of a lone particle, and the same field with trails that add
+// nothing.
 #include "surface/block_field.h"
 
 #include <gtest/gtest.h>
@@ -95,9 +95,9 @@ TEST(BlockField, TheSumsAreEveryParticleAtEveryVoxel) {
   }
 }
 
-// The row-per-vector path (no trails) gives what the per-voxel path gives
-// with trails that add nothing, on a random surface with droplets.
-TEST(BlockField, TheVectorPathIsThePerVoxelOne) {
+// The field without trails is the field with trails that add nothing (its
+// own instance), on a random surface with droplets.
+TEST(BlockField, AnEmptyTrailChangesNothing) {
   for (unsigned seed : {1u, 2u, 3u}) {
     SCOPED_TRACE("seed " + std::to_string(seed));
     std::mt19937 rng(seed);
