@@ -22,8 +22,12 @@ constexpr int kB = 8;
 // corner kEdgeLow[e] to kEdgeLow[e] + (1 << kEdgeAxis[e]).
 struct CubeTable {
   int edgeLow[12], edgeAxis[12];
-  int edgeOf[8][3];               // the edge from corner c along an axis (c's bit clear)
-  std::vector<uint8_t> tri[256];  // 3 edges per triangle
+  int edgeOf[8][3];  // the edge from corner c along an axis (c's bit clear)
+  // Configuration c's triangles, 3 edges each, at edge[start[c]] on.
+  uint16_t start[257];
+  std::vector<uint8_t> edge;
+  uint32_t triangles(int c) const { return uint32_t(start[c + 1] - start[c]) / 3; }
+  const uint8_t* edges(int c) const { return edge.data() + start[c]; }
 };
 
 const CubeTable& cubeTable() {
@@ -57,6 +61,7 @@ const CubeTable& cubeTable() {
             for (int k = 0; k < 4; ++k)
               if (inside(q[k])) pair(edgeBetween(q[(k + 3) % 4], q[k]), edgeBetween(q[k], q[(k + 1) % 4]));
         }
+      t.start[config] = uint16_t(t.edge.size());
       // Every crossing edge lies on two faces: the segments close into loops.
       bool seen[12] = {};
       for (int start = 0; start < 12; ++start) {
@@ -86,10 +91,10 @@ const CubeTable& cubeTable() {
         }
         if (normal[0] * away[0] + normal[1] * away[1] + normal[2] * away[2] < 0) std::reverse(loop.begin(), loop.end());
         for (size_t k = 1; k + 1 < loop.size(); ++k)
-          t.tri[config].insert(t.tri[config].end(),
-                                {uint8_t(loop[0]), uint8_t(loop[k]), uint8_t(loop[k + 1])});
+          t.edge.insert(t.edge.end(), {uint8_t(loop[0]), uint8_t(loop[k]), uint8_t(loop[k + 1])});
       }
     }
+    t.start[256] = uint16_t(t.edge.size());
     return t;
   }();
   return table;
@@ -97,8 +102,6 @@ const CubeTable& cubeTable() {
 
 int neighbourOf(int di, int dj, int dk) { return (di + 1) * 9 + (dj + 1) * 3 + (dk + 1); }
 int blockOffset(int local) { return local < 0 ? -1 : local >= kB ? 1 : 0; }
-int padded(int i, int j, int k) { return ((i + 1) * 10 + (j + 1)) * 10 + (k + 1); }
-constexpr int kPadded = 1000;  // [-1, 8]³
 
 // A block's view of the voxels around it, local coordinates in [-1, 8]:
 // each neighbour's values (or the constant it holds) and velocities.
@@ -122,18 +125,24 @@ struct Around {
     const float* v = velocity[neighbourOf(di, dj, dk)];
     return v ? v + 3 * ((local(i, di) << 6) | (local(j, dj) << 3) | local(k, dk)) : nullptr;
   }
-  // Every value in [-1, 8]³, at padded(i, j, k): a row along k at a time.
-  void pad(float* out) const {
+  float phiAt(int i, int j, int k) const {
+    const int di = blockOffset(i), dj = blockOffset(j), dk = blockOffset(k);
+    const int n = neighbourOf(di, dj, dk);
+    return phi[n] ? phi[n][(local(i, di) << 6) | (local(j, dj) << 3) | local(k, dk)] : constant[n];
+  }
+  // The inside bits of every row along z over [-1, 8]³ (bit t: z = t - 1),
+  // from the blocks' own rows (inside[n]: 8 bits per row, bit k: z = k).
+  void rows(const uint8_t* const* inside, uint16_t (&out)[kB + 2][kB + 2]) const {
+    const auto rowOf = [&](int n, int row) -> uint32_t {
+      return inside[n] ? inside[n][row] : constant[n] < 0 ? 0xFFu : 0u;
+    };
     for (int i = -1; i <= kB; ++i)
       for (int j = -1; j <= kB; ++j) {
         const int di = blockOffset(i), dj = blockOffset(j);
-        const int li = local(i, di), lj = local(j, dj), row = (li << 6) | (lj << 3);
-        float* o = out + padded(i, j, -1);
-        const int below = neighbourOf(di, dj, -1), middle = neighbourOf(di, dj, 0), above = neighbourOf(di, dj, 1);
-        o[0] = phi[below] ? phi[below][row + kB - 1] : constant[below];
-        if (phi[middle]) std::copy_n(phi[middle] + row, kB, o + 1);
-        else std::fill_n(o + 1, kB, constant[middle]);
-        o[kB + 1] = phi[above] ? phi[above][row] : constant[above];
+        const int row = (local(i, di) << 3) | local(j, dj);
+        const uint32_t below = rowOf(neighbourOf(di, dj, -1), row) >> (kB - 1);
+        const uint32_t middle = rowOf(neighbourOf(di, dj, 0), row), above = rowOf(neighbourOf(di, dj, 1), row) & 1u;
+        out[i + 1][j + 1] = uint16_t(below | middle << 1 | above << (kB + 1));
       }
   }
 };
@@ -153,9 +162,11 @@ struct EdgeBits {
     bits[w] |= uint64_t(nine) << o;
     if (o > 64 - 9) bits[w + 1] |= uint64_t(nine) >> (64 - o);
   }
-  void rank() {
+  // Each word's count of the set bits before it; returns them all.
+  uint32_t rank() {
     uint16_t n = 0;
     for (int w = 0; w < kWords; ++w) before[w] = n, n = uint16_t(n + __builtin_popcountll(bits[w]));
+    return n;
   }
   int32_t vertex(int b) const {
     const uint64_t word = bits[b >> 6], bit = uint64_t(1) << (b & 63);
@@ -178,32 +189,62 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
   const CubeTable& table = cubeTable();
   const size_t nb = blocks.size();
   std::unique_ptr<BlockState[]> state(new BlockState[nb]);
-  std::vector<std::vector<std::array<float, 6>>> vertices(nb);  // position (voxels), velocity
-
+  std::vector<uint32_t> vertexCount(nb), triangleCount(nb);
   ParallelFailure failure;  // an exception in the OpenMP regions, rethrown after them
 
-  // The crossing edges each block owns: those whose lower voxel is in it,
-  // and the orphans whose lower voxel is in a neighbour without values
-  // (along that axis only). Their vertices, in the order of their bits.
+  // Whether block b owns cell (i, j, k) of its padded range: the first
+  // corner, in corner order, whose block has values.
+  const auto owns = [](const MeshBlock& b, int i, int j, int k) {
+    if (i >= 0 && j >= 0 && k >= 0) return true;
+    for (int corner = 0; corner < 8; ++corner) {
+      const int di = blockOffset(i + (corner & 1)), dj = blockOffset(j + ((corner >> 1) & 1)),
+                dk = blockOffset(k + ((corner >> 2) & 1));
+      if (!di && !dj && !dk) return true;
+      if (b.neighbour[neighbourOf(di, dj, dk)] >= 0) return false;
+    }
+    return false;
+  };
+  // Each cell of the block's padded range with a configuration other than
+  // all inside or all outside: f(i, j, k, configuration). A row of 9 cells
+  // along z at a time: the corners' bits at z and z + 1 of the four rows.
+  const auto forEachCell = [](const uint16_t (&row)[kB + 2][kB + 2], auto&& f) {
+    for (int i = -1; i < kB; ++i)
+      for (int j = -1; j < kB; ++j) {
+        const uint32_t r00 = row[i + 1][j + 1], r10 = row[i + 2][j + 1], r01 = row[i + 1][j + 2],
+                       r11 = row[i + 2][j + 2];
+        const uint32_t any = r00 | r10 | r01 | r11, all = r00 & r10 & r01 & r11;
+        // Bit t: the cell at z = t - 1, whose corners are bits t and t + 1.
+        uint32_t mixed = ((any | any >> 1) & ~(all & all >> 1)) & 0x1FFu;
+        for (; mixed; mixed &= mixed - 1) {
+          const int t = __builtin_ctz(mixed);
+          const uint32_t c = ((r00 >> t) & 1u) | ((r10 >> t) & 1u) << 1 | ((r01 >> t) & 1u) << 2 |
+                             ((r11 >> t) & 1u) << 3 | ((r00 >> (t + 1)) & 1u) << 4 | ((r10 >> (t + 1)) & 1u) << 5 |
+                             ((r01 >> (t + 1)) & 1u) << 6 | ((r11 >> (t + 1)) & 1u) << 7;
+          f(i, j, t - 1, int(c));
+        }
+      }
+  };
+
+  const auto insideOf = [&](const MeshBlock& b, const uint8_t* (&inside)[27]) {
+    for (int q = 0; q < 27; ++q) inside[q] = b.neighbour[q] >= 0 ? blocks[size_t(b.neighbour[q])].inside : nullptr;
+  };
+
+  // Pass 1: each block's inside bits and the crossing edges it owns (those
+  // whose lower voxel is in it, and the orphans whose lower voxel is in a
+  // neighbour without values, along that axis only); how many vertices and
+  // triangles it makes.
 #pragma omp parallel for schedule(dynamic, 16)
   for (size_t n = 0; n < nb; ++n) try {
-    const Around around(blocks, blocks[n]);
-    float P[kPadded];
-    around.pad(P);
+    const MeshBlock& b = blocks[n];
+    const Around around(blocks, b);
     BlockState& st = state[n];
     st.edges.clear();
-    auto& verts = vertices[n];
-    verts.reserve(128);
+    const uint8_t* inside[27];
+    insideOf(b, inside);
+    around.rows(inside, st.row);
     // An edge crosses where its two ends' inside bits differ: 9 edges of a
     // row at a time.
     uint16_t(&row)[kB + 2][kB + 2] = st.row;
-    for (int i = 0; i < kB + 2; ++i)
-      for (int j = 0; j < kB + 2; ++j) {
-        const float* r = P + (i * 10 + j) * 10;
-        uint32_t m = 0;
-        for (int t = 0; t < kB + 2; ++t) m |= uint32_t(r[t] < 0) << t;
-        row[i][j] = uint16_t(m);
-      }
     const auto orphansAlong = [&](int axis) {
       int dir[3] = {0, 0, 0};
       dir[axis] = -1;
@@ -221,125 +262,96 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
       for (int j = 0; j < kB; ++j)
         st.edges.setRow(EdgeBits::index(2, i, j, -1),
                         uint32_t(row[i + 1][j + 1] ^ (row[i + 1][j + 1] >> 1)) & (from[2] < 0 ? withOrphan : inBlock));
-    st.edges.rank();
-    // The vertices, in bit order: the rank is the index.
-    for (int w = 0; w < EdgeBits::kWords; ++w)
-      for (uint64_t word = st.edges.bits[w]; word; word &= word - 1) {
-        const int bit = w * 64 + __builtin_ctzll(word);
-        const int axis = bit / 729, rest = bit % 729;
-        const int i = rest / 81 - 1, j = (rest / 9) % 9 - 1, k = rest % 9 - 1;
-        const int ui = i + (axis == 0), uj = j + (axis == 1), uk = k + (axis == 2);
-        const float a = P[padded(i, j, k)], b = P[padded(ui, uj, uk)];
-        const float t = std::clamp(a / (a - b), 0.0f, 1.0f);
-        std::array<float, 6> vx{float(i), float(j), float(k), 0, 0, 0};
-        vx[size_t(axis)] += t;
-        // A voxel outside the band may have no particle near it: its velocity is no one's.
-        const float* va = around.velocityAt(i, j, k);
-        const float* vb = around.velocityAt(ui, uj, uk);
-        if (va && vb && std::abs(a) >= band) va = nullptr;
-        else if (va && vb && std::abs(b) >= band) vb = nullptr;
-        for (int d = 0; d < 3; ++d)
-          vx[size_t(3 + d)] = va && vb ? va[d] + t * (vb[d] - va[d]) : va ? va[d] : vb ? vb[d] : 0.0f;
-        verts.push_back(vx);
-      }
+    vertexCount[n] = st.edges.rank();
+    uint32_t triangles = 0;
+    forEachCell(row, [&](int i, int j, int k, int c) {
+      if (owns(b, i, j, k)) triangles += table.triangles(c);
+    });
+    triangleCount[n] = triangles;
   } catch (...) {
     failure.keep();
   }
   failure.rethrow();
-  std::vector<size_t> first(nb + 1, 0);
-  for (size_t n = 0; n < nb; ++n) first[n + 1] = first[n] + vertices[n].size();
+
+  // Where each block's vertices and triangles go; the mesh's arrays are
+  // first touched by the threads that fill them.
+  std::vector<size_t> first(nb + 1, 0), firstTriangle(nb + 1, 0);
+  for (size_t n = 0; n < nb; ++n) {
+    first[n + 1] = first[n] + vertexCount[n];
+    firstTriangle[n + 1] = firstTriangle[n] + triangleCount[n];
+  }
   mesh.points.resize(first[nb]);
   mesh.velocities.resize(first[nb]);
-#pragma omp parallel for schedule(static)
-  for (size_t n = 0; n < nb; ++n) {
-    for (size_t v = 0; v < vertices[n].size(); ++v) {
-      const auto& p = vertices[n][v];
-      const int64_t* o = blocks[n].block;
-      mesh.points[first[n] + v] = {float((double(o[0] * kB) + p[0]) * voxel), float((double(o[1] * kB) + p[1]) * voxel),
-                                   float((double(o[2] * kB) + p[2]) * voxel)};
-      mesh.velocities[first[n] + v] = {p[3], p[4], p[5]};
-    }
-    std::vector<std::array<float, 6>>().swap(vertices[n]);
-  }
+  mesh.triangles.resize(firstTriangle[nb]);
+  constexpr uint32_t kNone = ~uint32_t(0);  // a triangle with a vertex no block owns, removed below
+  size_t dropped = 0;
 
-  // The cells each block owns: those whose first corner in a block with
-  // values (corner 0 first) is in it.
-  std::vector<std::vector<std::array<uint32_t, 3>>> triangles(nb);
+  // Pass 2: the vertices, in the order of their bits (the rank is the
+  // index), and the triangles of the cells each block owns.
   const int unit[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
-#pragma omp parallel for schedule(dynamic, 16)
+#pragma omp parallel for schedule(dynamic, 16) reduction(+ : dropped)
   for (size_t n = 0; n < nb; ++n) try {
     const MeshBlock& b = blocks[n];
-    const uint16_t(&row)[kB + 2][kB + 2] = state[n].row;
-    auto& tris = triangles[n];
-    tris.reserve(2 * (first[n + 1] - first[n]) + 16);
+    const Around around(blocks, b);
+    const BlockState& st = state[n];
+    const int64_t* o = b.block;
+    size_t v = first[n];
+    for (int w = 0; w < EdgeBits::kWords; ++w)
+      for (uint64_t word = st.edges.bits[w]; word; word &= word - 1, ++v) {
+        const int bit = w * 64 + __builtin_ctzll(word);
+        const int axis = bit / 729, rest = bit % 729;
+        const int i = rest / 81 - 1, j = (rest / 9) % 9 - 1, k = rest % 9 - 1;
+        const int ui = i + (axis == 0), uj = j + (axis == 1), uk = k + (axis == 2);
+        const float a = around.phiAt(i, j, k), c = around.phiAt(ui, uj, uk);
+        const float t = std::clamp(a / (a - c), 0.0f, 1.0f);
+        float p[3] = {float(i), float(j), float(k)};
+        p[axis] += t;
+        mesh.points[v] = {float((double(o[0] * kB) + p[0]) * voxel), float((double(o[1] * kB) + p[1]) * voxel),
+                          float((double(o[2] * kB) + p[2]) * voxel)};
+        // A voxel outside the band may have no particle near it: its velocity is no one's.
+        const float* va = around.velocityAt(i, j, k);
+        const float* vb = around.velocityAt(ui, uj, uk);
+        if (va && vb && std::abs(a) >= band) va = nullptr;
+        else if (va && vb && std::abs(c) >= band) vb = nullptr;
+        auto& out = mesh.velocities[v];
+        for (int d = 0; d < 3; ++d) out[size_t(d)] = va && vb ? va[d] + t * (vb[d] - va[d]) : va ? va[d] : vb ? vb[d] : 0.0f;
+      }
     // The global index of the vertex on the edge from local voxel (i, j, k) along axis.
-    const auto vertexOf = [&](int i, int j, int k, int axis) -> int64_t {
+    const auto vertexOf = [&](int i, int j, int k, int axis) -> uint32_t {
       int di = blockOffset(i), dj = blockOffset(j), dk = blockOffset(k);
       int32_t owner = di || dj || dk ? b.neighbour[neighbourOf(di, dj, dk)] : int32_t(n);
       if (owner < 0) {  // the lower voxel's block has no values: an orphan of the upper voxel's block
         const int u[3] = {i + unit[axis][0], j + unit[axis][1], k + unit[axis][2]};
         di = blockOffset(u[0]), dj = blockOffset(u[1]), dk = blockOffset(u[2]);
         owner = di || dj || dk ? b.neighbour[neighbourOf(di, dj, dk)] : int32_t(n);
-        if (owner < 0) return -1;
+        if (owner < 0) return kNone;
         i = u[0] - di * kB - unit[axis][0], j = u[1] - dj * kB - unit[axis][1], k = u[2] - dk * kB - unit[axis][2];
       } else {
         i -= di * kB, j -= dj * kB, k -= dk * kB;
       }
-      const int32_t v = state[size_t(owner)].edges.vertex(EdgeBits::index(axis, i, j, k));
-      return v < 0 ? -1 : int64_t(first[size_t(owner)]) + v;
+      const int32_t index = state[size_t(owner)].edges.vertex(EdgeBits::index(axis, i, j, k));
+      return index < 0 ? kNone : uint32_t(first[size_t(owner)] + size_t(index));
     };
-    for (int i = -1; i < kB; ++i)
-      for (int j = -1; j < kB; ++j) {
-        // The row's configurations, one cell per k.
-        const uint32_t r00 = row[i + 1][j + 1], r10 = row[i + 2][j + 1], r01 = row[i + 1][j + 2],
-                       r11 = row[i + 2][j + 2];
-        const auto at = [](uint32_t r, int t) { return (r >> t) & 1u; };
-        uint8_t config[kB + 1];
-        for (int k = 0; k <= kB; ++k)
-          config[k] = uint8_t(at(r00, k) | at(r10, k) << 1 | at(r01, k) << 2 | at(r11, k) << 3 | at(r00, k + 1) << 4 |
-                              at(r10, k + 1) << 5 | at(r01, k + 1) << 6 | at(r11, k + 1) << 7);
-        for (int k = -1; k < kB; ++k) {
-          const int c = config[k + 1];
-          if (c == 0 || c == 255) continue;
-          if (i < 0 || j < 0 || k < 0) {
-            // The first corner, in corner order, whose block has values owns the cell.
-            bool mine = false;
-            for (int corner = 0; corner < 8; ++corner) {
-              const int di = blockOffset(i + (corner & 1)), dj = blockOffset(j + ((corner >> 1) & 1)),
-                        dk = blockOffset(k + ((corner >> 2) & 1));
-              if (!di && !dj && !dk) {
-                mine = true;
-                break;
-              }
-              if (b.neighbour[neighbourOf(di, dj, dk)] >= 0) break;
-            }
-            if (!mine) continue;
-          }
-          const std::vector<uint8_t>& cases = table.tri[c];
-          for (size_t t = 0; t < cases.size(); t += 3) {
-            std::array<uint32_t, 3> tri{};
-            bool whole = true;
-            for (int v = 0; v < 3 && whole; ++v) {
-              const int e = cases[t + size_t(v)], low = table.edgeLow[e];
-              const int64_t index = vertexOf(i + (low & 1), j + ((low >> 1) & 1), k + ((low >> 2) & 1), table.edgeAxis[e]);
-              whole = index >= 0;
-              tri[size_t(v)] = uint32_t(index);
-            }
-            if (whole) tris.push_back(tri);
-          }
+    auto* tri = mesh.triangles.data() + firstTriangle[n];
+    forEachCell(st.row, [&](int i, int j, int k, int c) {
+      if (!owns(b, i, j, k)) return;
+      const uint8_t* edges = table.edges(c);
+      for (uint32_t t = 0; t < table.triangles(c); ++t, ++tri) {
+        for (int q = 0; q < 3; ++q) {
+          const int e = edges[3 * t + uint32_t(q)], low = table.edgeLow[e];
+          (*tri)[size_t(q)] = vertexOf(i + (low & 1), j + ((low >> 1) & 1), k + ((low >> 2) & 1), table.edgeAxis[e]);
         }
+        dropped += (*tri)[0] == kNone || (*tri)[1] == kNone || (*tri)[2] == kNone;
       }
+    });
   } catch (...) {
     failure.keep();
   }
   failure.rethrow();
-  std::vector<size_t> firstTriangle(nb + 1, 0);
-  for (size_t n = 0; n < nb; ++n) firstTriangle[n + 1] = firstTriangle[n] + triangles[n].size();
-  mesh.triangles.resize(firstTriangle[nb]);
-#pragma omp parallel for schedule(static)
-  for (size_t n = 0; n < nb; ++n) {
-    std::copy(triangles[n].begin(), triangles[n].end(), mesh.triangles.begin() + std::ptrdiff_t(firstTriangle[n]));
-    std::vector<std::array<uint32_t, 3>>().swap(triangles[n]);
+  if (dropped) {
+    const auto whole = [](const std::array<uint32_t, 3>& t) { return t[0] != kNone && t[1] != kNone && t[2] != kNone; };
+    mesh.triangles.erase(std::stable_partition(mesh.triangles.begin(), mesh.triangles.end(), whole),
+                         mesh.triangles.end());
   }
 }
 

@@ -23,6 +23,7 @@ struct MeshBlock {
   int64_t block[3] = {0, 0, 0};    // block coordinates: voxel = 8 × block + local
   const float* phi = nullptr;      // 512 values, index (i << 6) | (j << 3) | k
   const float* velocity = nullptr; // 3 × 512, the same order
+  const uint8_t* inside = nullptr; // 64 rows along z, bit k of row (i << 3) | j: phi < 0 at (i, j, k)
   // Neighbour (dx, dy, dz) ∈ {-1, 0, 1}³ at (dx + 1) * 9 + (dy + 1) * 3 + (dz + 1):
   // its index in the block list, or -1 and the value it holds everywhere.
   int32_t neighbour[27];

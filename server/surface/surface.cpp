@@ -391,12 +391,21 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
       for (size_t n = 0; n < crossed.size(); ++n) std::copy(data[n], data[n] + kVoxels, scratch[n]);
   }
   // Clamped to the band, outside which a grid's voxels are inactive (and
-  // what is not a number, outside).
+  // what is not a number, outside); for the uniform mesh, which voxels are
+  // inside, a row of 8 along z per byte.
+  constexpr int kRows = kVoxels / kBlock;
+  std::unique_ptr<uint8_t[][kRows]> inside(uniform ? new uint8_t[crossed.size()][kRows] : nullptr);
 #pragma omp parallel for schedule(static)
   for (size_t n = 0; n < crossed.size(); ++n) {
     float* phi = phiOf[crossed[n]];
 #pragma omp simd
     for (int i = 0; i < kVoxels; ++i) phi[i] = phi[i] < -band ? -band : phi[i] < band ? phi[i] : band;
+    if (inside)
+      for (int r = 0; r < kRows; ++r) {
+        uint32_t bits = 0;
+        for (int k = 0; k < kBlock; ++k) bits |= uint32_t(phi[r * kBlock + k] < 0) << k;
+        inside[n][r] = uint8_t(bits);
+      }
   }
   out.smoothMs = msSince(tSmooth);
 
@@ -412,6 +421,7 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
       for (int d = 0; d < 3; ++d) m.block[d] = unkey(k, d);
       m.phi = phiOf[crossed[n]];
       m.velocity = velocityOf[crossed[n]];
+      m.inside = inside[n];
       for (int di = -1; di <= 1; ++di)
         for (int dj = -1; dj <= 1; ++dj)
           for (int dk = -1; dk <= 1; ++dk) {

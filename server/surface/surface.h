@@ -8,6 +8,7 @@
 //
 // Only surface.cpp and the exporters that write grids include OpenVDB
 // (surface/volumes.h): everything else sees the mesh and an opaque handle.
+#include "core/default_init.h"
 #include "io/particle_frame.h"
 #include "sph/parameters.h"
 #include <array>
@@ -35,10 +36,11 @@ const ParamSpecs& surfaceSettingsSpecs();
 // together ("" when nothing): surface_radius must stay under kernel_radius.
 std::string surfaceSettingsProblem(const SurfaceSettings& settings);
 
+// The reconstruction fills these on its threads (FillVector: not zeroed first).
 struct SurfaceMesh {
-  std::vector<std::array<float, 3>> points;      // m
-  std::vector<std::array<float, 3>> velocities;  // m/s, one per point
-  std::vector<std::array<uint32_t, 3>> triangles;
+  FillVector<std::array<float, 3>> points;      // m
+  FillVector<std::array<float, 3>> velocities;  // m/s, one per point
+  FillVector<std::array<uint32_t, 3>> triangles;
 };
 
 // The volume a closed mesh encloses (m³): positive when its triangles face
