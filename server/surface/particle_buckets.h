@@ -4,6 +4,7 @@
 // into cells of the kernel's radius, and gathered around one block of the
 // grid, in voxels from its first voxel.
 #include "core/key_map.h"
+#include "core/parallel_sort.h"
 #include "io/particle_frame.h"
 
 #include <omp.h>
@@ -42,14 +43,12 @@ class Buckets {
     const auto placed = [reach](double a, double b, double c) {
       return std::abs(a) < reach && std::abs(b) < reach && std::abs(c) < reach;
     };
-    std::vector<float> x, v;  // the particles and their trails' samples
-    std::vector<uint8_t> isTrail;
-    x.reserve(3 * f.count()), v.reserve(3 * f.count()), isTrail.reserve(f.count());
-    for (size_t i = 0; i < f.count(); ++i) {
+    // Particle i's samples: itself, then its trail's (as far as they stay
+    // placed), at x - v t. None when it is not liquid or not placed.
+    const auto samplesOf = [&](size_t i, auto&& emit) {
       const float* p = &f.position[3 * i];
       const float* u = &f.velocity[3 * i];
-      if (!formsSurface(f.kind[i]) || !placed(p[0], p[1], p[2])) continue;  // NaN fails the test too
-      ++particles_;
+      if (!formsSurface(f.kind[i]) || !placed(p[0], p[1], p[2])) return;  // NaN fails the test too
       // A speed no liquid has (or not a number) counts as rest: its sums would overflow.
       const double speed = std::sqrt(double(u[0]) * u[0] + double(u[1]) * u[1] + double(u[2]) * u[2]);
       const bool moving = speed < kMaxSpeed;
@@ -60,16 +59,38 @@ class Buckets {
         if (m > 0)
           for (int d = 0; d < 3; ++d) q[d] -= u[d] * t;
         if (m > 0 && !placed(q[0], q[1], q[2])) break;
-        for (int d = 0; d < 3; ++d) x.push_back(float(q[d])), v.push_back(moving ? u[d] : 0.0f);
-        isTrail.push_back(m > 0);
+        emit(q, moving ? u : nullptr, m > 0);
       }
+    };
+    // Counted, then written on the threads at each particle's offset.
+    const size_t particles = f.count();
+    std::vector<uint32_t> first(particles + 1, 0);
+#pragma omp parallel for schedule(static)
+    for (size_t i = 0; i < particles; ++i) {
+      uint32_t n = 0;
+      samplesOf(i, [&](const double*, const float*, bool) { ++n; });
+      first[i + 1] = n;
     }
-    const size_t count = x.size() / 3;
+    for (size_t i = 0; i < particles; ++i) {
+      particles_ += first[i + 1] > 0;
+      first[i + 1] += first[i];
+    }
+    const size_t count = first[particles];
+    std::vector<float> x(3 * count), v(3 * count);  // the particles and their trails' samples
+    std::vector<uint8_t> isTrail(count);
+#pragma omp parallel for schedule(static)
+    for (size_t i = 0; i < particles; ++i) {
+      size_t n = first[i];
+      samplesOf(i, [&](const double* q, const float* u, bool isSample) {
+        for (int d = 0; d < 3; ++d) x[3 * n + size_t(d)] = float(q[d]), v[3 * n + size_t(d)] = u ? u[d] : 0.0f;
+        isTrail[n++] = isSample;
+      });
+    }
     std::vector<std::pair<uint64_t, uint32_t>> keyed(count);
 #pragma omp parallel for schedule(static)
     for (size_t n = 0; n < count; ++n)
       keyed[n] = {key(cellOf(x[3 * n]), cellOf(x[3 * n + 1]), cellOf(x[3 * n + 2])), uint32_t(n)};
-    std::sort(keyed.begin(), keyed.end());
+    parallelSort(keyed);
     pos_.resize(count * 3);
     vel_.resize(count * 3);
     trail_.resize(count);

@@ -15,6 +15,7 @@
 #include "surface/surface.h"
 
 #include "core/key_map.h"
+#include "core/parallel_sort.h"
 #include "core/parallel_failure.h"
 #include "surface/block_field.h"
 #include "surface/block_mesher.h"
@@ -144,51 +145,70 @@ class BlockArena {
   size_t used_ = 0;
 };
 
-// The crossed blocks' six face neighbours, for the filter: another crossed
-// block's index, or the constant a tile or the outside holds.
-struct Faces {
-  int32_t block[6];  // -x, +x, -y, +y, -z, +z; -1 for a constant
-  float value[6];
+// A crossed block's 26 neighbours and itself, (di, dj, dk) ∈ {-1, 0, 1}³ at
+// (di + 1) * 9 + (dj + 1) * 3 + (dk + 1): another crossed block's index, or
+// -1 and the constant a tile or the outside holds.
+struct Neighbours {
+  int32_t block[27];
+  float value[27];
 };
+int slotOf(int di, int dj, int dk) { return (di + 1) * 9 + (dj + 1) * 3 + (dk + 1); }
 
-// One pass of the 3-wide box along `axis` (0 = x: stride 64 in a block, 1 =
-// y: 8, 2 = z: 1), a contiguous run of voxels at a time.
-void boxPass(int axis, const std::vector<Faces>& faces, const std::vector<float*>& in, const std::vector<float*>& out) {
+// One pass of the 3-wide box along x, then y, then z over block b, from the
+// blocks' values `in` into `out`, clamped to [-band, band]. Each stage
+// reads a neighbour's result of the stage before (its constant where it
+// has no values), computed here from the values around the block.
+void boxBlock(const Neighbours& nb, const std::vector<float*>& in, float band, float* __restrict out) {
+  constexpr int P = kBlock + 2;  // [-1, 8] along each axis
   constexpr float third = 1.0f / 3.0f;
-#pragma omp parallel for schedule(static)
-  for (size_t b = 0; b < faces.size(); ++b) {
-    const float* src = in[b];
-    float* __restrict dst = out[b];
-    const Faces& f = faces[b];
-    const float* low = f.block[2 * axis] >= 0 ? in[size_t(f.block[2 * axis])] : nullptr;
-    const float* high = f.block[2 * axis + 1] >= 0 ? in[size_t(f.block[2 * axis + 1])] : nullptr;
-    const float lowValue = f.value[2 * axis], highValue = f.value[2 * axis + 1];
-    if (axis == 2) {
-      for (int r = 0; r < kVoxels; r += kBlock) {  // each row, padded with its neighbours' ends
-        float row[kBlock + 2];
-        row[0] = low ? low[r + kBlock - 1] : lowValue;
-        row[kBlock + 1] = high ? high[r] : highValue;
-        for (int k = 0; k < kBlock; ++k) row[k + 1] = src[r + k];
-#pragma omp simd
-        for (int k = 0; k < kBlock; ++k) dst[r + k] = (row[k] + row[k + 1] + row[k + 2]) * third;
+  const auto part = [](int local) { return local < 0 ? -1 : local >= kBlock ? 1 : 0; };
+  const auto inner = [](int local, int d) { return local - d * kBlock; };
+  float v[P][P][P], x[kBlock][P][P], y[kBlock][kBlock][P];
+  for (int i = -1; i <= kBlock; ++i)
+    for (int j = -1; j <= kBlock; ++j) {
+      const int di = part(i), dj = part(j), row = (inner(i, di) << 6) | (inner(j, dj) << 3);
+      float* o = v[i + 1][j + 1];
+      for (int dk = -1; dk <= 1; ++dk) {
+        const int slot = slotOf(di, dj, dk);
+        const float* src = nb.block[slot] >= 0 ? in[size_t(nb.block[slot])] + row : nullptr;
+        if (dk < 0) o[0] = src ? src[kBlock - 1] : nb.value[slot];
+        else if (dk > 0) o[kBlock + 1] = src ? src[0] : nb.value[slot];
+        else if (src) std::copy_n(src, kBlock, o + 1);
+        else std::fill_n(o + 1, kBlock, nb.value[slot]);
       }
-      continue;
     }
-    // Voxel o·8S + c·S + m: c along the axis, m a run of S contiguous voxels.
-    const int S = axis == 0 ? 64 : 8;
-    float lowRun[64], highRun[64];
-    std::fill(lowRun, lowRun + S, lowValue);
-    std::fill(highRun, highRun + S, highValue);
-    for (int o = 0; o < kVoxels; o += kBlock * S)
-      for (int c = 0; c < kBlock; ++c) {
-        const float* a = c > 0 ? src + o + (c - 1) * S : low ? low + o + (kBlock - 1) * S : lowRun;
-        const float* m = src + o + c * S;
-        const float* z = c < kBlock - 1 ? src + o + (c + 1) * S : high ? high + o : highRun;
-        float* d = dst + o + c * S;
+  // x over the block's columns, in every row around it; a row of a block
+  // without values keeps that block's constant.
+  for (int i = 0; i < kBlock; ++i)
+    for (int j = 0; j < P; ++j) {
 #pragma omp simd
-        for (int i = 0; i < S; ++i) d[i] = (a[i] + m[i] + z[i]) * third;
+      for (int k = 0; k < P; ++k) x[i][j][k] = (v[i][j][k] + v[i + 1][j][k] + v[i + 2][j][k]) * third;
+      const int dj = part(j - 1);
+      for (int dk = -1; dk <= 1; ++dk)
+        if ((dj || dk) && nb.block[slotOf(0, dj, dk)] < 0) {
+          const int k0 = dk < 0 ? 0 : dk > 0 ? P - 1 : 1, k1 = dk == 0 ? kBlock + 1 : k0 + 1;
+          std::fill(x[i][j] + k0, x[i][j] + k1, nb.value[slotOf(0, dj, dk)]);
+        }
+    }
+  // y over the block's rows, with the z ends around it.
+  for (int i = 0; i < kBlock; ++i)
+    for (int j = 0; j < kBlock; ++j) {
+#pragma omp simd
+      for (int k = 0; k < P; ++k) y[i][j][k] = (x[i][j][k] + x[i][j + 1][k] + x[i][j + 2][k]) * third;
+      for (int dk = -1; dk <= 1; dk += 2)
+        if (nb.block[slotOf(0, 0, dk)] < 0) y[i][j][dk < 0 ? 0 : P - 1] = nb.value[slotOf(0, 0, dk)];
+    }
+  // z, clamped to the band, outside which a grid's voxels are inactive (and
+  // what is not a number, outside).
+  for (int i = 0; i < kBlock; ++i)
+    for (int j = 0; j < kBlock; ++j) {
+      float* o = out + ((i << 6) | (j << 3));
+#pragma omp simd
+      for (int k = 0; k < kBlock; ++k) {
+        const float f = (y[i][j][k] + y[i][j][k + 1] + y[i][j][k + 2]) * third;
+        o[k] = f < -band ? -band : f < band ? f : band;
       }
-  }
+    }
 }
 
 double msSince(std::chrono::steady_clock::time_point t) {
@@ -247,29 +267,42 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
         }
     return true;
   };
-  // Candidates: the blocks within R of a particle (the field is zero beyond).
-  // Only an occupied block with an empty block in its ring widens the set.
+  // Candidates: the blocks within R of a particle (the field is zero beyond):
+  // the occupied ones and the empty ones in their rings, found on the
+  // threads (each keeps its own finds once), then merged in key order (z
+  // fastest, then y, then x): neighbouring blocks are evaluated and meshed
+  // close together, in time and in memory.
   std::vector<uint64_t> candidates;
-  KeyMap candidateIndex(2 * occupied.size() + 16);
-  occupied.forEach([&](uint64_t k, uint32_t) {
-    candidateIndex.insert(k, uint32_t(candidates.size()));
-    candidates.push_back(k);
-  });
-  const size_t occupiedCount = candidates.size();
-  for (size_t c = 0; c < occupiedCount; ++c) {
-    const int64_t b[3] = {unkey(candidates[c], 0), unkey(candidates[c], 1), unkey(candidates[c], 2)};
-    for (int i = -ring; i <= ring; ++i)
-      for (int j = -ring; j <= ring; ++j)
-        for (int l = -ring; l <= ring; ++l) {
-          const uint64_t k = key(b[0] + i, b[1] + j, b[2] + l);
-          if (!occupied.contains(k) && candidateIndex.insert(k, uint32_t(candidates.size())).second)
-            candidates.push_back(k);
-        }
+  candidates.reserve(occupied.size());
+  occupied.forEach([&](uint64_t k, uint32_t) { candidates.push_back(k); });
+  parallelSort(candidates);
+  std::vector<std::vector<uint64_t>> ringFound(static_cast<size_t>(omp_get_max_threads()));
+#pragma omp parallel
+  {
+    std::vector<uint64_t>& found = ringFound[size_t(omp_get_thread_num())];
+    KeyMap seen(64);
+#pragma omp for schedule(static)
+    for (size_t c = 0; c < candidates.size(); ++c) {
+      const int64_t b[3] = {unkey(candidates[c], 0), unkey(candidates[c], 1), unkey(candidates[c], 2)};
+      for (int i = -ring; i <= ring; ++i)
+        for (int j = -ring; j <= ring; ++j)
+          for (int l = -ring; l <= ring; ++l) {
+            const uint64_t k = key(b[0] + i, b[1] + j, b[2] + l);
+            if (!occupied.contains(k) && seen.insert(k, 0).second) found.push_back(k);
+          }
+    }
   }
-  // In key order (z fastest, then y, then x): neighbouring blocks are
-  // evaluated and meshed close together, in time and in memory.
-  std::sort(candidates.begin(), candidates.end());
-  for (size_t c = 0; c < candidates.size(); ++c) *candidateIndex.insert(candidates[c], 0).first = uint32_t(c);
+  std::vector<uint64_t> empty;
+  for (const auto& found : ringFound) empty.insert(empty.end(), found.begin(), found.end());
+  parallelSort(empty);
+  empty.erase(std::unique(empty.begin(), empty.end()), empty.end());
+  {
+    std::vector<uint64_t> all(candidates.size() + empty.size());
+    std::merge(candidates.begin(), candidates.end(), empty.begin(), empty.end(), all.begin());
+    candidates.swap(all);
+  }
+  KeyMap candidateIndex(candidates.size() + 16);
+  for (size_t c = 0; c < candidates.size(); ++c) candidateIndex.insert(candidates[c], uint32_t(c));
   out.classifyMs = msSince(t0);
 
   // Each candidate: skipped when far outside (its centre farther than its
@@ -364,49 +397,55 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
     value = c != KeyMap::kMissing && kinds[c] == Inside ? -band : band;
     return c != KeyMap::kMissing && kinds[c] == Crossed ? int32_t(crossedIndex[c]) : -1;
   };
-  if (s.smoothing > 0 && !crossed.empty()) {
-    std::vector<Faces> faces(crossed.size());
-    std::vector<float*> data(crossed.size()), scratch(crossed.size());
-    std::unique_ptr<float[]> scratchStore(new float[crossed.size() * kVoxels]);
-#pragma omp parallel for schedule(static)
-    for (size_t n = 0; n < crossed.size(); ++n) {
-      const uint64_t k = candidates[crossed[n]];
-      const int64_t b[3] = {unkey(k, 0), unkey(k, 1), unkey(k, 2)};
-      for (int f = 0; f < 6; ++f) {
-        int d[3] = {0, 0, 0};
-        d[f / 2] = f % 2 ? 1 : -1;
-        faces[n].block[f] = neighbourOf(b, d[0], d[1], d[2], faces[n].value[f]);
-      }
-      data[n] = phiOf[crossed[n]];
-      scratch[n] = &scratchStore[n * kVoxels];
-    }
-    for (int pass = 0; pass < s.smoothing; ++pass) {
-      boxPass(0, faces, data, scratch);
-      boxPass(1, faces, scratch, data);
-      boxPass(2, faces, data, scratch);
-      std::swap(data, scratch);
-    }
-    if (s.smoothing % 2)
-#pragma omp parallel for schedule(static)
-      for (size_t n = 0; n < crossed.size(); ++n) std::copy(data[n], data[n] + kVoxels, scratch[n]);
-  }
-  // Clamped to the band, outside which a grid's voxels are inactive (and
-  // what is not a number, outside); for the uniform mesh, which voxels are
-  // inside, a row of 8 along z per byte.
-  constexpr int kRows = kVoxels / kBlock;
-  std::unique_ptr<uint8_t[][kRows]> inside(uniform ? new uint8_t[crossed.size()][kRows] : nullptr);
+  std::vector<Neighbours> around(crossed.size());
+  std::vector<float*> data(crossed.size());
 #pragma omp parallel for schedule(static)
   for (size_t n = 0; n < crossed.size(); ++n) {
-    float* phi = phiOf[crossed[n]];
-#pragma omp simd
-    for (int i = 0; i < kVoxels; ++i) phi[i] = phi[i] < -band ? -band : phi[i] < band ? phi[i] : band;
-    if (inside)
+    const uint64_t k = candidates[crossed[n]];
+    const int64_t b[3] = {unkey(k, 0), unkey(k, 1), unkey(k, 2)};
+    for (int di = -1; di <= 1; ++di)
+      for (int dj = -1; dj <= 1; ++dj)
+        for (int dk = -1; dk <= 1; ++dk) {
+          const int slot = slotOf(di, dj, dk);
+          around[n].block[slot] = neighbourOf(b, di, dj, dk, around[n].value[slot]);
+        }
+    data[n] = phiOf[crossed[n]];
+  }
+  // The box filter, a pass at a time between the blocks' own values and a
+  // scratch copy; the values end where the grids' leaves or the arenas
+  // hold them. Each pass ends clamped to the band (the first after the
+  // field's own clamp, so unfiltered values pass as they are).
+  std::unique_ptr<float[]> scratchStore(s.smoothing > 0 ? new float[crossed.size() * kVoxels] : nullptr);
+  if (s.smoothing > 0) {
+    std::vector<float*> scratch(crossed.size());
+    for (size_t n = 0; n < crossed.size(); ++n) scratch[n] = &scratchStore[n * kVoxels];
+    for (int pass = 0; pass < s.smoothing; ++pass) {
+#pragma omp parallel for schedule(static)
+      for (size_t n = 0; n < crossed.size(); ++n) boxBlock(around[n], data, band, scratch[n]);
+      std::swap(data, scratch);
+    }
+    if (s.smoothing % 2) {
+      if (gridsWanted) {
+#pragma omp parallel for schedule(static)
+        for (size_t n = 0; n < crossed.size(); ++n) std::copy(data[n], data[n] + kVoxels, phiOf[crossed[n]]);
+      } else {
+        for (size_t n = 0; n < crossed.size(); ++n) phiOf[crossed[n]] = data[n];
+      }
+    }
+  }
+  // For the uniform mesh, which voxels are inside, a row of 8 along z per byte.
+  constexpr int kRows = kVoxels / kBlock;
+  std::unique_ptr<uint8_t[][kRows]> inside(uniform ? new uint8_t[crossed.size()][kRows] : nullptr);
+  if (inside)
+#pragma omp parallel for schedule(static)
+    for (size_t n = 0; n < crossed.size(); ++n) {
+      const float* phi = phiOf[crossed[n]];
       for (int r = 0; r < kRows; ++r) {
         uint32_t bits = 0;
         for (int k = 0; k < kBlock; ++k) bits |= uint32_t(phi[r * kBlock + k] < 0) << k;
         inside[n][r] = uint8_t(bits);
       }
-  }
+    }
   out.smoothMs = msSince(tSmooth);
 
   // A uniform mesh from the blocks themselves, while they are at hand.
@@ -422,12 +461,8 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
       m.phi = phiOf[crossed[n]];
       m.velocity = velocityOf[crossed[n]];
       m.inside = inside[n];
-      for (int di = -1; di <= 1; ++di)
-        for (int dj = -1; dj <= 1; ++dj)
-          for (int dk = -1; dk <= 1; ++dk) {
-            const int slot = (di + 1) * 9 + (dj + 1) * 3 + (dk + 1);
-            m.neighbour[slot] = neighbourOf(m.block, di, dj, dk, m.constant[slot]);
-          }
+      std::copy_n(around[n].block, 27, m.neighbour);
+      std::copy_n(around[n].value, 27, m.constant);
     }
     meshBlocks(blocks, voxel, band, out.mesh);
   }

@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 #include <omp.h>
 
+#include <algorithm>
 #include <cmath>
 #include <map>
 #include <random>
@@ -282,6 +283,44 @@ TEST(Surface, BothMeshersEncloseTheSameVolume) {
     EXPECT_LT(worstZ, 1e-5);
     EXPECT_LT(worstX, 3 * r);  // the mean of particles within the kernel's reach
   }
+}
+
+// The filter, voxel by voxel from the unfiltered grid: a 3-wide mean along
+// x, then y, then z, clamped to the band, where a block without values (a
+// tile inside, the outside) reads its constant at every stage.
+TEST(Surface, TheFilterIsTheBoxOfTheUnfilteredFieldAcrossBlocks) {
+  const double r = 0.01;
+  const ParticleFrame f = splash(r, 6);
+  SurfaceSettings raw = surfaceSettingsTable().defaults(), smoothed = raw;
+  raw.smoothing = 0;
+  smoothed.smoothing = 1;
+  const Surface a = reconstructSurface(f, r, raw, false), b = reconstructSurface(f, r, smoothed, false);
+  ASSERT_TRUE(a.volumes && b.volumes);
+  const auto in = a.volumes->surface->getConstAccessor();
+  const float band = a.volumes->surface->background(), third = 1.0f / 3.0f;
+  using openvdb::Coord;
+  const auto constant = [&](const Coord& c) { return in.probeConstLeaf(c) == nullptr; };
+  const auto stage0 = [&](const Coord& c) { return in.getValue(c); };
+  const auto stageX = [&](const Coord& c) {
+    if (constant(c)) return in.getValue(c);
+    return (stage0(c.offsetBy(-1, 0, 0)) + stage0(c) + stage0(c.offsetBy(1, 0, 0))) * third;
+  };
+  const auto stageY = [&](const Coord& c) {
+    if (constant(c)) return in.getValue(c);
+    return (stageX(c.offsetBy(0, -1, 0)) + stageX(c) + stageX(c.offsetBy(0, 1, 0))) * third;
+  };
+  size_t voxels = 0, changed = 0;
+  for (auto leaf = b.volumes->surface->tree().cbeginLeaf(); leaf; ++leaf)
+    for (auto v = leaf->cbeginValueAll(); v; ++v) {
+      const Coord c = v.getCoord();
+      ASSERT_FALSE(constant(c)) << "a filtered block the unfiltered field has no values in";
+      const float box = (stageY(c.offsetBy(0, 0, -1)) + stageY(c) + stageY(c.offsetBy(0, 0, 1))) * third;
+      ASSERT_NEAR(*v, std::clamp(box, -band, band), 1e-6f * band) << c;
+      ++voxels;
+      changed += std::abs(*v - in.getValue(c)) > 1e-3f * band;
+    }
+  EXPECT_GT(voxels, 100000u);
+  EXPECT_GT(changed, voxels / 4);  // the filter did something
 }
 
 TEST(Surface, TheMeshDoesNotDependOnTheThreadCount) {
