@@ -79,6 +79,7 @@ TEST(BlockField, TheSumsAreEveryParticleAtEveryVoxel) {
   Points p;
   for (int n = 0; n < 400; ++n) add(p, at(rng), at(rng), at(rng), u(rng), u(rng), u(rng));
   for (int n = 0; n < 8; ++n) add(p, 3.0f, 4.0f, 7.0f + kRv * (1.0f - 1e-6f * float(n)), 0, 0, 1);  // grazing the block
+  add(p, 2.5f, 6.5f, 0.5f, 0.25f, 0, -2);  // an odd count: the last is summed alone, the others two at a time
   auto sums = std::make_unique<Sums>();
   sumBlock(p, kRv, *sums);
   const float inv = 1.0f / (kRv * kRv);
