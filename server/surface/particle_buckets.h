@@ -154,9 +154,17 @@ struct Gathered {
     const double lo[3] = {origin[0] - R, origin[1] - R, origin[2] - R};
     const double hi[3] = {origin[0] + side + R, origin[1] + side + R, origin[2] + side + R};
     const double inv = 1.0 / voxel;
+    const double R2 = R * R;
     b.forRange(lo, hi, [&](size_t n) {
       const float* p = b.pos(n);
-      if (p[0] < lo[0] || p[0] > hi[0] || p[1] < lo[1] || p[1] > hi[1] || p[2] < lo[2] || p[2] > hi[2]) return;
+      // Only particles within R of the block's voxels: the box's corners hold about a quarter more.
+      double d2 = 0;
+      for (int d = 0; d < 3; ++d) {
+        const double below = origin[d] - p[d], above = p[d] - (origin[d] + side);
+        const double out = below > 0 ? below : above > 0 ? above : 0.0;
+        d2 += out * out;
+      }
+      if (!(d2 <= R2)) return;
       Points& to = b.trail(n) ? trail : real;
       to.x.push_back(float((p[0] - origin[0]) * inv)), to.y.push_back(float((p[1] - origin[1]) * inv));
       to.z.push_back(float((p[2] - origin[2]) * inv));

@@ -83,9 +83,24 @@ struct Tiles {
   std::vector<uint8_t> full;  // every cell of the tile inside (its nodes and the next tiles' first ones)
   float band = 0;
 
+  std::vector<std::array<int32_t, 9>> ring;  // each tile's neighbours and itself, (di + 1) * 3 + (dj + 1)
+
   int32_t at(int64_t ti, int64_t tj) const {
     const uint32_t n = index.find(key(ti, tj, 0));
     return n == KeyMap::kMissing ? -1 : int32_t(n);
+  }
+  // Tile (qi, qj), seen from tile t: its ring when it is in it.
+  int32_t near(size_t t, int64_t qi, int64_t qj) const {
+    const int64_t di = qi - ti(t), dj = qj - tj(t);
+    if (di >= -1 && di <= 1 && dj >= -1 && dj <= 1) return ring[t][size_t((di + 1) * 3 + (dj + 1))];
+    return at(qi, qj);
+  }
+  void findRings() {
+    ring.resize(keys.size());
+#pragma omp parallel for schedule(static)
+    for (size_t t = 0; t < keys.size(); ++t)
+      for (int di = -1; di <= 1; ++di)
+        for (int dj = -1; dj <= 1; ++dj) ring[t][size_t((di + 1) * 3 + (dj + 1))] = at(ti(t) + di, tj(t) + dj);
   }
   int64_t ti(size_t t) const { return unkey(keys[t], 0); }
   int64_t tj(size_t t) const { return unkey(keys[t], 1); }
@@ -93,8 +108,8 @@ struct Tiles {
     const int32_t t = at(gi >> 3, gj >> 3);
     return t < 0 ? band : field[size_t(t)].phi[((gi & 7) << 3) | (gj & 7)];
   }
-  bool isFull(int64_t ti, int64_t tj) const {
-    const int32_t t = at(ti, tj);
+  bool isFull(size_t from, int64_t ti, int64_t tj) const {
+    const int32_t t = near(from, ti, tj);
     return t >= 0 && full[size_t(t)];
   }
 };
@@ -104,9 +119,8 @@ struct Neighbourhood {
   int32_t tile[3][3];  // (di + 1, dj + 1): the tile's index, -1 when it holds no values
   float phi[10][10];   // [i + 1][j + 1]
   Neighbourhood(const Tiles& tiles, size_t t) {
-    const int64_t ti = tiles.ti(t), tj = tiles.tj(t);
     for (int di = -1; di <= 1; ++di)
-      for (int dj = -1; dj <= 1; ++dj) tile[di + 1][dj + 1] = tiles.at(ti + di, tj + dj);
+      for (int dj = -1; dj <= 1; ++dj) tile[di + 1][dj + 1] = tiles.ring[t][size_t((di + 1) * 3 + (dj + 1))];
     for (int i = -1; i <= kT; ++i)
       for (int j = -1; j <= kT; ++j) {
         const int di = i < 0 ? -1 : i >= kT ? 1 : 0, dj = j < 0 ? -1 : j >= kT ? 1 : 0;
@@ -258,6 +272,7 @@ void reconstructPlanar(const Buckets& buckets, double particleRadius, const Surf
   fields.resize(tiles.keys.size());
   fields.shrink_to_fit();
   tiles.field = std::move(fields);
+  tiles.findRings();
   const size_t nt = tiles.keys.size();
   out.fillMs = msSince(tFill);
 
@@ -268,8 +283,8 @@ void reconstructPlanar(const Buckets& buckets, double particleRadius, const Surf
     std::vector<float*> data(nt), scratch(nt);
     std::unique_ptr<float[]> scratchStore(new float[nt * kNodes]);
     for (size_t t = 0; t < nt; ++t) {
-      low[0][t] = tiles.at(tiles.ti(t) - 1, tiles.tj(t)), high[0][t] = tiles.at(tiles.ti(t) + 1, tiles.tj(t));
-      low[1][t] = tiles.at(tiles.ti(t), tiles.tj(t) - 1), high[1][t] = tiles.at(tiles.ti(t), tiles.tj(t) + 1);
+      low[0][t] = tiles.ring[t][1], high[0][t] = tiles.ring[t][7];
+      low[1][t] = tiles.ring[t][3], high[1][t] = tiles.ring[t][5];
       data[t] = tiles.field[t].phi, scratch[t] = &scratchStore[t * kNodes];
     }
     for (int pass = 0; pass < s.smoothing; ++pass) {
@@ -318,14 +333,14 @@ void reconstructPlanar(const Buckets& buckets, double particleRadius, const Surf
           used = left != right || (i == 0 && right);
         }
         if (!used && i == 0 && j == 0)
-          used = tiles.isFull(ti, tj) || tiles.isFull(ti - 1, tj) || tiles.isFull(ti, tj - 1) ||
-                 tiles.isFull(ti - 1, tj - 1);
+          used = tiles.isFull(t, ti, tj) || tiles.isFull(t, ti - 1, tj) || tiles.isFull(t, ti, tj - 1) ||
+                 tiles.isFull(t, ti - 1, tj - 1);
         if (used) mask |= uint64_t(1) << ((i << 3) | j);
       }
     usedMask[t] = mask;
   }
-  const auto usedNode = [&](int64_t gi, int64_t gj) {
-    const int32_t t = tiles.at(gi >> 3, gj >> 3);
+  const auto usedNode = [&](size_t from, int64_t gi, int64_t gj) {
+    const int32_t t = tiles.near(from, gi >> 3, gj >> 3);
     return t >= 0 && (usedMask[size_t(t)] >> (((gi & 7) << 3) | (gj & 7)) & 1);
   };
   // A full tile whose edges have no used node inside them is two triangles.
@@ -336,7 +351,8 @@ void reconstructPlanar(const Buckets& buckets, double particleRadius, const Surf
     const int64_t i0 = tiles.ti(t) * kT, j0 = tiles.tj(t) * kT;
     bool inner = false;
     for (int k = 1; k < kT && !inner; ++k)
-      inner = usedNode(i0 + k, j0) || usedNode(i0 + k, j0 + kT) || usedNode(i0, j0 + k) || usedNode(i0 + kT, j0 + k);
+      inner = usedNode(t, i0 + k, j0) || usedNode(t, i0 + k, j0 + kT) || usedNode(t, i0, j0 + k) ||
+              usedNode(t, i0 + kT, j0 + k);
     hub[t] = inner;
   }
 
@@ -393,18 +409,18 @@ void reconstructPlanar(const Buckets& buckets, double particleRadius, const Surf
 
   // The global index of a node's vertex, or of the vertex on the edge from
   // node (gi, gj) along an axis.
-  const auto nodeVertex = [&](int64_t gi, int64_t gj) -> uint32_t {
-    const int32_t t = tiles.at(gi >> 3, gj >> 3);
+  const auto nodeVertex = [&](size_t from, int64_t gi, int64_t gj) -> uint32_t {
+    const int32_t t = tiles.near(from, gi >> 3, gj >> 3);
     const int32_t v = t < 0 ? -1 : owned[size_t(t)].node[((gi & 7) << 3) | (gj & 7)];
     if (v < 0) throw std::logic_error("planar surface: a node the area uses has no vertex");
     return uint32_t(first[size_t(t)] + size_t(v));
   };
-  const auto edgeVertex = [&](int64_t gi, int64_t gj, int axis) -> uint32_t {
-    int32_t t = tiles.at(gi >> 3, gj >> 3);
+  const auto edgeVertex = [&](size_t from, int64_t gi, int64_t gj, int axis) -> uint32_t {
+    int32_t t = tiles.near(from, gi >> 3, gj >> 3);
     int li = int(gi & 7), lj = int(gj & 7);
     if (t < 0) {  // an orphan of the upper node's tile
       const int64_t ui = gi + (axis == 0), uj = gj + (axis == 1);
-      t = tiles.at(ui >> 3, uj >> 3);
+      t = tiles.near(from, ui >> 3, uj >> 3);
       li = int(ui & 7) - (axis == 0), lj = int(uj & 7) - (axis == 1);
     }
     const int32_t v = t < 0 ? -1 : owned[size_t(t)].edge[axis][li + 1][lj + 1];
@@ -425,8 +441,8 @@ void reconstructPlanar(const Buckets& buckets, double particleRadius, const Surf
       const int64_t i0 = ti * kT, j0 = tj * kT;
       const int64_t corner[5][2] = {{i0, j0}, {i0 + kT, j0}, {i0 + kT, j0 + kT}, {i0, j0 + kT}, {i0, j0}};
       if (!hub[t]) {
-        const uint32_t c[4] = {nodeVertex(i0, j0), nodeVertex(i0 + kT, j0), nodeVertex(i0 + kT, j0 + kT),
-                               nodeVertex(i0, j0 + kT)};
+        const uint32_t c[4] = {nodeVertex(t, i0, j0), nodeVertex(t, i0 + kT, j0), nodeVertex(t, i0 + kT, j0 + kT),
+                               nodeVertex(t, i0, j0 + kT)};
         tris.push_back({c[0], c[1], c[2]});
         tris.push_back({c[0], c[2], c[3]});
       } else {
@@ -435,10 +451,10 @@ void reconstructPlanar(const Buckets& buckets, double particleRadius, const Surf
           const int64_t di = (corner[e + 1][0] - corner[e][0]) / kT, dj = (corner[e + 1][1] - corner[e][1]) / kT;
           for (int k = 0; k < kT; ++k) {
             const int64_t gi = corner[e][0] + di * k, gj = corner[e][1] + dj * k;
-            if (k == 0 || usedNode(gi, gj)) rim.push_back(nodeVertex(gi, gj));
+            if (k == 0 || usedNode(t, gi, gj)) rim.push_back(nodeVertex(t, gi, gj));
           }
         }
-        const uint32_t centre = nodeVertex(i0 + kT / 2, j0 + kT / 2);
+        const uint32_t centre = nodeVertex(t, i0 + kT / 2, j0 + kT / 2);
         for (size_t k = 0; k < rim.size(); ++k) tris.push_back({centre, rim[k], rim[(k + 1) % rim.size()]});
       }
     }
@@ -473,8 +489,8 @@ void reconstructPlanar(const Buckets& buckets, double particleRadius, const Surf
           const int64_t end = ti * kT + last + 1;
           std::vector<std::pair<int64_t, uint32_t>> lower, upper;  // x, vertex
           for (int64_t x = gi; x <= end; ++x) {
-            if (x == gi || x == end || usedNode(x, gj)) lower.push_back({x, nodeVertex(x, gj)});
-            if (x == gi || x == end || usedNode(x, gj + 1)) upper.push_back({x, nodeVertex(x, gj + 1)});
+            if (x == gi || x == end || usedNode(t, x, gj)) lower.push_back({x, nodeVertex(t, x, gj)});
+            if (x == gi || x == end || usedNode(t, x, gj + 1)) upper.push_back({x, nodeVertex(t, x, gj + 1)});
           }
           size_t a = 0, b = 0;
           while (a + 1 < lower.size() || b + 1 < upper.size()) {
@@ -485,8 +501,8 @@ void reconstructPlanar(const Buckets& buckets, double particleRadius, const Surf
           }
           continue;
         }
-        const auto corner = [&](int k) { return nodeVertex(gi + kCornerI[k], gj + kCornerJ[k]); };
-        const auto crossing = [&](int k) { return edgeVertex(gi + kEdgeI[k], gj + kEdgeJ[k], kEdgeAxis[k]); };
+        const auto corner = [&](int k) { return nodeVertex(t, gi + kCornerI[k], gj + kCornerJ[k]); };
+        const auto crossing = [&](int k) { return edgeVertex(t, gi + kEdgeI[k], gj + kEdgeJ[k], kEdgeAxis[k]); };
         if (inside == 2 && in[0] == in[2]) {
           // A saddle: its two inside corners are kept apart, as the outline's loops expect.
           const int a = in[0] ? 0 : 1, b = a + 2;
@@ -528,11 +544,8 @@ void reconstructPlanar(const Buckets& buckets, double particleRadius, const Surf
 
   // The outline's loops, from the segments chained through their shared vertices.
   std::vector<uint32_t> next(areaVertices, UINT32_MAX);
-  size_t segmentCount = 0;
-  for (const auto& segs : segments) {
+  for (const auto& segs : segments)
     for (const auto& sg : segs) next[sg[0]] = sg[1];
-    segmentCount += segs.size();
-  }
   out.outline.clear();
   {
     std::vector<uint8_t> seen(areaVertices, 0);
@@ -556,24 +569,30 @@ void reconstructPlanar(const Buckets& buckets, double particleRadius, const Surf
     const size_t nv = areaVertices;
     m.points.resize(slab ? 2 * nv : nv);
     m.velocities.resize(m.points.size());
+#pragma omp parallel for schedule(static)
     for (size_t v = 0; v < nv; ++v) {
       m.points[v] = {xy[v][0], xy[v][1], float(h)};
       m.velocities[v] = {vxy[v][0], vxy[v][1], 0.0f};
       if (slab) m.points[nv + v] = {xy[v][0], xy[v][1], float(-h)}, m.velocities[nv + v] = m.velocities[v];
     }
-    size_t areaTriangles = 0;
-    for (const auto& tris : triangles) areaTriangles += tris.size();
-    m.triangles.reserve(slab ? 2 * areaTriangles + 2 * segmentCount : areaTriangles);
-    for (const auto& tris : triangles) m.triangles.insert(m.triangles.end(), tris.begin(), tris.end());
-    if (slab) {
-      const uint32_t b = uint32_t(nv);
-      for (const auto& tris : triangles)
-        for (const auto& tr : tris) m.triangles.push_back({tr[0] + b, tr[2] + b, tr[1] + b});
-      for (const auto& segs : segments)
-        for (const auto& sg : segs) {
-          m.triangles.push_back({sg[0] + b, sg[1] + b, sg[1]});
-          m.triangles.push_back({sg[0] + b, sg[1], sg[0]});
-        }
+    // Each tile's triangles at its offset: the top faces, then (a slab) the
+    // bottom faces, then the walls, two per outline segment.
+    std::vector<size_t> top(nt + 1, 0), wall(nt + 1, 0);
+    for (size_t t = 0; t < nt; ++t) top[t + 1] = top[t] + triangles[t].size(), wall[t + 1] = wall[t] + 2 * segments[t].size();
+    const size_t areaTriangles = top[nt];
+    m.triangles.resize(slab ? 2 * areaTriangles + wall[nt] : areaTriangles);
+    const uint32_t b = uint32_t(nv);
+#pragma omp parallel for schedule(static)
+    for (size_t t = 0; t < nt; ++t) {
+      std::copy(triangles[t].begin(), triangles[t].end(), m.triangles.begin() + std::ptrdiff_t(top[t]));
+      if (!slab) continue;
+      auto* bottom = m.triangles.data() + areaTriangles + top[t];
+      for (const auto& tr : triangles[t]) *bottom++ = {tr[0] + b, tr[2] + b, tr[1] + b};
+      auto* walls = m.triangles.data() + 2 * areaTriangles + wall[t];
+      for (const auto& sg : segments[t]) {
+        *walls++ = {sg[0] + b, sg[1] + b, sg[1]};
+        *walls++ = {sg[0] + b, sg[1], sg[0]};
+      }
     }
   }
   out.meshMs = msSince(tMesh);
