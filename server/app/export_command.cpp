@@ -3,6 +3,7 @@
 // session's), with a progress line.
 #include "app/commands.h"
 #include "app/surface_options.h"
+#include "core/large_allocations.h"
 #include "io/frames_file.h"
 #include <omp.h>
 #include <unistd.h>
@@ -29,6 +30,7 @@ struct ExportOptions {
 };
 
 int runExport(const ExportOptions& opt) {
+  reuseLargeAllocations();
   const FramesFile in(opt.input);
   const ExportInfo info =
       exportInfoOf(in, opt.name.empty() ? std::filesystem::path(opt.input).stem().string() : opt.name, opt.out,

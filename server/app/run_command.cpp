@@ -5,6 +5,7 @@
 #include "app/surface_options.h"
 #include "export/from_simulation.h"
 #include "cli/param_override.h"
+#include "core/large_allocations.h"
 #include "io/frame_export.h"
 #include "io/instance_binding.h"
 #include "io/scene.h"
@@ -122,6 +123,7 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
   }
   std::unique_ptr<SurfaceExport> surfaces;
   if (!opt.surfacePath.empty()) {
+    reuseLargeAllocations();
     ExportInfo info;
     info.name = std::filesystem::path(opt.scene).stem().string();
     info.directory = opt.surfacePath;

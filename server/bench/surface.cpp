@@ -7,6 +7,7 @@
 #include "bench/report.h"
 #include "cli/exit_codes.h"
 #include "cli/param_override.h"
+#include "core/large_allocations.h"
 #include "export/surface_export.h"
 #include "io/frames_file.h"
 #include "io/scene.h"
@@ -184,6 +185,7 @@ const std::vector<std::vector<std::pair<std::string, double>>> kKnobs = {
 
 int benchSurface(const Options& opt) {
   omp_set_num_threads(opt.threads);
+  reuseLargeAllocations();  // as the export commands do
   const Report report("surface", opt.threads);
   const std::string scratch = (fs::temp_directory_path() / ("flowclip-bench-surface-" + std::to_string(getpid()))).string();
   nlohmann::json cases = nlohmann::json::array(), knobs = nlohmann::json::array();
