@@ -128,35 +128,39 @@ namespace {
 // the liquid and its trails. The trails' samples alone would also draw the
 // front back towards them.
 template <bool kTrails>
-Kind field(const Sums& s, const Sums* trail, float voxel, float rs, float band, float* phi, float* vel) {
-  int in = 0, out = 0, near = 0;
+Kind field(const Sums& s, const Sums* trail, float voxel, float rs, float band, float* __restrict phi,
+           float* __restrict vel) {
   for (int i = 0; i < kBlock; ++i)
     for (int j = 0; j < kBlock; ++j) {
       const int r = (i << 6) | (j << 3);
-#pragma omp simd reduction(| : in, out, near)
+      const float fi = float(i), fj = float(j);
+      // Branch-free, so that the row is one vector: a voxel without weight
+      // divides by 1 and that result is not taken (a division that might
+      // trap is never made a vector one).
+#pragma omp simd
       for (int k = 0; k < kBlock; ++k) {
         const int n = r + k;
-        const auto distance = [&](float w, float x, float y, float z) {
-          const float iw = 1.0f / w;
-          const float mx = x * iw - float(i), my = y * iw - float(j), mz = z * iw - float(k);
-          return voxel * std::sqrt(mx * mx + my * my + mz * mz) - rs;
-        };
-        float w = s.w[n], vx = s.vx[n], vy = s.vy[n], vz = s.vz[n];
-        float p = w > 0 ? distance(w, s.x[n], s.y[n], s.z[n]) : band;
+        float w = s.w[n], x = s.x[n], y = s.y[n], z = s.z[n], vx = s.vx[n], vy = s.vy[n], vz = s.vz[n];
+        float iw = 1.0f / (w > 0 ? w : 1.0f);
+        float mx = x * iw - fi, my = y * iw - fj, mz = z * iw - float(k);
+        float p = w > 0 ? voxel * std::sqrt(mx * mx + my * my + mz * mz) - rs : band;
         if constexpr (kTrails) {
-          const Sums& t = *trail;
-          if (t.w[n] > 0) {
-            w += t.w[n], vx += t.vx[n], vy += t.vy[n], vz += t.vz[n];
-            p = std::min(p, distance(w, s.x[n] + t.x[n], s.y[n] + t.y[n], s.z[n] + t.z[n]));
-          }
+          const float tw = trail->w[n] > 0 ? trail->w[n] : 0.0f, on = trail->w[n] > 0 ? 1.0f : 0.0f;
+          w += tw, vx += on * trail->vx[n], vy += on * trail->vy[n], vz += on * trail->vz[n];
+          x += trail->x[n], y += trail->y[n], z += trail->z[n];
+          iw = 1.0f / (w > 0 ? w : 1.0f);
+          mx = x * iw - fi, my = y * iw - fj, mz = z * iw - float(k);
+          const float joined = std::min(p, voxel * std::sqrt(mx * mx + my * my + mz * mz) - rs);
+          p = tw > 0 ? joined : p;
         }
-        const float iw = w > 0 ? 1.0f / w : 0.0f;
+        iw = w > 0 ? iw : 0.0f;
         vel[3 * n] = vx * iw, vel[3 * n + 1] = vy * iw, vel[3 * n + 2] = vz * iw;
-        p = std::min(band, std::max(-band, p));
-        phi[n] = p;
-        in |= p <= -band, out |= p >= band, near |= std::abs(p) < band;
+        phi[n] = std::min(band, std::max(-band, p));
       }
     }
+  int in = 0, out = 0, near = 0;
+#pragma omp simd reduction(| : in, out, near)
+  for (int n = 0; n < kBlockVoxels; ++n) in |= phi[n] <= -band, out |= phi[n] >= band, near |= std::abs(phi[n]) < band;
   return near || (in && out) ? Crossed : in ? Inside : Outside;
 }
 
