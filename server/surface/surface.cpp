@@ -412,9 +412,8 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
     data[n] = phiOf[crossed[n]];
   }
   // The box filter, a pass at a time between the blocks' own values and a
-  // scratch copy; the values end where the grids' leaves or the arenas
-  // hold them. Each pass ends clamped to the band (the first after the
-  // field's own clamp, so unfiltered values pass as they are).
+  // scratch copy, each pass clamping what it writes to the band; the
+  // result ends in the grids' leaves, or the arenas' blocks point at it.
   std::unique_ptr<float[]> scratchStore(s.smoothing > 0 ? new float[crossed.size() * kVoxels] : nullptr);
   if (s.smoothing > 0) {
     std::vector<float*> scratch(crossed.size());
