@@ -115,15 +115,30 @@ class Buckets {
   const float* pos(size_t n) const { return &pos_[3 * n]; }
   const float* vel(size_t n) const { return &vel_[3 * n]; }
   bool trail(size_t n) const { return trail_[n] != 0; }
+  // The last cells one thread looked up: neighbouring blocks, gathered one
+  // after another, ask for mostly the same cells, which the map would fetch
+  // from memory each time.
+  struct Recent {
+    static constexpr int kSlots = 256;
+    uint64_t key[kSlots];
+    uint32_t cell[kSlots];
+    Recent() { std::fill_n(key, kSlots, KeyMap::kEmpty); }
+  };
+  uint32_t cellIndex(uint64_t k, Recent* recent) const {
+    if (!recent) return cells_.find(k);
+    const size_t slot = size_t((k * 0x9E3779B97F4A7C15ULL) >> 56);
+    if (recent->key[slot] != k) recent->key[slot] = k, recent->cell[slot] = cells_.find(k);
+    return recent->cell[slot];
+  }
   // Calls f(n) for the particles of every cell overlapping [lo, hi].
   template <class F>
-  void forRange(const double lo[3], const double hi[3], F&& f) const {
+  void forRange(const double lo[3], const double hi[3], F&& f, Recent* recent = nullptr) const {
     int64_t a[3], b[3];
     for (int d = 0; d < 3; ++d) a[d] = cellOf(lo[d]), b[d] = cellOf(hi[d]);
     for (int64_t i = a[0]; i <= b[0]; ++i)
       for (int64_t j = a[1]; j <= b[1]; ++j)
         for (int64_t k = a[2]; k <= b[2]; ++k) {
-          const uint32_t c = cells_.find(key(i, j, k));
+          const uint32_t c = cellIndex(key(i, j, k), recent);
           if (c == KeyMap::kMissing) continue;
           for (uint32_t n = starts_[c]; n < starts_[c + 1]; ++n) f(n);
         }
@@ -147,6 +162,7 @@ struct Points {
 };
 struct Gathered {
   Points real, trail;  // the particles, and their trails' samples
+  Buckets::Recent recent;  // of the one Buckets this gathers from
   size_t size() const { return real.size() + trail.size(); }
   void from(const Buckets& b, const double origin[3], double voxel, double R) {
     real.clear(), trail.clear();
@@ -170,7 +186,7 @@ struct Gathered {
       to.z.push_back(float((p[2] - origin[2]) * inv));
       const float* u = b.vel(n);
       to.vx.push_back(u[0]), to.vy.push_back(u[1]), to.vz.push_back(u[2]);
-    });
+    }, &recent);
   }
 };
 
