@@ -48,9 +48,9 @@ Scattered scattered(const Points& g, size_t n, float rv2) {
 
 // [ZB05] Sec. 6, scattered: the particles `count` (1 or 2) add k(s), k(s) x
 // and k(s) v to the voxels of row (i, j), in their order. A row one of two
-// does not reach gets exactly 0 from it (its kernel is 0 there), so the
-// sums are the ones each particle would make alone; two at a time, each row
-// is loaded and stored once for both.
+// does not reach gets 0 from it (its kernel is 0 beyond its reach, up to
+// the rounding of that reach), so the sums are the ones each particle would
+// make alone; two at a time, each row is loaded and stored once for both.
 template <int count>
 void addToRow(const Scattered* p, const float* dxy2, float inv, int row, Sums& s) {
   float* __restrict w = s.w + row;
