@@ -145,8 +145,9 @@ Kind field(const Sums& s, const Sums* trail, float voxel, float rs, float band, 
         float mx = x * iw - fi, my = y * iw - fj, mz = z * iw - float(k);
         float p = w > 0 ? voxel * std::sqrt(mx * mx + my * my + mz * mz) - rs : band;
         if constexpr (kTrails) {
-          const float tw = trail->w[n] > 0 ? trail->w[n] : 0.0f, on = trail->w[n] > 0 ? 1.0f : 0.0f;
-          w += tw, vx += on * trail->vx[n], vy += on * trail->vy[n], vz += on * trail->vz[n];
+          // Where no trail sample reaches, every sum of the trails is 0 and adds nothing.
+          const float tw = trail->w[n];
+          w += tw, vx += trail->vx[n], vy += trail->vy[n], vz += trail->vz[n];
           x += trail->x[n], y += trail->y[n], z += trail->z[n];
           iw = 1.0f / (w > 0 ? w : 1.0f);
           mx = x * iw - fi, my = y * iw - fj, mz = z * iw - float(k);

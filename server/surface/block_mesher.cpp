@@ -100,8 +100,6 @@ const CubeTable& cubeTable() {
   return table;
 }
 
-int neighbourOf(int di, int dj, int dk) { return (di + 1) * 9 + (dj + 1) * 3 + (dk + 1); }
-int blockOffset(int local) { return local < 0 ? -1 : local >= kB ? 1 : 0; }
 
 // A block's view of the voxels around it, local coordinates in [-1, 8]:
 // each neighbour's values (or the constant it holds) and velocities.
@@ -122,12 +120,12 @@ struct Around {
   static int local(int i, int d) { return i - d * kB; }
   const float* velocityAt(int i, int j, int k) const {
     const int di = blockOffset(i), dj = blockOffset(j), dk = blockOffset(k);
-    const float* v = velocity[neighbourOf(di, dj, dk)];
+    const float* v = velocity[neighbourSlot(di, dj, dk)];
     return v ? v + 3 * ((local(i, di) << 6) | (local(j, dj) << 3) | local(k, dk)) : nullptr;
   }
   float phiAt(int i, int j, int k) const {
     const int di = blockOffset(i), dj = blockOffset(j), dk = blockOffset(k);
-    const int n = neighbourOf(di, dj, dk);
+    const int n = neighbourSlot(di, dj, dk);
     return phi[n] ? phi[n][(local(i, di) << 6) | (local(j, dj) << 3) | local(k, dk)] : constant[n];
   }
   // The inside bits of every row along z over [-1, 8]³ (bit t: z = t - 1),
@@ -140,8 +138,8 @@ struct Around {
       for (int j = -1; j <= kB; ++j) {
         const int di = blockOffset(i), dj = blockOffset(j);
         const int row = (local(i, di) << 3) | local(j, dj);
-        const uint32_t below = rowOf(neighbourOf(di, dj, -1), row) >> (kB - 1);
-        const uint32_t middle = rowOf(neighbourOf(di, dj, 0), row), above = rowOf(neighbourOf(di, dj, 1), row) & 1u;
+        const uint32_t below = rowOf(neighbourSlot(di, dj, -1), row) >> (kB - 1);
+        const uint32_t middle = rowOf(neighbourSlot(di, dj, 0), row), above = rowOf(neighbourSlot(di, dj, 1), row) & 1u;
         out[i + 1][j + 1] = uint16_t(below | middle << 1 | above << (kB + 1));
       }
   }
@@ -200,7 +198,7 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
       const int di = blockOffset(i + (corner & 1)), dj = blockOffset(j + ((corner >> 1) & 1)),
                 dk = blockOffset(k + ((corner >> 2) & 1));
       if (!di && !dj && !dk) return true;
-      if (b.neighbour[neighbourOf(di, dj, dk)] >= 0) return false;
+      if (b.neighbour[neighbourSlot(di, dj, dk)] >= 0) return false;
     }
     return false;
   };
@@ -248,7 +246,7 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
     const auto orphansAlong = [&](int axis) {
       int dir[3] = {0, 0, 0};
       dir[axis] = -1;
-      return !around.crossed[neighbourOf(dir[0], dir[1], dir[2])];
+      return !around.crossed[neighbourSlot(dir[0], dir[1], dir[2])];
     };
     const int from[3] = {orphansAlong(0) ? -1 : 0, orphansAlong(1) ? -1 : 0, orphansAlong(2) ? -1 : 0};
     constexpr uint32_t inBlock = 0x1FE, withOrphan = 0x1FF;  // z = 0..7; z = -1..7
@@ -319,11 +317,11 @@ void meshBlocks(const std::vector<MeshBlock>& blocks, double voxel, float band, 
     // The global index of the vertex on the edge from local voxel (i, j, k) along axis.
     const auto vertexOf = [&](int i, int j, int k, int axis) -> uint32_t {
       int di = blockOffset(i), dj = blockOffset(j), dk = blockOffset(k);
-      int32_t owner = di || dj || dk ? b.neighbour[neighbourOf(di, dj, dk)] : int32_t(n);
+      int32_t owner = di || dj || dk ? b.neighbour[neighbourSlot(di, dj, dk)] : int32_t(n);
       if (owner < 0) {  // the lower voxel's block has no values: an orphan of the upper voxel's block
         const int u[3] = {i + unit[axis][0], j + unit[axis][1], k + unit[axis][2]};
         di = blockOffset(u[0]), dj = blockOffset(u[1]), dk = blockOffset(u[2]);
-        owner = di || dj || dk ? b.neighbour[neighbourOf(di, dj, dk)] : int32_t(n);
+        owner = di || dj || dk ? b.neighbour[neighbourSlot(di, dj, dk)] : int32_t(n);
         if (owner < 0) return kNone;
         i = u[0] - di * kB - unit[axis][0], j = u[1] - dj * kB - unit[axis][1], k = u[2] - dk * kB - unit[axis][2];
       } else {

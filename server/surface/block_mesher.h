@@ -18,6 +18,12 @@
 
 namespace fc {
 
+// Neighbour (di, dj, dk) ∈ {-1, 0, 1}³ of a block: its slot in MeshBlock's arrays.
+inline int neighbourSlot(int di, int dj, int dk) { return (di + 1) * 9 + (dj + 1) * 3 + (dk + 1); }
+// Which block along an axis a local voxel coordinate in [-1, 8] is in (a
+// block is 8 voxels wide): -1, 0 or 1.
+inline int blockOffset(int local) { return local < 0 ? -1 : local >= 8 ? 1 : 0; }
+
 // One block of the level set that holds values, and its 26 neighbours.
 struct MeshBlock {
   int64_t block[3] = {0, 0, 0};    // block coordinates: voxel = 8 × block + local

@@ -145,36 +145,26 @@ class BlockArena {
   size_t used_ = 0;
 };
 
-// A crossed block's 26 neighbours and itself, (di, dj, dk) ∈ {-1, 0, 1}³ at
-// (di + 1) * 9 + (dj + 1) * 3 + (dk + 1): another crossed block's index, or
-// -1 and the constant a tile or the outside holds.
-struct Neighbours {
-  int32_t block[27];
-  float value[27];
-};
-int slotOf(int di, int dj, int dk) { return (di + 1) * 9 + (dj + 1) * 3 + (dk + 1); }
-
 // One pass of the 3-wide box along x, then y, then z over block b, from the
 // blocks' values `in` into `out`, clamped to [-band, band]. Each stage
 // reads a neighbour's result of the stage before (its constant where it
 // has no values), computed here from the values around the block.
-void boxBlock(const Neighbours& nb, const std::vector<float*>& in, float band, float* __restrict out) {
+void boxBlock(const MeshBlock& nb, const std::vector<float*>& in, float band, float* __restrict out) {
   constexpr int P = kBlock + 2;  // [-1, 8] along each axis
   constexpr float third = 1.0f / 3.0f;
-  const auto part = [](int local) { return local < 0 ? -1 : local >= kBlock ? 1 : 0; };
   const auto inner = [](int local, int d) { return local - d * kBlock; };
   float v[P][P][P], x[kBlock][P][P], y[kBlock][kBlock][P];
   for (int i = -1; i <= kBlock; ++i)
     for (int j = -1; j <= kBlock; ++j) {
-      const int di = part(i), dj = part(j), row = (inner(i, di) << 6) | (inner(j, dj) << 3);
+      const int di = blockOffset(i), dj = blockOffset(j), row = (inner(i, di) << 6) | (inner(j, dj) << 3);
       float* o = v[i + 1][j + 1];
       for (int dk = -1; dk <= 1; ++dk) {
-        const int slot = slotOf(di, dj, dk);
-        const float* src = nb.block[slot] >= 0 ? in[size_t(nb.block[slot])] + row : nullptr;
-        if (dk < 0) o[0] = src ? src[kBlock - 1] : nb.value[slot];
-        else if (dk > 0) o[kBlock + 1] = src ? src[0] : nb.value[slot];
+        const int slot = neighbourSlot(di, dj, dk);
+        const float* src = nb.neighbour[slot] >= 0 ? in[size_t(nb.neighbour[slot])] + row : nullptr;
+        if (dk < 0) o[0] = src ? src[kBlock - 1] : nb.constant[slot];
+        else if (dk > 0) o[kBlock + 1] = src ? src[0] : nb.constant[slot];
         else if (src) std::copy_n(src, kBlock, o + 1);
-        else std::fill_n(o + 1, kBlock, nb.value[slot]);
+        else std::fill_n(o + 1, kBlock, nb.constant[slot]);
       }
     }
   // x over the block's columns, in every row around it; a row of a block
@@ -183,11 +173,11 @@ void boxBlock(const Neighbours& nb, const std::vector<float*>& in, float band, f
     for (int j = 0; j < P; ++j) {
 #pragma omp simd
       for (int k = 0; k < P; ++k) x[i][j][k] = (v[i][j][k] + v[i + 1][j][k] + v[i + 2][j][k]) * third;
-      const int dj = part(j - 1);
+      const int dj = blockOffset(j - 1);
       for (int dk = -1; dk <= 1; ++dk)
-        if ((dj || dk) && nb.block[slotOf(0, dj, dk)] < 0) {
+        if ((dj || dk) && nb.neighbour[neighbourSlot(0, dj, dk)] < 0) {
           const int k0 = dk < 0 ? 0 : dk > 0 ? P - 1 : 1, k1 = dk == 0 ? kBlock + 1 : k0 + 1;
-          std::fill(x[i][j] + k0, x[i][j] + k1, nb.value[slotOf(0, dj, dk)]);
+          std::fill(x[i][j] + k0, x[i][j] + k1, nb.constant[neighbourSlot(0, dj, dk)]);
         }
     }
   // y over the block's rows, with the z ends around it.
@@ -196,7 +186,7 @@ void boxBlock(const Neighbours& nb, const std::vector<float*>& in, float band, f
 #pragma omp simd
       for (int k = 0; k < P; ++k) y[i][j][k] = (x[i][j][k] + x[i][j + 1][k] + x[i][j + 2][k]) * third;
       for (int dk = -1; dk <= 1; dk += 2)
-        if (nb.block[slotOf(0, 0, dk)] < 0) y[i][j][dk < 0 ? 0 : P - 1] = nb.value[slotOf(0, 0, dk)];
+        if (nb.neighbour[neighbourSlot(0, 0, dk)] < 0) y[i][j][dk < 0 ? 0 : P - 1] = nb.constant[neighbourSlot(0, 0, dk)];
     }
   // z, clamped to the band, outside which a grid's voxels are inactive (and
   // what is not a number, outside).
@@ -397,17 +387,19 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
     value = c != KeyMap::kMissing && kinds[c] == Inside ? -band : band;
     return c != KeyMap::kMissing && kinds[c] == Crossed ? int32_t(crossedIndex[c]) : -1;
   };
-  std::vector<Neighbours> around(crossed.size());
+  // Each crossed block and its neighbours, for the filter and the mesher.
+  std::vector<MeshBlock> blocks(crossed.size());
   std::vector<float*> data(crossed.size());
 #pragma omp parallel for schedule(static)
   for (size_t n = 0; n < crossed.size(); ++n) {
+    MeshBlock& m = blocks[n];
     const uint64_t k = candidates[crossed[n]];
-    const int64_t b[3] = {unkey(k, 0), unkey(k, 1), unkey(k, 2)};
+    for (int d = 0; d < 3; ++d) m.block[d] = unkey(k, d);
     for (int di = -1; di <= 1; ++di)
       for (int dj = -1; dj <= 1; ++dj)
         for (int dk = -1; dk <= 1; ++dk) {
-          const int slot = slotOf(di, dj, dk);
-          around[n].block[slot] = neighbourOf(b, di, dj, dk, around[n].value[slot]);
+          const int slot = neighbourSlot(di, dj, dk);
+          m.neighbour[slot] = neighbourOf(m.block, di, dj, dk, m.constant[slot]);
         }
     data[n] = phiOf[crossed[n]];
   }
@@ -420,7 +412,7 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
     for (size_t n = 0; n < crossed.size(); ++n) scratch[n] = &scratchStore[n * kVoxels];
     for (int pass = 0; pass < s.smoothing; ++pass) {
 #pragma omp parallel for schedule(static)
-      for (size_t n = 0; n < crossed.size(); ++n) boxBlock(around[n], data, band, scratch[n]);
+      for (size_t n = 0; n < crossed.size(); ++n) boxBlock(blocks[n], data, band, scratch[n]);
       std::swap(data, scratch);
     }
     if (s.smoothing % 2) {
@@ -451,17 +443,11 @@ Surface reconstructSurface(const ParticleFrame& frame, double particleRadius, co
   const double adaptivity = s.adaptivity;
   auto tMesh = std::chrono::steady_clock::now();
   if (uniform) {
-    std::vector<MeshBlock> blocks(crossed.size());
 #pragma omp parallel for schedule(static)
     for (size_t n = 0; n < crossed.size(); ++n) {
-      MeshBlock& m = blocks[n];
-      const uint64_t k = candidates[crossed[n]];
-      for (int d = 0; d < 3; ++d) m.block[d] = unkey(k, d);
-      m.phi = phiOf[crossed[n]];
-      m.velocity = velocityOf[crossed[n]];
-      m.inside = inside[n];
-      std::copy_n(around[n].block, 27, m.neighbour);
-      std::copy_n(around[n].value, 27, m.constant);
+      blocks[n].phi = phiOf[crossed[n]];
+      blocks[n].velocity = velocityOf[crossed[n]];
+      blocks[n].inside = inside[n];
     }
     meshBlocks(blocks, voxel, band, out.mesh);
   }
