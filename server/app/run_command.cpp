@@ -47,6 +47,7 @@ struct RunOptions {
   double templateMemoryMB = kDefaultTemplateMemoryMB;
   std::vector<std::string> controlSettings;  // KEY=VALUE, over the scene's "control" object
   std::vector<std::string> boundarySettings;  // KEY=VALUE, over the boundary model's parameters
+  std::vector<std::string> solverSettings;    // KEY=VALUE, over the pressure solver's parameters
   double frameTimeout = 0;                    // s of wall time per frame (0: no limit)
   bool quiet = false;
 };
@@ -76,6 +77,12 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
       setup.solver.name = solverName = opt.solver;
       setup.solver.values = ParamValues();
     }
+  }
+  const auto* solverEntry = PressureSolverRegistry<D>::instance().find(solverName);
+  for (const auto& kv : opt.solverSettings) {
+    if (!solverEntry) throw SceneError("solver.method", "unknown solver '" + solverName + "'");
+    const ParamOverride o = parseParamOverride(solverEntry->params, kv, "--solver-setting", "solver");
+    setup.solver.values.set(o.spec->name, o.value);
   }
   std::string boundaryName = setup.boundary.name.empty() ? std::string(kDefaultBoundaryModel) : setup.boundary.name;
   if (!opt.boundary.empty()) {
@@ -153,7 +160,6 @@ int runScene(const RunOptions& opt, const nlohmann::json& sceneJson) {
     return text;
   };
   nlohmann::json solverParameters, boundaryParameters;
-  const auto* solverEntry = PressureSolverRegistry<D>::instance().find(solverName);
   const std::string solverText = describe(solverEntry ? &solverEntry->params : nullptr, setup.solver.values, solverParameters);
   const std::string boundaryText =
       describe(boundaryEntry ? &boundaryEntry->params : nullptr, setup.boundary.values, boundaryParameters);
@@ -332,6 +338,8 @@ void addRunCommand(CLI::App& app) {
                   "TEMPLATES/NAME")
       ->excludes(radius);
   run->add_option("--solver", opt->solver, "override the scene's pressure solver (a different one runs with its default parameters)");
+  run->add_option("--solver-setting", opt->solverSettings,
+                  "set a parameter of the pressure solver, KEY=VALUE (e.g. density_tolerance_pct=0.02); repeatable");
   run->add_option("--boundary", opt->boundary,
                   "override the scene's boundary model (a different one runs with its default parameters)");
   run->add_option("--boundary-setting", opt->boundarySettings,

@@ -81,13 +81,21 @@ json runRow(const std::string& scene, const std::string& solver, const json& sta
     densityIterations += fr.at("density_iterations").get<double>();
     for (const auto& [key, label] : kStages) stageMs[key] += fr.at(key).get<double>();
   }
-  if (!stats.at("frames").empty()) avgErr /= double(stats.at("frames").size());
+  const auto& frames = stats.at("frames");
+  if (!frames.empty()) avgErr /= double(frames.size());
+  // What is still moving: the kinetic energy over the run's last quarter, the fastest particle at its end.
+  double lateKe = 0;
+  size_t late = 0;
+  for (size_t k = frames.size() - frames.size() / 4; k < frames.size(); ++k, ++late)
+    lateKe += frames[k].at("kinetic_energy").get<double>();
   const double substeps = std::max(1.0, s.at("substeps").get<double>());
   json row = s;
   const std::string stem = fs::path(scene).stem().string();
   row["scene_file"] = scene;
   row["bench_scene"] = stem;
   row["mean_avg_density_error_pct"] = avgErr;
+  row["late_kinetic_energy"] = late ? lateKe / double(late) : 0.0;
+  row["final_max_speed"] = frames.empty() ? 0.0 : frames.back().at("max_speed").get<double>();
   row["max_density_error_pct"] = maxErr;
   row["divergence_iterations_per_substep"] = divergenceIterations / substeps;
   row["density_iterations_per_substep"] = densityIterations / substeps;
@@ -123,6 +131,7 @@ std::string markdown(const json& rows, const json& failures) {
                     fmt(r["substeps_per_frame"], "%.1f"), fmt(r["ms_per_frame"], "%.1f"),
                     fmt(r["wall_s_per_simulated_s"], "%.2f"), fmt(r["mean_avg_density_error_pct"], "%.4f"),
                     fmt(r["max_density_error_pct"], "%.3f"), tol.is_number() ? fmt(tol) : "-",
+                    fmt(r.value("late_kinetic_energy", 0.0), "%.3g"), fmt(r.value("final_max_speed", 0.0), "%.3f"),
                     fmt(r["peak_rss_mb"], "%.0f"), fmt(r["boundary_setup_ms"], "%.1f"),
                     fmt(r["boundary_model_bytes"].get<double>() / 1048576.0, "%.2f")});
     const json& st = r["stage_ms_per_substep"];
@@ -141,11 +150,13 @@ std::string markdown(const json& rows, const json& failures) {
   }
   std::string md = "## Runs\n\nPer run: particles and steps (substeps) over the run; the density errors are the "
                    "solver's own figures per frame (average over frames of the per-frame average, and the largest); "
-                   "the density tolerance is the one the run held; the boundary model's set-up (a volume map's "
-                   "integration) and the memory it holds beside the boundary samples.\n\n";
+                   "the density tolerance is the one the run held; what still moves at the end (J/m in 2D); the "
+                   "boundary model's set-up (a volume map's integration) and the memory it holds beside the boundary "
+                   "samples.\n\n";
   md += markdownTable({"scene", "solver", "boundary", "particles", "steps", "µs / particle-step", "substeps / frame",
                        "ms / frame", "wall s / simulated s", "avg density error %", "max density error %",
-                       "density tolerance %", "peak RSS MB", "boundary set-up ms", "boundary map MB"},
+                       "density tolerance %", "kinetic energy, last quarter, J", "max speed at the end, m/s",
+                       "peak RSS MB", "boundary set-up ms", "boundary map MB"},
                       runs);
   md += "\n## Where the time goes\n\nWall ms per substep in each stage of the step, and solver iterations per "
         "substep.\n\n";
@@ -189,18 +200,20 @@ int benchSolver(const BenchOptions& opt) {
     const std::vector<std::string> boundaries = opt.boundaries.empty() ? std::vector<std::string>{""} : opt.boundaries;
     for (const auto& solver : opt.solvers)
       for (const auto& boundary : boundaries) {
-        std::vector<std::string> args{self,      "run",   scene, "--seconds", fmt(opt.seconds), "--solver",
-                                      solver,    "--stats", tmp, "--threads", std::to_string(threads), "--quiet"};
-        // NAME or NAME:KEY=VALUE:KEY=VALUE, a model with some of its parameters set.
-        if (!boundary.empty()) {
-          size_t at = boundary.find(':');
-          args.insert(args.end(), {"--boundary", boundary.substr(0, at)});
+        std::vector<std::string> args{self, "run", scene, "--seconds", fmt(opt.seconds), "--stats", tmp,
+                                      "--threads", std::to_string(threads), "--quiet"};
+        // NAME or NAME:KEY=VALUE:KEY=VALUE, a solver or a model with some of its parameters set.
+        const auto named = [&args](const std::string& spec, const char* nameFlag, const char* settingFlag) {
+          size_t at = spec.find(':');
+          args.insert(args.end(), {nameFlag, spec.substr(0, at)});
           while (at != std::string::npos) {
-            const size_t next = boundary.find(':', at + 1);
-            args.insert(args.end(), {"--boundary-setting", boundary.substr(at + 1, next == std::string::npos ? next : next - at - 1)});
+            const size_t next = spec.find(':', at + 1);
+            args.insert(args.end(), {settingFlag, spec.substr(at + 1, next == std::string::npos ? next : next - at - 1)});
             at = next;
           }
-        }
+        };
+        named(solver, "--solver", "--solver-setting");
+        if (!boundary.empty()) named(boundary, "--boundary", "--boundary-setting");
         const std::string label = stem + " with " + solver + (boundary.empty() ? "" : " (" + boundary + ")");
         std::fprintf(stderr, "bench: %s ...\n", label.c_str());
         const int code = runChild(args);
@@ -213,7 +226,8 @@ int benchSolver(const BenchOptions& opt) {
           continue;
         }
         json row = runRow(scene, solver, json::parse(f));
-        if (!boundary.empty()) row["boundary"] = boundary;  // with the parameters it was given
+        row["solver"] = solver;                             // with the parameters it was given
+        if (!boundary.empty()) row["boundary"] = boundary;
         f.close();
         fs::remove(tmp);
         std::printf("%s: %ld particles, %.3f us per particle-step, %.2f wall s per simulated s, %.2f density "
@@ -238,7 +252,9 @@ void addBenchSolverCommand(CLI::App& bench) {
   auto opt = std::make_shared<BenchOptions>();
   CLI::App* solver = bench.add_subcommand("solver", "pressure solvers on the reference dam breaks (scenes/bench)");
   solver->add_option("--scenes", opt->scenes, "scene files (default: scenes/bench/*.json)")->delimiter(',');
-  solver->add_option("--solvers", opt->solvers, "solvers to compare")->delimiter(',');
+  solver->add_option("--solvers", opt->solvers,
+                     "solvers to compare, each NAME or NAME:KEY=VALUE[:KEY=VALUE] (e.g. dfsph:density_tolerance_pct=0.02)")
+      ->delimiter(',');
   solver->add_option("--boundaries", opt->boundaries,
                      "boundary models to compare, each NAME or NAME:KEY=VALUE[:KEY=VALUE] (default: each scene's own)")
       ->delimiter(',');

@@ -142,6 +142,18 @@ fc_cli_expect(cli_run_bad_boundary_setting 2 "boundary.ramp: '2' given by --boun
 fc_cli_expect(cli_run_unknown_boundary_setting 2 "expected KEY=VALUE with KEY one of: hydrostatic, constraint, ramp"
   run ${FC_CLI_TESTS_DIR}/../../scenes/hydrostatic2d.json --frames 1 --boundary-setting map_spacing=1)
 
+# run --solver-setting sets a parameter of the solver the run uses, checked as the scene file's "solver".
+fc_cli_expect(cli_run_solver_setting 0 "divergence_solve=1 warm_start=0)"
+  run ${FC_CLI_TESTS_DIR}/../../scenes/bench/dambreak2d_r010.json --frames 1 --particle-radius 0.02
+  --solver-setting warm_start=0)
+fc_cli_expect(cli_run_bad_solver_setting 2 "solver.density_tolerance_pct: '50' given by --solver-setting"
+  run ${FC_CLI_TESTS_DIR}/../../scenes/bench/dambreak2d_r010.json --frames 1 --solver-setting density_tolerance_pct=50)
+fc_cli_expect(cli_run_unknown_solver_setting 2 "expected KEY=VALUE with KEY one of: density_tolerance_pct"
+  run ${FC_CLI_TESTS_DIR}/../../scenes/bench/dambreak2d_r010.json --frames 1 --solver-setting ramp=1)
+# bench solver --solvers NAME:KEY=VALUE runs the solver with that parameter and labels its row so.
+fc_cli_expect(cli_bench_solver_solver_setting 0 "dambreak2d_r010 with dfsph:density_tolerance_pct=0.02: 5476 particles"
+  bench solver --scenes ${FC_CLI_TESTS_DIR}/../../scenes/bench/dambreak2d_r010.json --solvers dfsph:density_tolerance_pct=0.02
+  --seconds 0.02 --threads 1 --out ${CMAKE_BINARY_DIR}/cli-bench-solver-setting)
 # bench solver --boundaries NAME:KEY=VALUE runs the model with that parameter and labels its row so.
 fc_cli_expect(cli_bench_solver_boundary_setting 0 "dambreak2d_r010 with dfsph (adami2012:constraint=1): 5476 particles"
   bench solver --scenes ${FC_CLI_TESTS_DIR}/../../scenes/bench/dambreak2d_r010.json --solvers dfsph

@@ -50,7 +50,6 @@ struct DfsphParams {
   int maxDivergenceIterations;
   bool divergenceSolve;
   bool warmStart;
-  bool conjugateGradient;
 };
 
 const ParamTable<DfsphParams>& dfsphTable() {
@@ -73,10 +72,6 @@ const ParamTable<DfsphParams>& dfsphTable() {
       {.name = "warm_start", .min = 0, .max = 1, .def = 1,
        .help = "start each solve from half the previous step's stiffness where the particle is still compressed",
        .member = &P::warmStart},
-      {.name = "conjugate_gradient", .min = 0, .max = 1, .def = 0,
-       .help = "solve both systems by preconditioned conjugate gradients on the compressed particles instead of "
-               "Jacobi steps: fewer iterations in deep liquid (walls whose pressure is mirrored keep Jacobi)",
-       .member = &P::conjugateGradient},
   };
   return table;
 }
@@ -93,8 +88,7 @@ class DFSPH final : public PressureSolver<D> {
         maxIterations_(p.maxIterations),
         maxDivergenceIterations_(p.maxDivergenceIterations),
         divergenceSolve_(p.divergenceSolve),
-        warmStart_(p.warmStart),
-        conjugateGradient_(p.conjugateGradient) {}
+        warmStart_(p.warmStart) {}
 
   void resize(size_t n) override {
     factor_.resize(n, 0);
@@ -103,14 +97,6 @@ class DFSPH final : public PressureSolver<D> {
     residual_.resize(n, 0);
     packed_.resize(n);
     deficient_.resize(n, 0);
-    if (conjugateGradient_) {
-      err_.resize(n, 0);
-      cgS_.resize(n, 0);
-      cgP_.resize(n, 0);
-      cgZ_.resize(n, 0);
-      cgDv_.resize(n);
-      cgActive_.resize(n, 0);
-    }
   }
   // The stiffnesses warm-start the next substep's solves.
   void archiveState(StateArchive& a) override {
@@ -144,16 +130,10 @@ class DFSPH final : public PressureSolver<D> {
     } else {
       std::fill(kappaDivergence_.begin(), kappaDivergence_.end(), Real(0));
     }
-    if (conjugate(sim)) {
-      Real largest = 0;
-      rep.iterations = conjugateGradient(sim, kappaDivergence_, Real(1), avg, largest, eta, Real(1), 1,
-                                         maxDivergenceIterations_, deficient_.data());
-    } else {
-      while ((avg > eta || rep.iterations < 1) && rep.iterations < maxDivergenceIterations_) {
-        applyStiffness(sim, kappaDivergence_, Real(1));
-        avg = divergenceResidual(sim);
-        ++rep.iterations;
-      }
+    while ((avg > eta || rep.iterations < 1) && rep.iterations < maxDivergenceIterations_) {
+      applyStiffness(sim, kappaDivergence_, Real(1));
+      avg = divergenceResidual(sim);
+      ++rep.iterations;
     }
     rep.converged = avg <= eta || n == 0;
     rep.avgErrorPct = double(avg) * double(dt) * 100.0;
@@ -174,15 +154,10 @@ class DFSPH final : public PressureSolver<D> {
     } else {
       std::fill(kappaDensity_.begin(), kappaDensity_.end(), Real(0));
     }
-    if (conjugate(sim)) {
-      rep.iterations = conjugateGradient(sim, kappaDensity_, Real(1) / dt, avg, maxErr, densityTol_, dt,
-                                         minIterations_, maxIterations_, nullptr);
-    } else {
-      while ((avg > densityTol_ || rep.iterations < minIterations_) && rep.iterations < maxIterations_) {
-        applyStiffness(sim, kappaDensity_, dt);
-        avg = densityResidual(sim, dt, maxErr);
-        ++rep.iterations;
-      }
+    while ((avg > densityTol_ || rep.iterations < minIterations_) && rep.iterations < maxIterations_) {
+      applyStiffness(sim, kappaDensity_, dt);
+      avg = densityResidual(sim, dt, maxErr);
+      ++rep.iterations;
     }
     rep.converged = avg <= densityTol_ || n == 0;
     rep.avgErrorPct = double(avg) * 100.0;
@@ -221,11 +196,6 @@ class DFSPH final : public PressureSolver<D> {
   // stored as K/Δt, an acceleration scale, so it carries over a change of Δt;
   // divergence stiffness does not depend on Δt (called with dt = 1).
   // Expects residual_ to hold the current residual.
-  // Conjugate gradients need the symmetric system: a wall's weight w != 1 makes it oblique.
-  bool conjugate(const Simulation<D>& sim) const {
-    return conjugateGradient_ && sim.boundaryPressureWeight() == Real(1);
-  }
-
   void warmStartFrom(Simulation<D>& sim, std::vector<Real>& kappa, Real dt) {
 #pragma omp parallel
     {
@@ -300,201 +270,6 @@ class DFSPH final : public PressureSolver<D> {
       }
     }
     updateVelocities(sim);
-  }
-
-  // Preconditioned conjugate gradients (Saad, "Iterative Methods for Sparse
-  // Linear Systems", SIAM 2003, Algorithm 9.1) on the system the Jacobi steps
-  // solve: A s = r, (A s)_i the rate of density at i that the velocity
-  // correction Δv(s) removes, r the residual, the diagonal S_i = 1/α_i as
-  // preconditioner. A = J M⁻¹ Jᵀ M (mass sum) or J M⁻¹ Jᵀ M⁻¹ (number
-  // density) is self-adjoint in Σ_i w_i a_i b_i with w_i = m_i or 1/m_i
-  // (see the top), so the iteration runs in that product. The unknowns are
-  // the particles compressed when it starts, those a Jacobi step would push;
-  // the others' residuals are followed, and the iteration restarts with them
-  // among the unknowns once they hold most of what is left or one of them
-  // exceeds kJoinAbove times the tolerance. It stops on the tolerance of
-  // the Jacobi solve (the average compression), reached on the followed
-  // residuals, then corrects the velocities. Expects err_ (the residual,
-  // unclamped) of the current velocities; adds toKappa·s to kappa.
-  // `excluded` particles keep a residual of 0.
-  int conjugateGradient(Simulation<D>& sim, std::vector<Real>& kappa, Real toKappa, Real& avg, Real& maxErr, Real stop,
-                        Real toAvg, int minIt, int maxIt, const uint8_t* excluded) {
-    return numberDensity_ ? conjugateGradient<true>(sim, kappa, toKappa, avg, maxErr, stop, toAvg, minIt, maxIt, excluded)
-                          : conjugateGradient<false>(sim, kappa, toKappa, avg, maxErr, stop, toAvg, minIt, maxIt,
-                                                     excluded);
-  }
-  static constexpr Real kJoinAbove = 20;
-
-  template <bool ND>
-  int conjugateGradient(Simulation<D>& sim, std::vector<Real>& kappa, Real toKappa, Real& avg, Real& maxErr, Real stop,
-                        Real toAvg, int minIt, int maxIt, const uint8_t* excluded) {
-    auto& f = sim.fluid;
-    const long n = long(f.size());
-    const Real avgScale = toAvg / Real(std::max(n, 1L));
-    int it = 0;
-    if (n == 0 || (avg <= stop && it >= minIt) || it >= maxIt) return it;
-#pragma omp parallel
-    {
-      const auto [first, last] = sim.threadParticles();
-      for (long i = first; i < last; ++i) {
-        cgActive_[i] = 0;
-        cgS_[i] = 0;
-        cgDv_[i] = Lanes{};
-      }
-    }
-    // (Re)start: the compressed particles join the unknowns, the direction is the preconditioned residual.
-    auto start = [&] {
-      double rz = 0;
-#pragma omp parallel reduction(+ : rz)
-      {
-        const auto [first, last] = sim.threadParticles();
-        for (long i = first; i < last; ++i) {
-          const bool active = cgActive_[i] || (err_[i] > 0 && factor_[i] > 0);
-          cgActive_[i] = active;
-          const Real r = active ? err_[i] : Real(0), z = r * factor_[i];
-          cgP_[i] = z;
-          packed_[i].x[3] = z;
-          rz += double(innerWeight<ND>(f.mass[i]) * r * z);
-        }
-      }
-      return rz;
-    };
-    double rz = start();
-    while (rz > 0 && it < maxIt) {
-      applyDirection<ND>(sim);
-      double pq = 0;
-#pragma omp parallel reduction(+ : pq)
-      {
-        const auto [first, last] = sim.threadParticles();
-        for (long i = first; i < last; ++i) {
-          const Real q = directionRate<ND>(sim, i);
-          cgZ_[i] = q;
-          if (cgActive_[i]) pq += double(innerWeight<ND>(f.mass[i]) * cgP_[i] * q);
-        }
-      }
-      if (!(pq > 0)) break;
-      const Real alpha = Real(rz / pq);
-      double rzNext = 0, onActive = 0, onOthers = 0;
-      Real largest = 0, largestOther = 0;
-#pragma omp parallel reduction(+ : rzNext, onActive, onOthers) reduction(max : largest, largestOther)
-      {
-        const auto [first, last] = sim.threadParticles();
-        for (long i = first; i < last; ++i) {
-          cgS_[i] += alpha * cgP_[i];
-          cgDv_[i] += alpha * packed_[i].v;
-          if (!(excluded && excluded[i])) err_[i] -= alpha * cgZ_[i];
-          const Real r = cgActive_[i] ? err_[i] : Real(0), z = r * factor_[i];
-          cgZ_[i] = z;
-          rzNext += double(innerWeight<ND>(f.mass[i]) * r * z);
-          const Real c = std::max(err_[i], Real(0)) / sim.restDensity_[f.phase[i]];
-          (cgActive_[i] ? onActive : onOthers) += double(c);
-          largest = std::max(largest, c);
-          if (!cgActive_[i]) largestOther = std::max(largestOther, c);
-        }
-      }
-      ++it;
-      avg = Real(onActive + onOthers) * avgScale;
-      maxErr = largest * toAvg;
-      const bool othersCompressed = largestOther * toAvg > kJoinAbove * stop;
-      if ((avg <= stop && it >= minIt && !othersCompressed) || it >= maxIt) break;
-      if (onOthers >= onActive || othersCompressed) {
-        // What is left is mostly in particles the unknowns pushed into compression: they join.
-        rz = start();
-        continue;
-      }
-      const Real beta = Real(rzNext / rz);
-      rz = rzNext;
-#pragma omp parallel
-      {
-        const auto [first, last] = sim.threadParticles();
-        for (long i = first; i < last; ++i) {
-          cgP_[i] = cgZ_[i] + beta * cgP_[i];
-          packed_[i].x[3] = cgP_[i];
-        }
-      }
-    }
-    // The velocities the stiffness corrects, and its impulse on the walls.
-    const Real w = sim.boundaryPressureWeight();
-    double ix = 0, iy = 0, iz = 0;
-#pragma omp parallel reduction(+ : ix, iy, iz)
-    {
-      const auto [first, last] = sim.threadParticles();
-      for (long i = first; i < last; ++i) {
-        for (int d = 0; d < D; ++d) f.v[i][d] -= cgDv_[i][d], packed_[i].v[d] = f.v[i][d];
-        kappa[i] += toKappa * cgS_[i];
-        Real kb = w * cgS_[i] * sim.restDensity_[f.phase[i]];
-        if constexpr (ND) kb /= f.mass[i] * f.mass[i];
-        const Vec<D>& gb = sim.boundaryGradW[i];
-        const double mk = -double(f.mass[i]) * double(kb);
-        ix += mk * gb[0];
-        iy += mk * gb[1];
-        if constexpr (D == 3) iz += mk * gb[2];
-      }
-    }
-    boundaryImpulse_[0] += ix;
-    boundaryImpulse_[1] += iy;
-    boundaryImpulse_[2] += iz;
-    return it;
-  }
-
-  template <bool ND>
-  static Real innerWeight(Real m) {
-    if constexpr (ND) return Real(1) / m;
-    else return m;
-  }
-
-  // Δv(p) for the search direction p in the stiffness lane, into the velocity
-  // lanes (the same sums as updateVelocitiesWith; the velocities stay).
-  template <bool ND>
-  void applyDirection(Simulation<D>& sim) {
-    const uint32_t* off = sim.pairOffsets();
-    const uint32_t* nbr = sim.pairNeighbors();
-    const Real* scale = ND ? sim.gradScale.data() : sim.massGradScale.data();
-    Packed* packed = packed_.data();
-    const auto& f = sim.fluid;
-    const Real w = sim.boundaryPressureWeight();
-#pragma omp parallel
-    {
-      const auto [first, last] = sim.threadParticles();
-      for (long i = first; i < last; ++i) {
-        const Lanes xi = packed[i].x;
-        const Real ki = xi[3];
-        Lanes sum = sumPairs(off[i], off[i + 1], [&](uint32_t k) {
-          const Lanes xj = packed[nbr[k]].x;
-          return (xi - xj) * ((ki + xj[3]) * scale[k]);
-        });
-        Real kb = w * ki * sim.restDensity_[f.phase[i]];
-        if constexpr (ND) {
-          const Real inv = Real(1) / f.mass[i];
-          sum *= inv;
-          kb *= inv * inv;
-        }
-        const Vec<D>& gb = sim.boundaryGradW[i];
-        Lanes u = {};
-        for (int d = 0; d < D; ++d) u[d] = sum[d] + kb * gb[d];
-        packed[i].v = u;
-      }
-    }
-  }
-
-  // (A p)_i: the rate of density at i of the velocity change in the velocity lanes.
-  template <bool ND>
-  Real directionRate(const Simulation<D>& sim, long i) const {
-    const uint32_t* off = sim.pairOffsets();
-    const uint32_t* nbr = sim.pairNeighbors();
-    const Real* scale = ND ? sim.gradScale.data() : sim.massGradScale.data();
-    const Packed* packed = packed_.data();
-    const Lanes xi = packed[i].x, ui = packed[i].v;
-    const Lanes sum = sumPairs(off[i], off[i + 1], [&](uint32_t k) {
-      const Packed& p = packed[nbr[k]];
-      return ((xi - p.x) * (ui - p.v)) * scale[k];
-    });
-    Real r = (sum[0] + sum[1]) + (sum[2] + sum[3]);
-    if constexpr (ND) r *= sim.fluid.mass[i];
-    const Vec<D>& gb = sim.boundaryGradW[i];
-    Real b = 0;
-    for (int d = 0; d < D; ++d) b += ui[d] * gb[d];
-    return r + sim.restDensity_[sim.fluid.phase[i]] * b;
   }
 
   void updateVelocities(Simulation<D>& sim) {
@@ -582,7 +357,6 @@ class DFSPH final : public PressureSolver<D> {
   Real divergenceResidualWith(Simulation<D>& sim) {
     const auto& f = sim.fluid;
     const long n = long(f.size());
-    Real* raw = err_.empty() ? nullptr : err_.data();
     double sum = 0;
 #pragma omp parallel reduction(+ : sum)
     {
@@ -590,9 +364,7 @@ class DFSPH final : public PressureSolver<D> {
       for (long i = first; i < last; ++i) {
         const Real rho0 = sim.restDensity_[f.phase[i]];
         Real r = rateOfDensity<ND>(sim, i, rho0);
-        if (deficient_[i]) r = 0;
-        if (raw) raw[i] = r;
-        r = std::max(r, Real(0));
+        r = deficient_[i] ? Real(0) : std::max(r, Real(0));
         residual_[i] = r;
         sum += double(r / rho0);
       }
@@ -615,7 +387,6 @@ class DFSPH final : public PressureSolver<D> {
     const auto& f = sim.fluid;
     const long n = long(f.size());
     const Real deferred = Real(1) - sim.stepScale();
-    Real* raw = err_.empty() ? nullptr : err_.data();
     double sum = 0;
     Real mx = 0;
 #pragma omp parallel reduction(+ : sum) reduction(max : mx)
@@ -625,7 +396,6 @@ class DFSPH final : public PressureSolver<D> {
         const Real rho0 = sim.restDensity_[f.phase[i]];
         const Real rho = sim.constrainedDensity(size_t(i));
         const Real predicted = rho - deferred * std::max(rho - rho0, Real(0)) + dt * rateOfDensity<ND>(sim, i, rho0);
-        if (raw) raw[i] = (predicted - rho0) / dt;
         const Real err = std::max(predicted - rho0, Real(0));
         residual_[i] = err / dt;
         mx = std::max(mx, err / rho0);
@@ -662,7 +432,7 @@ class DFSPH final : public PressureSolver<D> {
 
   Real densityTol_, divergenceTol_;
   int minIterations_, maxIterations_, maxDivergenceIterations_;
-  bool divergenceSolve_, warmStart_, conjugateGradient_;
+  bool divergenceSolve_, warmStart_;
   bool numberDensity_ = false;  // Simulation::numberDensity(), read in prepare()
 
 
@@ -699,11 +469,6 @@ class DFSPH final : public PressureSolver<D> {
 
   std::vector<uint8_t> deficient_;
   std::array<double, 3> boundaryImpulse_{};
-  // Conjugate gradients: the residual unclamped, the stiffness, direction and
-  // preconditioned residual, the velocity correction, and which particles are unknowns.
-  std::vector<Real> err_, cgS_, cgP_, cgZ_;
-  std::vector<Lanes> cgDv_;
-  std::vector<uint8_t> cgActive_;
 };
 
 template <int D>
