@@ -45,8 +45,11 @@ def test_solver_report(tmp_path):
                      f"{r['wall_s_per_simulated_s']:.2f}", f"{r['mean_avg_density_error_pct']:.4f}",
                      f"{r['max_density_error_pct']:.3f}",
                      "-" if r["density_tolerance_pct"] is None else f"{r['density_tolerance_pct']:g}",
+                     f"{r['late_kinetic_energy']:.3g}", f"{r['final_max_speed']:.3f}",
                      f"{r['peak_rss_mb']:.0f}", f"{r['boundary_setup_ms']:.1f}", "0.00")
         assert row in md, row
+        # A dam break in its first frames: everything is falling, the fastest faster than free fall's mean.
+        assert r["late_kinetic_energy"] > 0 and r["final_max_speed"] > 9.81 * seconds / 2
         assert md_row(r["bench_scene"], r["solver"], r["boundary"], *(f"{p:.2f}" for p in parts),
                       f"{stages['total_ms']:.2f}",
                       f"{r['divergence_iterations_per_substep']:.2f}",
@@ -59,6 +62,21 @@ def test_solver_report(tmp_path):
     assert ref["threads"] == 2
     assert ref["ours_us_pct"] == pytest.approx(100 * dfsph["us_per_particle_step"] / ref["us_per_particle_step"])
     assert "splishsplash_fixed" not in wcsph
+
+
+def test_solver_report_runs_a_solver_with_its_parameters_set(tmp_path):
+    out = tmp_path / "solver"
+    run_bench(["solver", "--scenes", str(DAM), "--seconds", "0.05", "--threads", "1", "--solvers",
+               "dfsph,dfsph:density_tolerance_pct=0.02:warm_start=0"], out)
+    report, md = read_report(out, "solver")
+    assert report["failures"] == []
+    default, tight = report["runs"]
+    assert (default["solver"], tight["solver"]) == ("dfsph", "dfsph:density_tolerance_pct=0.02:warm_start=0")
+    # What the run held, read back from the child's own summary.
+    assert default["density_tolerance_pct"] == 0.1 and tight["density_tolerance_pct"] == 0.02
+    assert tight["solver_parameters"]["warm_start"] == 0 and default["solver_parameters"]["warm_start"] == 1
+    assert tight["density_iterations_per_substep"] > default["density_iterations_per_substep"]
+    assert "| dambreak2d_r010 | dfsph:density_tolerance_pct=0.02:warm_start=0 | akinci2012 |" in md
 
 
 def test_solver_report_compares_boundary_models(tmp_path):

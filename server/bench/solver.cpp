@@ -86,7 +86,8 @@ json runRow(const std::string& scene, const std::string& solver, const json& sta
   // What is still moving: the kinetic energy over the run's last quarter, the fastest particle at its end.
   double lateKe = 0;
   size_t late = 0;
-  for (size_t k = frames.size() - frames.size() / 4; k < frames.size(); ++k, ++late)
+  for (size_t k = frames.size() - std::max<size_t>(frames.size() / 4, frames.empty() ? 0 : 1); k < frames.size();
+       ++k, ++late)
     lateKe += frames[k].at("kinetic_energy").get<double>();
   const double substeps = std::max(1.0, s.at("substeps").get<double>());
   json row = s;
