@@ -79,6 +79,24 @@ def test_solver_report_runs_a_solver_with_its_parameters_set(tmp_path):
     assert "| dambreak2d_r010 | dfsph:density_tolerance_pct=0.02:warm_start=0 | akinci2012 |" in md
 
 
+def test_solver_report_takes_the_fastest_of_rounds_that_take_turns(tmp_path):
+    out = tmp_path / "solver"
+    done = run_bench(["solver", "--scenes", str(DAM), "--seconds", "0.02", "--threads", "1", "--solvers",
+                      "dfsph,wcsph", "--rounds", "2"], out)
+    report, md = read_report(out, "solver")
+    assert report["settings"]["rounds"] == 2 and report["failures"] == []
+    # The cases take turns: every case once per round, round after round.
+    started = [line.split("bench: ")[1] for line in done.stderr.splitlines() if line.startswith("bench: ")]
+    assert started == [f"dambreak2d_r010 with {s} [round {k}/2] ..." for k in (1, 2) for s in ("dfsph", "wcsph")]
+    assert [r["solver"] for r in report["runs"]] == ["dfsph", "wcsph"]
+    for r in report["runs"]:
+        assert r["rounds"] == 2
+        assert len(r["wall_s_per_simulated_s_all"]) == 2 and len(r["us_per_particle_step_all"]) == 2
+        assert r["wall_s_per_simulated_s"] == min(r["wall_s_per_simulated_s_all"])
+        assert r["us_per_particle_step"] in r["us_per_particle_step_all"]
+    assert "the fastest (wall s per simulated s) of 2 rounds" in md
+
+
 def test_solver_report_compares_boundary_models(tmp_path):
     out = tmp_path / "solver"
     run_bench(["solver", "--scenes", str(DAM), "--seconds", "0.05", "--threads", "1", "--solvers", "dfsph",

@@ -64,6 +64,7 @@ struct BenchOptions {
   std::vector<std::string> boundaries;  // empty: each scene's own
   double seconds = 2;
   int threads = 0;
+  int rounds = 1;  // every run this many times, taking turns; the fastest is reported
   std::string out = "bench/solver";
 };
 
@@ -122,7 +123,7 @@ json runRow(const std::string& scene, const std::string& solver, const json& sta
   return row;
 }
 
-std::string markdown(const json& rows, const json& failures) {
+std::string markdown(const json& rows, const json& failures, int rounds) {
   std::vector<std::vector<std::string>> runs, stages, reference;
   for (const json& r : rows) {
     const std::string scene = r["bench_scene"], solver = r["solver"], boundary = r["boundary"];
@@ -153,7 +154,11 @@ std::string markdown(const json& rows, const json& failures) {
                    "solver's own figures per frame (average over frames of the per-frame average, and the largest); "
                    "the density tolerance is the one the run held; what still moves at the end (J/m in 2D); the "
                    "boundary model's set-up (a volume map's integration) and the memory it holds beside the boundary "
-                   "samples.\n\n";
+                   "samples.";
+  if (rounds > 1)
+    md += " Each row is the fastest (wall s per simulated s) of " + std::to_string(rounds) +
+          " rounds in which the runs took turns; every round's figures are in the JSON (`*_all`).";
+  md += "\n\n";
   md += markdownTable({"scene", "solver", "boundary", "particles", "steps", "µs / particle-step", "substeps / frame",
                        "ms / frame", "wall s / simulated s", "avg density error %", "max density error %",
                        "density tolerance %", "kinetic energy, last quarter, J", "max speed at the end, m/s",
@@ -196,53 +201,76 @@ int benchSolver(const BenchOptions& opt) {
   const std::string tmp = (fs::temp_directory_path() / ("flowclip-bench-" + std::to_string(getpid()) + ".json")).string();
   json rows = json::array(), failures = json::array();
   int worst = Ok;
-  for (const auto& scene : scenes) {
-    const std::string stem = fs::path(scene).stem().string();
-    const std::vector<std::string> boundaries = opt.boundaries.empty() ? std::vector<std::string>{""} : opt.boundaries;
+  struct Run {
+    std::string scene, solver, boundary;
+    json best, wallAll = json::array(), usAll = json::array();
+  };
+  std::vector<Run> runs;
+  const std::vector<std::string> boundaries = opt.boundaries.empty() ? std::vector<std::string>{""} : opt.boundaries;
+  for (const auto& scene : scenes)
     for (const auto& solver : opt.solvers)
-      for (const auto& boundary : boundaries) {
-        std::vector<std::string> args{self, "run", scene, "--seconds", fmt(opt.seconds), "--stats", tmp,
-                                      "--threads", std::to_string(threads), "--quiet"};
-        // NAME or NAME:KEY=VALUE:KEY=VALUE, a solver or a model with some of its parameters set.
-        const auto named = [&args](const std::string& spec, const char* nameFlag, const char* settingFlag) {
-          size_t at = spec.find(':');
-          args.insert(args.end(), {nameFlag, spec.substr(0, at)});
-          while (at != std::string::npos) {
-            const size_t next = spec.find(':', at + 1);
-            args.insert(args.end(), {settingFlag, spec.substr(at + 1, next == std::string::npos ? next : next - at - 1)});
-            at = next;
-          }
-        };
-        named(solver, "--solver", "--solver-setting");
-        if (!boundary.empty()) named(boundary, "--boundary", "--boundary-setting");
-        const std::string label = stem + " with " + solver + (boundary.empty() ? "" : " (" + boundary + ")");
-        std::fprintf(stderr, "bench: %s ...\n", label.c_str());
-        const int code = runChild(args);
-        std::ifstream f(tmp);
-        if (code != 0 || !f) {
-          std::printf("%s: failed (exit %d)\n", label.c_str(), code);
-          failures.push_back({{"scene", stem}, {"solver", solver},
-                              {"boundary", boundary.empty() ? "the scene's" : boundary}, {"exit_code", code}});
-          worst = Failure;
-          continue;
+      for (const auto& boundary : boundaries) runs.push_back({scene, solver, boundary, json(), json::array(), json::array()});
+  // Rounds outermost: the runs of one round take turns with the others', so the host's drift reaches all alike.
+  for (int round = 1; round <= opt.rounds; ++round)
+    for (Run& run : runs) {
+      const std::string& scene = run.scene;
+      const std::string& solver = run.solver;
+      const std::string& boundary = run.boundary;
+      const std::string stem = fs::path(scene).stem().string();
+      std::vector<std::string> args{self, "run", scene, "--seconds", fmt(opt.seconds), "--stats", tmp,
+                                    "--threads", std::to_string(threads), "--quiet"};
+      // NAME or NAME:KEY=VALUE:KEY=VALUE, a solver or a model with some of its parameters set.
+      const auto named = [&args](const std::string& spec, const char* nameFlag, const char* settingFlag) {
+        size_t at = spec.find(':');
+        args.insert(args.end(), {nameFlag, spec.substr(0, at)});
+        while (at != std::string::npos) {
+          const size_t next = spec.find(':', at + 1);
+          args.insert(args.end(), {settingFlag, spec.substr(at + 1, next == std::string::npos ? next : next - at - 1)});
+          at = next;
         }
-        json row = runRow(scene, solver, json::parse(f));
-        row["solver"] = solver;                             // with the parameters it was given
-        if (!boundary.empty()) row["boundary"] = boundary;
-        f.close();
-        fs::remove(tmp);
-        std::printf("%s: %ld particles, %.3f us per particle-step, %.2f wall s per simulated s, %.2f density "
-                    "iterations per substep, peak RSS %.0f MB\n",
-                    label.c_str(), row["liquid_particles"].get<long>(), row["us_per_particle_step"].get<double>(),
-                    row["wall_s_per_simulated_s"].get<double>(), row["density_iterations_per_substep"].get<double>(),
-                    row["peak_rss_mb"].get<double>());
-        std::fflush(stdout);
-        rows.push_back(row);
+      };
+      named(solver, "--solver", "--solver-setting");
+      if (!boundary.empty()) named(boundary, "--boundary", "--boundary-setting");
+      const std::string label = stem + " with " + solver + (boundary.empty() ? "" : " (" + boundary + ")");
+      const std::string roundText =
+          opt.rounds > 1 ? " [round " + std::to_string(round) + "/" + std::to_string(opt.rounds) + "]" : "";
+      std::fprintf(stderr, "bench: %s%s ...\n", label.c_str(), roundText.c_str());
+      const int code = runChild(args);
+      std::ifstream f(tmp);
+      if (code != 0 || !f) {
+        std::printf("%s%s: failed (exit %d)\n", label.c_str(), roundText.c_str(), code);
+        failures.push_back({{"scene", stem}, {"solver", solver},
+                            {"boundary", boundary.empty() ? "the scene's" : boundary}, {"exit_code", code},
+                            {"round", round}});
+        worst = Failure;
+        continue;
       }
+      json row = runRow(scene, solver, json::parse(f));
+      row["solver"] = solver;                             // with the parameters it was given
+      if (!boundary.empty()) row["boundary"] = boundary;
+      f.close();
+      fs::remove(tmp);
+      std::printf("%s%s: %ld particles, %.3f us per particle-step, %.2f wall s per simulated s, %.2f density "
+                  "iterations per substep, peak RSS %.0f MB\n",
+                  label.c_str(), roundText.c_str(), row["liquid_particles"].get<long>(),
+                  row["us_per_particle_step"].get<double>(), row["wall_s_per_simulated_s"].get<double>(),
+                  row["density_iterations_per_substep"].get<double>(), row["peak_rss_mb"].get<double>());
+      std::fflush(stdout);
+      run.wallAll.push_back(row["wall_s_per_simulated_s"]);
+      run.usAll.push_back(row["us_per_particle_step"]);
+      if (run.best.is_null() || row["wall_s_per_simulated_s"].get<double>() < run.best["wall_s_per_simulated_s"].get<double>())
+        run.best = std::move(row);
+    }
+  for (Run& run : runs) {
+    if (run.best.is_null()) continue;  // every round failed: listed under failures
+    run.best["rounds"] = run.wallAll.size();
+    run.best["wall_s_per_simulated_s_all"] = run.wallAll;
+    run.best["us_per_particle_step_all"] = run.usAll;
+    rows.push_back(std::move(run.best));
   }
-  const json settings = {{"scenes", scenes},   {"solvers", opt.solvers}, {"boundaries", opt.boundaries},
-                         {"seconds", opt.seconds}, {"threads", threads}};
-  report.write(opt.out, "Solver benchmark", markdown(rows, failures),
+  const json settings = {{"scenes", scenes},           {"solvers", opt.solvers}, {"boundaries", opt.boundaries},
+                         {"seconds", opt.seconds},       {"threads", threads},     {"rounds", opt.rounds}};
+  report.write(opt.out, "Solver benchmark", markdown(rows, failures, opt.rounds),
                {{"settings", settings}, {"runs", rows}, {"failures", failures}});
   return worst;
 }
@@ -261,6 +289,9 @@ void addBenchSolverCommand(CLI::App& bench) {
       ->delimiter(',');
   solver->add_option("--seconds", opt->seconds, "simulated seconds per run")->check(CLI::PositiveNumber);
   solver->add_option("--threads", opt->threads, "OpenMP threads (default: all cores)")->check(CLI::PositiveNumber);
+  solver->add_option("--rounds", opt->rounds,
+                     "run every case this many times, the cases taking turns, and report each one's fastest (default 1)")
+      ->check(CLI::Range(1, 100));
   solver->add_option("--out", opt->out, "report folder: solver.md and solver.json (default: bench/solver)");
   solver->callback([opt] {
     int code = Ok;
