@@ -141,6 +141,19 @@ def test_scenes_report(template_dir, tmp_path):
     assert "| drop2d | 2D Rectangular drop | 6700 | 1300 | 88 | 36 | 190.2 | 5.6 | 2.9 | 0.33 | 3.87 |" in md
 
 
+def test_scenes_report_counts_every_frame_where_no_instance_plays_yet(template_dir, tmp_path):
+    out = tmp_path / "scenes"
+    frames = 2  # the drop's instance starts at t = 0.2 s, frame 12
+    run_bench(["scenes", str(DROP), "--frames", str(frames), "--threads", "1", "--templates", str(template_dir)], out)
+    report, md = read_report(out, "scenes")
+    [drop] = report["scenes"]
+    assert drop["frames"] == frames and drop["active_frames"] == 0
+    # The liquid is still the block's, not zero; nothing is controlled yet.
+    assert drop["liquid"] == pytest.approx(block_particles(DROP), rel=0.01)
+    assert drop["control"] == drop["repulsion"] == drop["temporary"] == 0
+    assert f"| drop2d | 0 / {frames} | {drop['liquid']:.0f} | 0 | 0 | 0 |" in md
+
+
 @pytest.mark.heavy
 def test_scenes_report_at_the_papers_scale(tmp_path):
     # The drop's template at its paper scale, where `--scale paper` looks for it.

@@ -225,28 +225,34 @@ int benchScenes(const Options& opt) {
       failures.push_back({{"scene", stem}, {"error", error}});
       continue;
     }
-    // Averages over the frames where an instance plays (as the paper's),
-    // the timings over every frame.
+    // Averages over the frames where an instance plays (as the paper's), or
+    // over every frame where none plays in the frames run; the timings over
+    // every frame.
     double liquid = 0, control = 0, repulsion = 0, temporary = 0, simMs = 0, controlMs = 0;
     std::map<std::string, double> stageMs;  // where the simulation's time goes
     size_t active = 0, frames = 0;
     std::set<std::string> templatesUsed;
+    const auto playing = [](const json& f) {
+      bool any = false;
+      for (const json& i : f.value("instances", json::array())) any = any || i.value("active", false);
+      return any || !f.contains("instances") || f["instances"].empty();
+    };
     for (const json& f : stats["frames"]) {
       ++frames;
       simMs += f.value("simulation_ms", f.value("wall_ms", 0.0));
       controlMs += f.value("control_ms", 0.0);
       for (const char* k : kStages) stageMs[k] += f.value(k, 0.0);
-      bool anyActive = false;
-      for (const json& i : f.value("instances", json::array())) anyActive = anyActive || i.value("active", false);
+      active += playing(f);
+    }
+    for (const json& f : stats["frames"]) {
+      if (active > 0 && !playing(f)) continue;
       const double temp = f.value("temporary_particles", 0.0);
-      if (!anyActive && f.contains("instances") && !f["instances"].empty()) continue;
-      ++active;
       liquid += f.value("particles", 0.0) - temp;
       control += f.value("control_particles", 0.0);
       repulsion += f.value("repulsion_particles", 0.0);
       temporary += temp;
     }
-    const double na = double(std::max<size_t>(active, 1)), nf = double(std::max<size_t>(frames, 1));
+    const double nf = double(std::max<size_t>(frames, 1)), na = active > 0 ? double(active) : nf;
     // Template storage: the files of the templates the scene names.
     double storage = 0;
     try {
