@@ -85,11 +85,9 @@ json runRow(const std::string& scene, const std::string& solver, const json& sta
   const auto& frames = stats.at("frames");
   if (!frames.empty()) avgErr /= double(frames.size());
   // What is still moving: the kinetic energy over the run's last quarter, the fastest particle at its end.
+  const size_t late = frames.empty() ? 0 : std::max<size_t>(frames.size() / 4, 1);
   double lateKe = 0;
-  size_t late = 0;
-  for (size_t k = frames.size() - std::max<size_t>(frames.size() / 4, frames.empty() ? 0 : 1); k < frames.size();
-       ++k, ++late)
-    lateKe += frames[k].at("kinetic_energy").get<double>();
+  for (size_t k = frames.size() - late; k < frames.size(); ++k) lateKe += frames[k].at("kinetic_energy").get<double>();
   const double substeps = std::max(1.0, s.at("substeps").get<double>());
   json row = s;
   const std::string stem = fs::path(scene).stem().string();

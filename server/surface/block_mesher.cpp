@@ -117,16 +117,15 @@ struct Around {
       constant[n] = b.constant[n];
     }
   }
-  static int local(int i, int d) { return i - d * kB; }
   const float* velocityAt(int i, int j, int k) const {
     const int di = blockOffset(i), dj = blockOffset(j), dk = blockOffset(k);
     const float* v = velocity[neighbourSlot(di, dj, dk)];
-    return v ? v + 3 * ((local(i, di) << 6) | (local(j, dj) << 3) | local(k, dk)) : nullptr;
+    return v ? v + 3 * ((withinBlock(i, di) << 6) | (withinBlock(j, dj) << 3) | withinBlock(k, dk)) : nullptr;
   }
   float phiAt(int i, int j, int k) const {
     const int di = blockOffset(i), dj = blockOffset(j), dk = blockOffset(k);
     const int n = neighbourSlot(di, dj, dk);
-    return phi[n] ? phi[n][(local(i, di) << 6) | (local(j, dj) << 3) | local(k, dk)] : constant[n];
+    return phi[n] ? phi[n][(withinBlock(i, di) << 6) | (withinBlock(j, dj) << 3) | withinBlock(k, dk)] : constant[n];
   }
   // The inside bits of every row along z over [-1, 8]³ (bit t: z = t - 1),
   // from the blocks' own rows (inside[n]: 8 bits per row, bit k: z = k).
@@ -137,7 +136,7 @@ struct Around {
     for (int i = -1; i <= kB; ++i)
       for (int j = -1; j <= kB; ++j) {
         const int di = blockOffset(i), dj = blockOffset(j);
-        const int row = (local(i, di) << 3) | local(j, dj);
+        const int row = (withinBlock(i, di) << 3) | withinBlock(j, dj);
         const uint32_t below = rowOf(neighbourSlot(di, dj, -1), row) >> (kB - 1);
         const uint32_t middle = rowOf(neighbourSlot(di, dj, 0), row), above = rowOf(neighbourSlot(di, dj, 1), row) & 1u;
         out[i + 1][j + 1] = uint16_t(below | middle << 1 | above << (kB + 1));

@@ -23,6 +23,8 @@ inline int neighbourSlot(int di, int dj, int dk) { return (di + 1) * 9 + (dj + 1
 // Which block along an axis a local voxel coordinate in [-1, 8] is in (a
 // block is 8 voxels wide): -1, 0 or 1.
 inline int blockOffset(int local) { return local < 0 ? -1 : local >= 8 ? 1 : 0; }
+// That coordinate within the block `offset` names: in [0, 8).
+inline int withinBlock(int local, int offset) { return local - offset * 8; }
 
 // One block of the level set that holds values, and its 26 neighbours.
 struct MeshBlock {

@@ -152,11 +152,10 @@ class BlockArena {
 void boxBlock(const MeshBlock& nb, const std::vector<float*>& in, float band, float* __restrict out) {
   constexpr int P = kBlock + 2;  // [-1, 8] along each axis
   constexpr float third = 1.0f / 3.0f;
-  const auto inner = [](int local, int d) { return local - d * kBlock; };
   float v[P][P][P], x[kBlock][P][P], y[kBlock][kBlock][P];
   for (int i = -1; i <= kBlock; ++i)
     for (int j = -1; j <= kBlock; ++j) {
-      const int di = blockOffset(i), dj = blockOffset(j), row = (inner(i, di) << 6) | (inner(j, dj) << 3);
+      const int di = blockOffset(i), dj = blockOffset(j), row = (withinBlock(i, di) << 6) | (withinBlock(j, dj) << 3);
       float* o = v[i + 1][j + 1];
       for (int dk = -1; dk <= 1; ++dk) {
         const int slot = neighbourSlot(di, dj, dk);
